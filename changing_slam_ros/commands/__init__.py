@@ -1,0 +1,1 @@
+"""Subcommands of the `changing-slam` CLI: argument parsing and printing only."""

@@ -1,0 +1,126 @@
+"""Configuration: YAML parsed once, at the edge, into typed dataclasses.
+
+A config file is a mapping of sections (`camera`, `dataset`, `features`, `tracking`, ...). Each area of
+the code owns a frozen dataclass for its section with the papers' values as defaults; this module
+only reads YAML and fills dataclasses, rejecting unknown keys and wrong types with a `ConfigError`
+that names the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from changing_slam_ros.errors import ConfigError
+
+T = TypeVar("T")
+
+PACKAGE_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+
+
+def find_config(name_or_path: str | Path) -> Path:
+    """Resolve a config given as a path or as the name of a shipped one (`tum_fr1`, `7scenes`)."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    for candidate in (PACKAGE_CONFIG_DIR / f"{name_or_path}.yaml", _share_config_dir() / f"{name_or_path}.yaml"):
+        if candidate.is_file():
+            return candidate
+    raise ConfigError(f"{name_or_path}: no such config file and no shipped config of that name")
+
+
+def _share_config_dir() -> Path:
+    try:
+        from ament_index_python.packages import get_package_share_directory  # type: ignore
+
+        return Path(get_package_share_directory("changing_slam_ros")) / "config"
+    except Exception:  # noqa: BLE001 - ament index absent outside a ROS install
+        return PACKAGE_CONFIG_DIR
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML mapping; errors name the file."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as err:
+        raise ConfigError(f"{p}: cannot read config ({err.strerror})") from err
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{p}: not valid YAML ({err})") from err
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: expected a mapping of sections at top level, got {type(data).__name__}")
+    return data
+
+
+def section(cls: type[T], data: dict[str, Any] | None, where: str) -> T:
+    """Build dataclass `cls` from mapping `data`; unknown keys and wrong types raise ConfigError.
+
+    `where` names the file and section for messages, e.g. "config/tum_fr1.yaml: tracking".
+    """
+    if data is None:
+        return cls()
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    hints = typing.get_type_hints(cls)
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(fields))}")
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        kwargs[key] = _coerce(value, hints[key], f"{where}.{key}")
+    return cls(**kwargs)
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if dataclasses.is_dataclass(hint) and isinstance(hint, type):
+        return section(hint, value, where)
+    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        if value is None and type(None) in args:
+            return None
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _coerce(value, a, where)
+            except ConfigError:
+                continue
+        raise ConfigError(f"{where}: {value!r} does not match {hint}")
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        inner = args[0] if args else Any
+        items = [_coerce(v, inner, where) for v in value]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {value!r}")
+        kt, vt = args if args else (Any, Any)
+        return {_coerce(k, kt, where): _coerce(v, vt, where) for k, v in value.items()}
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    return value

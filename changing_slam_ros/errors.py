@@ -1,0 +1,35 @@
+"""Error hierarchy: one base, one subclass per area.
+
+Messages name the object (file, topic, field) and say what was expected. The CLI prints a
+`SlamError` on one line and exits 1; anything else is a bug and shows a traceback.
+"""
+
+from __future__ import annotations
+
+
+class SlamError(Exception):
+    """Base of every error the project raises on bad input or configuration."""
+
+
+class ConfigError(SlamError):
+    """A configuration file or parameter is missing, malformed or out of range."""
+
+
+class DatasetError(SlamError):
+    """A dataset folder (TUM layout, 7-Scenes) is missing files or holds malformed ones."""
+
+
+class BagError(SlamError):
+    """A ROS 1 bag, ROS 2 bag or mcap file cannot be read or lacks the configured topics."""
+
+
+class EvalError(SlamError):
+    """A trajectory cannot be evaluated (empty, unreadable, no associated stamps)."""
+
+
+class MapFileError(SlamError):
+    """A saved map file is missing, corrupt or of an unsupported version."""
+
+
+class SimError(SlamError):
+    """A simulator scenario or its rendering cannot be produced."""

@@ -1,0 +1,1 @@
+"""Scenario simulator for dynamic and changing scenes with full ground truth."""

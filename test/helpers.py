@@ -1,0 +1,24 @@
+"""Shared test helpers: where the workspace data lives, and small fakes."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("CHANGING_SLAM_SHARED", REPO.parent / "shared"))
+DATA = SHARED / "data"
+FR1_XYZ_10 = DATA / "tum_fr1_xyz_first10"
+REDKITCHEN = DATA / "7scenes_redkitchen"
+TUM_REFERENCE = DATA / "tum_reference_trajectories"
+FR3_WALKING_FRAMES = DATA / "tum_fr3_walking_frames"
+MODELS = SHARED / "models"
+
+
+def require(path: Path) -> Path:
+    """Skip the calling test cleanly when a workspace data folder is absent."""
+    if not path.exists():
+        pytest.skip(f"workspace data not available: {path}")
+    return path
