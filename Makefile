@@ -1,0 +1,58 @@
+# Two commands on a fresh machine:  `make run` (the demo on the bundled sample) and `make test`.
+# Both create .venv, install the pinned requirements and Debian packages, and build the interfaces,
+# each step only when its inputs changed (stamps in .stamps/).
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMPS := .stamps
+OUT    ?= out/demo
+SAMPLE ?= bags/sim_sample.mcap
+PYTEST_ARGS ?=
+
+MSG_SOURCES := $(shell find msg_defs -type f -not -path '*/build/*' 2>/dev/null)
+
+.PHONY: setup run test test-quick clean distclean help
+
+help:
+	@echo "make run         run the pipeline on the bundled sample ($(SAMPLE)) into $(OUT)"
+	@echo "make test        the whole test suite (make test-quick skips slow system tests)"
+	@echo "make clean       remove build outputs (keeps .venv)"
+
+setup: $(STAMPS)/apt $(STAMPS)/venv $(STAMPS)/interfaces $(STAMPS)/package
+
+$(STAMPS):
+	@mkdir -p $(STAMPS)
+
+$(STAMPS)/apt: tools/apt-packages.txt | $(STAMPS)
+	tools/install_apt.sh tools/apt-packages.txt
+	@touch $@
+
+$(STAMPS)/venv: requirements.txt | $(STAMPS)
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt 2> $(STAMPS)/pip.log || { cat $(STAMPS)/pip.log; exit 1; }
+	@touch $@
+
+$(STAMPS)/interfaces: $(STAMPS)/venv tools/build_interfaces.sh $(MSG_SOURCES) | $(STAMPS)
+	VIRTUAL_ENV=$(abspath $(VENV)) tools/build_interfaces.sh
+	@touch $@
+
+$(STAMPS)/package: $(STAMPS)/venv setup.py setup.cfg | $(STAMPS)
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e . 2> $(STAMPS)/pip-package.log || { cat $(STAMPS)/pip-package.log; exit 1; }
+	@touch $@
+
+run: setup
+	$(PY) -m changing_slam_ros.cli run $(SAMPLE) --out $(OUT)
+
+test: setup
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+test-quick: setup
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+clean:
+	rm -rf build install log .pytest_cache $(STAMPS)/interfaces
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV) $(STAMPS)
