@@ -1,0 +1,156 @@
+"""Motion-only pose optimisation (ORB-SLAM `PoseOptimization`) in numpy: Gauss-Newton on SE(3).
+
+Each match is a map point (fixed) and a keypoint observation: monocular (u, v) or, when the keypoint
+has depth, RGB-D "virtual stereo" (u, v, u_r) with u_r = u - bf / z. Residuals are weighted by the
+inverse variance of the keypoint's pyramid level and a Huber kernel (delta = sqrt of the 95 % chi2
+quantile: 2 dof 5.991, 3 dof 7.815). Four rounds: after each, matches over the chi2 threshold are
+flagged outliers and left out of the next round (they may come back); the last rounds run without
+the kernel. The pose is updated on the left: T_cam_world <- exp(delta) T_cam_world, delta = (omega, rho).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+
+CHI2_MONO = 5.991
+CHI2_STEREO = 7.815
+
+
+@dataclass(frozen=True)
+class PoseObservations:
+    """N matches: `points_w` (N, 3) metres; `uv_px` (N, 2) undistorted; `u_right_px` (N,), < 0 for
+    monocular; `inv_sigma2` (N,) 1 / (level scale^2)."""
+
+    points_w: F64
+    uv_px: F64
+    u_right_px: F64
+    inv_sigma2: F64
+
+
+@dataclass(frozen=True)
+class PinholeStereo:
+    """fx, fy, cx, cy in pixels; bf = virtual baseline (m) * fx."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    bf: float
+
+
+@dataclass(frozen=True)
+class PoseResult:
+    T_cam_world: F64
+    inliers: npt.NDArray[np.bool_]
+    chi2: F64
+
+    @property
+    def n_inliers(self) -> int:
+        return int(self.inliers.sum())
+
+
+def so3_exp(omega: F64) -> F64:
+    """Rotation matrix (3, 3) of a rotation vector (3,) (Rodrigues)."""
+    theta = float(np.linalg.norm(omega))
+    k = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]])
+    if theta < 1e-10:
+        return np.eye(3) + k
+    a = np.sin(theta) / theta
+    b = (1 - np.cos(theta)) / theta**2
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def se3_exp_left(delta: F64) -> F64:
+    """Retraction (4, 4) of delta = (omega, rho) (6,): rotation exp(omega), translation rho."""
+    t = np.eye(4)
+    t[:3, :3] = so3_exp(delta[:3])
+    t[:3, 3] = delta[3:]
+    return t
+
+
+def residuals(T_cam_world: F64, obs: PoseObservations, cam: PinholeStereo) -> tuple[F64, F64, F64]:
+    """Errors (N, 3) (observation - projection; third column 0 for monocular), points in camera (N, 3),
+    and chi2 (N,) weighted by `inv_sigma2`."""
+    pc = obs.points_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    z = np.where(np.abs(pc[:, 2]) < 1e-6, 1e-6, pc[:, 2])
+    u = cam.fx * pc[:, 0] / z + cam.cx
+    v = cam.fy * pc[:, 1] / z + cam.cy
+    stereo = obs.u_right_px >= 0
+    e = np.zeros((len(pc), 3))
+    e[:, 0] = obs.uv_px[:, 0] - u
+    e[:, 1] = obs.uv_px[:, 1] - v
+    e[:, 2] = np.where(stereo, obs.u_right_px - (u - cam.bf / z), 0.0)
+    chi2 = (e * e).sum(axis=1) * obs.inv_sigma2
+    chi2 = np.where(pc[:, 2] > 0, chi2, 1e9)
+    return e, pc, chi2
+
+
+def _jacobian(pc: F64, cam: PinholeStereo) -> F64:
+    """d(error)/d(delta) (N, 3, 6) for the left perturbation delta = (omega, rho)."""
+    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
+    z = np.where(np.abs(z) < 1e-6, 1e-6, z)
+    iz, iz2 = 1.0 / z, 1.0 / (z * z)
+    jp = np.zeros((len(pc), 3, 3))  # d(projection)/d(pc)
+    jp[:, 0, 0] = cam.fx * iz
+    jp[:, 0, 2] = -cam.fx * x * iz2
+    jp[:, 1, 1] = cam.fy * iz
+    jp[:, 1, 2] = -cam.fy * y * iz2
+    jp[:, 2, 0] = cam.fx * iz
+    jp[:, 2, 2] = -cam.fx * x * iz2 + cam.bf * iz2
+    dp = np.zeros((len(pc), 3, 6))  # d(pc)/d(delta) = [-[pc]x | I]
+    dp[:, 0, 1], dp[:, 0, 2] = pc[:, 2], -pc[:, 1]
+    dp[:, 1, 0], dp[:, 1, 2] = -pc[:, 2], pc[:, 0]
+    dp[:, 2, 0], dp[:, 2, 1] = pc[:, 1], -pc[:, 0]
+    dp[:, 0, 3] = dp[:, 1, 4] = dp[:, 2, 5] = 1.0
+    return -np.einsum("nij,njk->nik", jp, dp)
+
+
+def optimize_pose(
+    T_cam_world: F64,
+    obs: PoseObservations,
+    cam: PinholeStereo,
+    rounds: int = 4,
+    iterations: int = 10,
+    robust_rounds: int = 2,
+) -> PoseResult:
+    """Refine T_cam_world (4, 4) from N matches; return the pose, an inlier mask (N,) and chi2 (N,)."""
+    n = len(obs.points_w)
+    T = np.array(T_cam_world, dtype=np.float64)
+    stereo = obs.u_right_px >= 0
+    th = np.where(stereo, CHI2_STEREO, CHI2_MONO)
+    inliers = np.ones(n, bool)
+    if n < 3:
+        return PoseResult(T, np.zeros(n, bool), np.full(n, np.inf))
+    row_mask = np.ones((n, 3))
+    row_mask[~stereo, 2] = 0.0
+    chi2 = np.zeros(n)
+    for rnd in range(rounds):
+        robust = rnd < robust_rounds
+        for _ in range(iterations):
+            e, pc, chi2 = residuals(T, obs, cam)
+            w = obs.inv_sigma2 * inliers
+            if robust:
+                r = np.sqrt(chi2)
+                delta = np.sqrt(th)
+                w = w * np.where(r <= delta, 1.0, delta / np.maximum(r, 1e-12))
+            J = _jacobian(pc, cam) * row_mask[:, :, None]
+            Jw = J * w[:, None, None]
+            H = np.einsum("nki,nkj->ij", Jw, J)
+            b = np.einsum("nki,nk->i", Jw, e * row_mask)
+            try:
+                step = np.linalg.solve(H + 1e-9 * np.eye(6), -b)
+            except np.linalg.LinAlgError:
+                break
+            T = se3_exp_left(step) @ T
+            if np.linalg.norm(step) < 1e-7:
+                break
+        _, _, chi2 = residuals(T, obs, cam)
+        inliers = chi2 <= th
+        if inliers.sum() < 10:
+            break
+    return PoseResult(T, inliers, chi2)
