@@ -1,0 +1,281 @@
+"""Geometric verification of a place-recognition candidate with depth (RGB-D): the relative SE(3) pose of two views.
+
+Steps (the RGB-D counterpart of ORB-SLAM's Sim3 solver + guided search, scale fixed because depth is metric):
+1. match descriptors between the two views, both keypoints having valid depth (brute force, Lowe ratio test);
+2. RANSAC over 3-point samples: Horn/Umeyama (Kabsch) SE(3) from the 3D-3D pairs, all hypotheses solved and
+   scored at once; a pair is an inlier when it reprojects within `inlier_px` (times the keypoint's pyramid
+   scale) in *both* images;
+3. refine: re-estimate from all inliers (depth-weighted Kabsch), then search by projection for more matches
+   (keypoints of b projected into a, nearest descriptor within a radius) and re-estimate once more;
+4. accept only with `min_inliers` inliers. A candidate from another place yields few consistent pairs and
+   is rejected.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.camera import CameraIntrinsics
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+
+class FeatureView(Protocol):
+    """What verification needs of a keyframe (or a frame): `core.keyframe.Keyframe` satisfies it."""
+
+    keypoints_px: npt.NDArray[np.float32]
+    octaves: npt.NDArray[np.int8]
+    descriptors: npt.NDArray[np.uint8]
+    depths_m: npt.NDArray[np.float32]
+    camera: CameraIntrinsics
+
+
+@dataclass(frozen=True)
+class VerificationConfig:
+    """YAML section `loop.verification`. Pixel thresholds are at pyramid level 0."""
+
+    ratio: float = 0.8  # Lowe ratio test of the brute-force match
+    max_hamming: int = 80  # ORB descriptor distance accepted in brute-force matching (bits of 256)
+    projection_max_hamming: int = 50  # stricter distance for matches found by projection (ORB-SLAM TH_LOW)
+    projection_radius_px: float = 8.0
+    ransac_iterations: int = 300
+    inlier_px: float = 3.0  # ~ sqrt(chi2(2 dof, 95 %)=5.99) px at level 0, scaled by 1.2**octave
+    scale_factor: float = 1.2  # pyramid scale, for the per-octave threshold
+    min_ransac_inliers: int = 15
+    min_inliers: int = 40  # ORB-SLAM accepts a loop with >= 40 matched points
+    min_depth_m: float = 0.1
+    max_depth_m: float = 8.0
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Verification:
+    """An accepted candidate: `T_a_b` (4, 4) maps points from camera b's frame into camera a's
+    (so T_world_b = T_world_a @ T_a_b); `matches` (M, 2) int64 inlier keypoint indices (in a, in b);
+    `rmse_px` the RMS reprojection error in a of the inliers."""
+
+    T_a_b: F64
+    matches: I64
+    rmse_px: float
+
+    @property
+    def num_inliers(self) -> int:
+        return len(self.matches)
+
+
+def verify(
+    a: FeatureView,
+    b: FeatureView,
+    config: VerificationConfig = VerificationConfig(),
+    mask_a: npt.NDArray[np.bool_] | None = None,
+    mask_b: npt.NDArray[np.bool_] | None = None,
+) -> Verification | None:
+    """Estimate T_a_b between two RGB-D views, or None when they do not show the same place.
+
+    `mask_a` / `mask_b` (N,) bool exclude keypoints (dynamic, inactive objects) from matching.
+    """
+    pa, va = _points(a, config, mask_a)
+    pb, vb = _points(b, config, mask_b)
+    if va.sum() < 3 or vb.sum() < 3:
+        return None
+    matches = match_descriptors(a.descriptors, b.descriptors, va, vb, config.ratio, config.max_hamming)
+    if len(matches) < config.min_ransac_inliers:
+        return None
+    rng = np.random.default_rng(config.seed)
+    T, inl = _ransac(a, b, pa, pb, matches, config, rng)
+    if T is None or inl.sum() < config.min_ransac_inliers:
+        return None
+    matches = matches[inl]
+    T = kabsch(pa[matches[:, 0]], pb[matches[:, 1]], 1.0 / pa[matches[:, 0], 2] ** 2)
+    # 3. guided search by projection, then a final estimate over everything consistent with T
+    matches = _merge(matches, _search_by_projection(a, b, pb, va, vb, T, matches, config))
+    for _ in range(2):
+        keep = _inliers(a, b, pa, pb, matches, T[None], config)[0]
+        matches = matches[keep]
+        if len(matches) < 3:
+            return None
+        T = kabsch(pa[matches[:, 0]], pb[matches[:, 1]], 1.0 / pa[matches[:, 0], 2] ** 2)
+    keep = _inliers(a, b, pa, pb, matches, T[None], config)[0]
+    matches = matches[keep]
+    if len(matches) < config.min_inliers:
+        return None
+    pred = a.camera.project(_apply(T, pb[matches[:, 1]]))
+    rmse = float(np.sqrt(np.mean(np.sum((pred - a.keypoints_px[matches[:, 0]]) ** 2, axis=1))))
+    return Verification(T, matches.astype(np.int64), rmse)
+
+
+def match_descriptors(
+    desc_a: npt.NDArray[np.uint8],
+    desc_b: npt.NDArray[np.uint8],
+    valid_a: npt.NDArray[np.bool_],
+    valid_b: npt.NDArray[np.bool_],
+    ratio: float,
+    max_hamming: int,
+) -> I64:
+    """Brute-force Hamming matches a -> b among valid keypoints with Lowe's ratio test, one-to-one.
+
+    Returns (M, 2) int64 indices into the full arrays (in a, in b)."""
+    ia = np.nonzero(valid_a)[0]
+    ib = np.nonzero(valid_b)[0]
+    if len(ia) == 0 or len(ib) < 2:
+        return np.zeros((0, 2), np.int64)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    knn = matcher.knnMatch(np.ascontiguousarray(desc_a[ia]), np.ascontiguousarray(desc_b[ib]), k=2)
+    best: dict[int, tuple[int, float]] = {}  # index in b -> (index in a, distance), to keep it one-to-one
+    for pair in knn:
+        if len(pair) < 2:
+            continue
+        m, n = pair
+        if m.distance > max_hamming or m.distance >= ratio * n.distance:
+            continue
+        j = int(ib[m.trainIdx])
+        if j not in best or m.distance < best[j][1]:
+            best[j] = (int(ia[m.queryIdx]), m.distance)
+    if not best:
+        return np.zeros((0, 2), np.int64)
+    out = np.array([(i, j) for j, (i, _) in best.items()], np.int64)
+    return out[np.argsort(out[:, 0], kind="stable")]
+
+
+def kabsch(p_a: F64, p_b: F64, weights: F64 | None = None) -> F64:
+    """Rigid T_a_b (4, 4) minimising sum w |p_a - (R p_b + t)|^2 over points (N, 3) (Horn / Umeyama, no scale)."""
+    w = np.ones(len(p_a)) if weights is None else np.asarray(weights, np.float64)
+    w = w / w.sum()
+    ca = w @ p_a
+    cb = w @ p_b
+    cov = ((p_b - cb) * w[:, None]).T @ (p_a - ca)  # (3, 3) sum w (b - cb)(a - ca)^T
+    u, _, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    t = np.eye(4)
+    t[:3, :3] = r
+    t[:3, 3] = ca - r @ cb
+    return t
+
+
+def _kabsch_batch(p_a: F64, p_b: F64) -> F64:
+    """Kabsch for H samples at once: p_a, p_b (H, S, 3) -> T_a_b (H, 4, 4)."""
+    ca = p_a.mean(axis=1, keepdims=True)
+    cb = p_b.mean(axis=1, keepdims=True)
+    cov = np.einsum("hsi,hsj->hij", p_b - cb, p_a - ca)
+    u, _, vt = np.linalg.svd(cov)
+    v = np.transpose(vt, (0, 2, 1))
+    ut = np.transpose(u, (0, 2, 1))
+    d = np.sign(np.linalg.det(v @ ut))
+    diag = np.tile(np.eye(3), (len(p_a), 1, 1))
+    diag[:, 2, 2] = d
+    r = v @ diag @ ut
+    t = np.tile(np.eye(4), (len(p_a), 1, 1))
+    t[:, :3, :3] = r
+    t[:, :3, 3] = ca[:, 0] - np.einsum("hij,hj->hi", r, cb[:, 0])
+    return t
+
+
+def _points(v: FeatureView, config: VerificationConfig, mask: npt.NDArray[np.bool_] | None) -> tuple[F64, npt.NDArray[np.bool_]]:
+    depth = np.asarray(v.depths_m, np.float64)
+    valid = (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
+    if mask is not None:
+        valid &= np.asarray(mask, bool)
+    pts = v.camera.backproject(np.asarray(v.keypoints_px, np.float64), depth)
+    return pts, valid
+
+
+def _apply(T: F64, p: F64) -> F64:
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def _inliers(
+    a: FeatureView, b: FeatureView, pa: F64, pb: F64, matches: I64, Ts: F64, config: VerificationConfig
+) -> npt.NDArray[np.bool_]:
+    """Inlier flags (H, M) of matches under each hypothesis T_a_b in Ts (H, 4, 4): reprojection in both views."""
+    qa, qb = pa[matches[:, 0]], pb[matches[:, 1]]
+    ka = np.asarray(a.keypoints_px, np.float64)[matches[:, 0]]
+    kb = np.asarray(b.keypoints_px, np.float64)[matches[:, 1]]
+    th_a = (config.inlier_px * config.scale_factor ** np.asarray(a.octaves, np.float64)[matches[:, 0]]) ** 2
+    th_b = (config.inlier_px * config.scale_factor ** np.asarray(b.octaves, np.float64)[matches[:, 1]]) ** 2
+    r = Ts[:, :3, :3]
+    t = Ts[:, :3, 3]
+    b_in_a = np.einsum("hij,mj->hmi", r, qb) + t[:, None, :]  # (H, M, 3)
+    a_in_b = np.einsum("hji,hmj->hmi", r, qa[None] - t[:, None, :])  # R^T (p - t)
+    ok = (b_in_a[..., 2] > 1e-3) & (a_in_b[..., 2] > 1e-3)
+    za = np.where(ok, b_in_a[..., 2], 1.0)
+    zb = np.where(ok, a_in_b[..., 2], 1.0)
+    cam_a, cam_b = a.camera, b.camera
+    ea = (cam_a.fx * b_in_a[..., 0] / za + cam_a.cx - ka[:, 0]) ** 2 + (cam_a.fy * b_in_a[..., 1] / za + cam_a.cy - ka[:, 1]) ** 2
+    eb = (cam_b.fx * a_in_b[..., 0] / zb + cam_b.cx - kb[:, 0]) ** 2 + (cam_b.fy * a_in_b[..., 1] / zb + cam_b.cy - kb[:, 1]) ** 2
+    return ok & (ea < th_a) & (eb < th_b)
+
+
+def _ransac(
+    a: FeatureView, b: FeatureView, pa: F64, pb: F64, matches: I64, config: VerificationConfig, rng: np.random.Generator
+) -> tuple[F64 | None, npt.NDArray[np.bool_]]:
+    m = len(matches)
+    h = config.ransac_iterations
+    samples = np.argsort(rng.random((h, m)), axis=1)[:, :3]
+    sa = pa[matches[samples, 0]]  # (H, 3, 3)
+    sb = pb[matches[samples, 1]]
+    # drop degenerate samples: nearly collinear or too close points give no well-defined rotation
+    spread = np.linalg.norm(np.cross(sb[:, 1] - sb[:, 0], sb[:, 2] - sb[:, 0]), axis=1)
+    good = spread > 1e-4
+    if not good.any():
+        return None, np.zeros(m, bool)
+    Ts = _kabsch_batch(sa[good], sb[good])
+    flags = _inliers(a, b, pa, pb, matches, Ts, config)
+    best = int(flags.sum(axis=1).argmax())
+    return Ts[best], flags[best]
+
+
+def _search_by_projection(
+    a: FeatureView,
+    b: FeatureView,
+    pb: F64,
+    va: npt.NDArray[np.bool_],
+    vb: npt.NDArray[np.bool_],
+    T_a_b: F64,
+    matches: I64,
+    config: VerificationConfig,
+) -> I64:
+    """New (i_a, j_b) pairs: unmatched keypoints of b with depth projected into a, nearest unmatched
+    keypoint of a within the radius whose descriptor is within `projection_max_hamming`."""
+    free_a = va.copy()
+    free_a[matches[:, 0]] = False
+    free_b = vb.copy()
+    free_b[matches[:, 1]] = False
+    jb = np.nonzero(free_b)[0]
+    ia = np.nonzero(free_a)[0]
+    if len(jb) == 0 or len(ia) == 0:
+        return np.zeros((0, 2), np.int64)
+    q = _apply(T_a_b, pb[jb])
+    front = q[:, 2] > 1e-3
+    jb, q = jb[front], q[front]
+    if len(jb) == 0:
+        return np.zeros((0, 2), np.int64)
+    uv = a.camera.project(q)
+    ka = np.asarray(a.keypoints_px, np.float64)[ia]
+    d2 = ((uv[:, None, :] - ka[None, :, :]) ** 2).sum(axis=2)  # (Jb, Ia)
+    near = d2 < config.projection_radius_px**2
+    rows = np.nonzero(near.any(axis=1))[0]
+    if len(rows) == 0:
+        return np.zeros((0, 2), np.int64)
+    da = a.descriptors[ia].view(np.uint64)
+    db = b.descriptors[jb[rows]].view(np.uint64)
+    ham = np.bitwise_count(db[:, None, :] ^ da[None, :, :]).sum(axis=2, dtype=np.int32)
+    ham = np.where(near[rows], ham, 1 << 20)
+    best = ham.argmin(axis=1)
+    ok = ham[np.arange(len(rows)), best] <= config.projection_max_hamming
+    pairs = np.stack([ia[best[ok]], jb[rows[ok]]], axis=1).astype(np.int64)
+    # one-to-one on a: keep the first (any) pair per keypoint of a
+    _, first = np.unique(pairs[:, 0], return_index=True)
+    return pairs[np.sort(first)]
+
+
+def _merge(m1: I64, m2: I64) -> I64:
+    if len(m2) == 0:
+        return m1
+    return np.concatenate([m1, m2], axis=0)
