@@ -1,0 +1,151 @@
+"""Typed `dataset:` and `camera:` configuration sections, and the topic presets for bags.
+
+Built with `config.section` from a YAML file such as `config/tum_fr1.yaml`::
+
+    camera: {width: 640, height: 480, fx: 517.3, fy: 516.5, cx: 318.6, cy: 255.3,
+             dist: [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]}
+    dataset: {depth_scale: 5000.0, max_time_diff_s: 0.02}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from changing_slam_ros.config import find_config, load_yaml, section
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class TopicSet:
+    """Topic names of one camera driver's bag (`""` = not recorded / not wanted)."""
+
+    rgb: str
+    depth: str
+    camera_info: str
+
+
+TUM_TOPICS = TopicSet("/camera/rgb/image_color", "/camera/depth/image", "/camera/rgb/camera_info")
+REALSENSE_TOPICS = TopicSet(
+    "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw", "/camera/color/camera_info"
+)
+# Our own mcaps (convert, simulator) use the TUM names, so they need no preset of their own.
+TOPIC_PRESETS: dict[str, TopicSet] = {"tum": TUM_TOPICS, "realsense": REALSENSE_TOPICS}
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """`camera:` section: pinhole intrinsics (pixels) and plumb-bob distortion (k1 k2 p1 p2 k3)."""
+
+    width: int = 0
+    height: int = 0
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
+    dist: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def intrinsics(self, where: str = "camera") -> CameraIntrinsics:
+        if self.width <= 0 or self.height <= 0 or self.fx <= 0 or self.fy <= 0:
+            raise ConfigError(
+                f"{where}: camera needs width, height, fx, fy > 0 "
+                f"(got {self.width}x{self.height}, fx={self.fx}, fy={self.fy})"
+            )
+        return CameraIntrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy, tuple(self.dist))
+
+    @classmethod
+    def from_intrinsics(cls, cam: CameraIntrinsics) -> "CameraConfig":
+        return cls(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, tuple(cam.dist))
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """`dataset:` section.
+
+    - `depth_scale`: depth PNG units per metre in TUM-layout folders (TUM 5000, 7-Scenes 1000).
+    - `max_time_diff_s`: colour-depth pairing tolerance (TUM associate.py `--max_difference`);
+      also the approximate-time slop for bags.
+    - `offset_s`: added to depth stamps before pairing (associate.py `--offset`).
+    - `gt_max_time_diff_s`: a frame gets the nearest ground-truth pose within this difference.
+    - `topic_preset`: `auto` (detect TUM or RealSense names in the bag), `tum` or `realsense`;
+      `rgb_topic`, `depth_topic`, `camera_info_topic` override single names when non-empty.
+    - `bag_intrinsics_from`: `camera_info` (the bag's latest CameraInfo, the config's camera when
+      none was recorded) or `config` (the config's camera always; TUM bags carry the uncalibrated
+      ROS default 525/525/319.5/239.5, so the TUM configs choose `config`).
+    - `gt_pose_topic`: `geometry_msgs/PoseStamped` ground truth (our own mcaps).
+    - `tf_topic`, `gt_world_frame`, `gt_camera_frame`: ground truth from TF as TUM bags carry it:
+      pose of `gt_camera_frame` in `gt_world_frame`, chaining static transforms.
+    """
+
+    depth_scale: float = 5000.0
+    max_time_diff_s: float = 0.02
+    offset_s: float = 0.0
+    gt_max_time_diff_s: float = 0.02
+    topic_preset: str = "auto"
+    rgb_topic: str = ""
+    depth_topic: str = ""
+    camera_info_topic: str = ""
+    bag_intrinsics_from: str = "camera_info"
+    gt_pose_topic: str = "/ground_truth/pose"
+    tf_topic: str = "/tf"
+    gt_world_frame: str = "world"
+    gt_camera_frame: str = "openni_rgb_optical_frame"
+
+    def __post_init__(self) -> None:
+        if self.topic_preset != "auto" and self.topic_preset not in TOPIC_PRESETS:
+            raise ConfigError(
+                f"dataset.topic_preset: '{self.topic_preset}' unknown; expected auto, "
+                + ", ".join(TOPIC_PRESETS)
+            )
+        if self.bag_intrinsics_from not in ("camera_info", "config"):
+            raise ConfigError(
+                f"dataset.bag_intrinsics_from: '{self.bag_intrinsics_from}' unknown; expected camera_info or config"
+            )
+        if self.depth_scale <= 0:
+            raise ConfigError(f"dataset.depth_scale: {self.depth_scale}, expected > 0 (PNG units per metre)")
+        if self.max_time_diff_s < 0 or self.gt_max_time_diff_s < 0:
+            raise ConfigError("dataset: max_time_diff_s and gt_max_time_diff_s must be >= 0")
+
+    def configured_topics(self) -> TopicSet | None:
+        """The topic set when fixed by the config, None when it is to be detected from the bag."""
+        if self.topic_preset == "auto" and not (self.rgb_topic and self.depth_topic):
+            return None
+        base = TOPIC_PRESETS.get(self.topic_preset, TUM_TOPICS)
+        return TopicSet(
+            self.rgb_topic or base.rgb,
+            self.depth_topic or base.depth,
+            self.camera_info_topic or (base.camera_info if self.topic_preset != "auto" else ""),
+        )
+
+
+@dataclass(frozen=True)
+class DatasetSettings:
+    """Both sections of one config file, with where they came from (for messages)."""
+
+    dataset: DatasetConfig
+    camera: CameraConfig | None
+    source: str
+
+
+def load_dataset_settings(name_or_path: str | Path | None) -> DatasetSettings:
+    """Read `dataset:` and `camera:` from a config file or shipped config name; None = defaults."""
+    if name_or_path is None:
+        return DatasetSettings(DatasetConfig(), None, "defaults")
+    path = find_config(name_or_path)
+    data = load_yaml(path)
+    return settings_from_mapping(data, str(path))
+
+
+def settings_from_mapping(data: dict[str, object], where: str) -> DatasetSettings:
+    ds = data.get("dataset")
+    cam = data.get("camera")
+    try:
+        dataset = section(DatasetConfig, ds, f"{where}: dataset")  # type: ignore[arg-type]
+    except ConfigError as err:
+        text = str(err)
+        raise ConfigError(text if text.startswith(where) else f"{where}: {text}") from err
+    camera = None if cam is None else section(CameraConfig, cam, f"{where}: camera")  # type: ignore[arg-type]
+    if camera is not None:
+        camera.intrinsics(f"{where}: camera")  # validate now, at the edge
+    return DatasetSettings(dataset, camera, where)
