@@ -1,0 +1,151 @@
+"""Keypoint classification and feature repopulation (Changing-SLAM §4.1) on constructed depth scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
+from changing_slam_ros.core.keyframe import KeypointClass
+from changing_slam_ros.core.keypoint_classification import (
+    KeypointClassificationConfig,
+    box_depth_stats,
+    classify_keypoints,
+    draw_keypoint_classes,
+)
+
+H, W = 480, 640
+WALL_M = 3.0
+
+
+def grid(x0: int, y0: int, x1: int, y1: int, step: int = 10) -> np.ndarray:
+    """Keypoints (K, 2) on a regular grid inside [x0, x1) x [y0, y1)."""
+    xs, ys = np.meshgrid(np.arange(x0 + step / 2, x1, step), np.arange(y0 + step / 2, y1, step))
+    return np.stack([xs.ravel(), ys.ravel()], axis=1)
+
+
+def person_scene() -> tuple[np.ndarray, Detection, np.ndarray, np.ndarray]:
+    """Wall at 3 m; a person (torso x 260..380, y 100..440) at 1.5 m; its box x 230..410, y 80..460."""
+    depth = np.full((H, W), WALL_M, np.float32)
+    depth[100:440, 260:380] = 1.5
+    box = Detection((230.0, 80.0, 410.0, 460.0), PERSON_CLASS_ID, 0.95)
+    on_person = grid(262, 102, 378, 438, 12)
+    behind = np.concatenate([grid(232, 82, 258, 458, 8), grid(382, 82, 408, 458, 8)])  # wall inside the box
+    return depth, box, on_person, behind
+
+
+def test_repopulation_keeps_background_keypoints_behind_a_person_box_and_drops_the_persons() -> None:
+    depth, box, on_person, behind = person_scene()
+    outside = grid(20, 20, 200, 460, 20)
+    kps = np.concatenate([on_person, behind, outside])
+    res = classify_keypoints(kps, depth, [box])
+    n1, n2 = len(on_person), len(on_person) + len(behind)
+    assert (res.kp_classes[:n1] == KeypointClass.DYNAMIC).all()
+    assert (res.kp_object_class_ids[:n1] == PERSON_CLASS_ID).all() and (res.kp_box_index[:n1] == 0).all()
+    assert (res.kp_classes[n1:n2] == KeypointClass.STATIC).all()  # repopulated background
+    assert (res.kp_object_class_ids[n1:] == -1).all() and (res.kp_box_index[n1:] == -1).all()
+    assert (res.kp_classes[n2:] == KeypointClass.STATIC).all()
+    assert res.box_usable[0] and res.box_background_depth_m[0] == pytest.approx(1.5 + 0.5)
+    assert res.static_mask().sum() == len(behind) + len(outside)
+    # Without repopulation every keypoint in the box shares the person's class (paper Fig. 3a).
+    plain = classify_keypoints(kps, depth, [box], KeypointClassificationConfig(repopulation=False))
+    assert (plain.kp_classes[:n2] == KeypointClass.DYNAMIC).all() and (plain.kp_classes[n2:] == KeypointClass.STATIC).all()
+
+
+def test_box_depth_statistics_match_the_constructed_scene() -> None:
+    depth, box, _, _ = person_scene()
+    st = box_depth_stats(depth, box.box_xyxy, np.zeros((0, 4)), KeypointClassificationConfig(stats_stride_px=1))
+    assert st is not None
+    frac = (120 * 340) / (180 * 380)  # person pixels / box pixels
+    assert st.min_m == pytest.approx(1.5) and st.max_m == pytest.approx(3.0) and st.median_m == pytest.approx(1.5)
+    assert st.mean_m == pytest.approx(1.5 * frac + 3.0 * (1 - frac), abs=1e-6)
+    assert st.std_m == pytest.approx(1.5 * np.sqrt(frac * (1 - frac)), abs=1e-6)
+    assert st.centre_m == pytest.approx(1.5) and st.valid_fraction == pytest.approx(1.0)
+
+
+def chair_scene(with_occluder: bool) -> tuple[np.ndarray, Detection, np.ndarray, np.ndarray]:
+    """Chair at 2 m filling most of its box (x 200..440, y 150..450) in front of the 3 m wall; optionally an
+    undetected pole at 1 m across the box centre (x 300..340)."""
+    depth = np.full((H, W), WALL_M, np.float32)
+    depth[170:450, 215:425] = 2.0
+    if with_occluder:
+        depth[:, 300:340] = 1.0
+    box = Detection((200.0, 150.0, 440.0, 450.0), CHAIR_CLASS_ID, 0.9)
+    on_chair = np.concatenate([grid(217, 172, 297, 448, 12), grid(343, 172, 423, 448, 12)])
+    behind = grid(202, 152, 440, 168, 6)  # wall strip above the chair, still inside the box
+    return depth, box, on_chair, behind
+
+
+def test_a_chair_in_the_open_is_movable_and_the_wall_behind_it_static() -> None:
+    depth, box, on_chair, behind = chair_scene(with_occluder=False)
+    res = classify_keypoints(np.concatenate([on_chair, behind]), depth, [box])
+    assert res.box_usable[0]
+    assert (res.kp_classes[: len(on_chair)] == KeypointClass.MOVABLE).all()
+    assert (res.kp_object_class_ids[: len(on_chair)] == CHAIR_CLASS_ID).all()
+    assert (res.kp_classes[len(on_chair) :] == KeypointClass.STATIC).all()
+
+
+def test_occlusion_by_an_unlabelled_object_disables_the_objects_keypoints() -> None:
+    depth, box, on_chair, behind = chair_scene(with_occluder=True)
+    outside = grid(20, 20, 180, 460, 20)
+    kps = np.concatenate([on_chair, behind, outside])
+    res = classify_keypoints(kps, depth, [box])
+    st = res.box_stats[0]
+    assert st is not None and st.centre_m == pytest.approx(1.0) and st.median_m == pytest.approx(2.0)
+    assert not res.box_usable[0]
+    n2 = len(on_chair) + len(behind)
+    # Nothing inside the box is used: not the chair, and not the wall seen through it either.
+    assert (res.kp_classes[:n2] == KeypointClass.UNUSED).all()
+    assert (res.kp_classes[n2:] == KeypointClass.STATIC).all()
+
+
+def test_a_large_depth_spread_disables_the_objects_keypoints() -> None:
+    depth, box, on_person, behind = person_scene()
+    depth[depth == WALL_M] = 6.0  # same person, far background: std 2.2 m > 1.5 m
+    res = classify_keypoints(np.concatenate([on_person, behind]), depth, [box])
+    assert res.box_stats[0] is not None and res.box_stats[0].std_m > 1.5
+    assert not res.box_usable[0] and (res.kp_classes == KeypointClass.UNUSED).all()
+    relaxed = classify_keypoints(np.concatenate([on_person, behind]), depth, [box],
+                                 KeypointClassificationConfig(max_depth_std_m=3.0))  # fmt: skip
+    assert (relaxed.kp_classes[: len(on_person)] == KeypointClass.DYNAMIC).all()
+    assert (relaxed.kp_classes[len(on_person) :] == KeypointClass.STATIC).all()
+
+
+def test_an_unlabelled_object_nearer_than_the_box_centre_disables_it() -> None:
+    depth, box, on_person, behind = person_scene()
+    depth[380:460, 230:410] = 0.8  # a table in front of the person's legs; the box centre stays on the person
+    res = classify_keypoints(np.concatenate([on_person, behind]), depth, [box])
+    assert not res.box_usable[0]  # otherwise the person (1.5 m > 0.8 + 0.5) would be taken for background
+    assert (res.kp_classes == KeypointClass.UNUSED).all()
+
+
+def test_overlapping_detected_boxes_are_left_out_of_each_others_statistics() -> None:
+    depth = np.full((H, W), WALL_M, np.float32)
+    depth[120:460, 100:300] = 2.0  # chair
+    depth[60:470, 260:400] = 1.2  # person in front of the chair's right part
+    chair = Detection((90.0, 110.0, 310.0, 465.0), CHAIR_CLASS_ID, 0.9)
+    person = Detection((250.0, 50.0, 410.0, 475.0), PERSON_CLASS_ID, 0.9)
+    on_chair = grid(102, 122, 248, 458, 15)
+    on_person_in_overlap = grid(262, 122, 308, 458, 15)
+    kps = np.concatenate([on_chair, on_person_in_overlap])
+    res = classify_keypoints(kps, depth, [chair, person])
+    iou = (60 * 355) / (220 * 355 + 160 * 425 - 60 * 355)
+    np.testing.assert_allclose(res.iou, [[1.0, iou], [iou, 1.0]], atol=1e-9)
+    st_chair = res.box_stats[0]
+    assert st_chair is not None and st_chair.min_m == pytest.approx(2.0)  # the person's 1.2 m is excluded
+    with_overlap = classify_keypoints(kps, depth, [chair, person], KeypointClassificationConfig(exclude_overlaps=False))
+    assert with_overlap.box_stats[0] is not None and with_overlap.box_stats[0].min_m == pytest.approx(1.2)
+    assert res.box_usable.all()
+    assert (res.kp_classes[: len(on_chair)] == KeypointClass.MOVABLE).all()
+    assert (res.kp_classes[len(on_chair) :] == KeypointClass.DYNAMIC).all()  # the person wins the overlap
+    assert (res.kp_box_index[len(on_chair) :] == 1).all()
+
+
+def test_debug_image_colours_keypoints_like_paper_figure_2() -> None:
+    depth, box, on_person, behind = person_scene()
+    kps = np.array([on_person[0], behind[0], [100.0, 100.0]])
+    res = classify_keypoints(kps, depth, [box])
+    img = draw_keypoint_classes(np.zeros((H, W, 3), np.uint8), kps, res.kp_classes, [box], radius_px=3)
+    for (u, v), rgb in zip(kps, [(255, 0, 0), (0, 255, 0), (0, 255, 0)]):
+        window = img[int(v) - 5 : int(v) + 6, int(u) - 5 : int(u) + 6].reshape(-1, 3)
+        assert (window == rgb).all(axis=1).sum() >= 8  # the circle's ring in the class colour
