@@ -19,6 +19,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 import numpy.typing as npt
+from scipy.optimize import least_squares
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 
@@ -105,6 +106,12 @@ def verify(
     matches = matches[keep]
     if len(matches) < config.min_inliers:
         return None
+    # 4. 3D-3D alignment trusts depth, whose noise grows with z^2; finish on the symmetric reprojection error
+    T = refine_reprojection(a, b, pa, pb, matches, T, config)
+    keep = _inliers(a, b, pa, pb, matches, T[None], config)[0]
+    matches = matches[keep]
+    if len(matches) < config.min_inliers:
+        return None
     pred = a.camera.project(_apply(T, pb[matches[:, 1]]))
     rmse = float(np.sqrt(np.mean(np.sum((pred - a.keypoints_px[matches[:, 0]]) ** 2, axis=1))))
     return Verification(T, matches.astype(np.int64), rmse)
@@ -157,6 +164,39 @@ def kabsch(p_a: F64, p_b: F64, weights: F64 | None = None) -> F64:
     t[:3, :3] = r
     t[:3, 3] = ca - r @ cb
     return t
+
+
+def refine_reprojection(
+    a: FeatureView, b: FeatureView, pa: F64, pb: F64, matches: I64, T_a_b: F64, config: VerificationConfig
+) -> F64:
+    """Gauss-Newton (scipy LM-style trust region, Huber) on the reprojection error of the matched points in
+    both images, each residual divided by its keypoint's pyramid scale; starts from `T_a_b` (4, 4)."""
+    qa, qb = pa[matches[:, 0]], pb[matches[:, 1]]
+    ka = np.asarray(a.keypoints_px, np.float64)[matches[:, 0]]
+    kb = np.asarray(b.keypoints_px, np.float64)[matches[:, 1]]
+    sa = config.scale_factor ** np.asarray(a.octaves, np.float64)[matches[:, 0]]
+    sb = config.scale_factor ** np.asarray(b.octaves, np.float64)[matches[:, 1]]
+    r0 = T_a_b[:3, :3]
+    t0 = T_a_b[:3, 3]
+
+    def residuals(x: F64) -> F64:
+        r = cv2.Rodrigues(x[:3])[0] @ r0
+        t = x[3:] + t0
+        b_in_a = qb @ r.T + t
+        a_in_b = (qa - t) @ r
+        za = np.maximum(b_in_a[:, 2], 1e-3)
+        zb = np.maximum(a_in_b[:, 2], 1e-3)
+        ea = np.stack([a.camera.fx * b_in_a[:, 0] / za + a.camera.cx - ka[:, 0],
+                       a.camera.fy * b_in_a[:, 1] / za + a.camera.cy - ka[:, 1]], axis=1) / sa[:, None]
+        eb = np.stack([b.camera.fx * a_in_b[:, 0] / zb + b.camera.cx - kb[:, 0],
+                       b.camera.fy * a_in_b[:, 1] / zb + b.camera.cy - kb[:, 1]], axis=1) / sb[:, None]
+        return np.concatenate([ea.ravel(), eb.ravel()])
+
+    sol = least_squares(residuals, np.zeros(6), loss="huber", f_scale=config.inlier_px, max_nfev=50)
+    out = np.eye(4)
+    out[:3, :3] = cv2.Rodrigues(sol.x[:3])[0] @ r0
+    out[:3, 3] = sol.x[3:] + t0
+    return out
 
 
 def _kabsch_batch(p_a: F64, p_b: F64) -> F64:

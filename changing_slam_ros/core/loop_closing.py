@@ -1,0 +1,262 @@
+"""Loop closing: the component behind the `loop_closing` node (ORB-SLAM's LoopClosing thread, RGB-D, SE(3)).
+
+For every new keyframe, `LoopCloser.process`:
+1. quantises its static, active features and indexes it in the keyframe database;
+2. after `min_keyframes_in_map` keyframes and `min_keyframes_between_loops` since the last loop, asks the
+   database for loop candidates scoring at least as well as the keyframe's worst covisible neighbour;
+3. keeps candidates whose covisibility group stays consistent over `consistency_threshold` keyframes;
+4. verifies them geometrically with depth (`geometric_verification.verify`); the first that passes is the loop;
+5. moves the keyframe and its covisible neighbours by the loop correction (initial guess), optimises the
+   essential graph (spanning tree + strong covisibility + all loop edges) with GTSAM, and moves every map
+   point with its reference keyframe.
+It returns a `LoopCorrection`; it never writes into keyframes. The map owner applies the correction (and
+fuses the duplicated points listed in it), then reports poses back with `update_poses` when keyframes are
+copies (ROS transport). `relocalise` serves tracking when it is lost.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.backend.pose_graph import (
+    EdgeKind,
+    PoseGraphConfig,
+    PoseGraphEdge,
+    correct_points,
+    essential_graph_edges,
+    optimise_pose_graph,
+    relative_edges,
+)
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.geometric_verification import Verification, VerificationConfig, verify
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.keyframe_database import Covisibility, KeyframeDatabase, loop_feature_mask
+from changing_slam_ros.core.place_recognition import (
+    ConsistencyChecker,
+    Relocalisation,
+    RelocalisationConfig,
+    neighbours,
+    relocalise,
+)
+from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.vocabulary import Vocabulary, l1_score
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """YAML section `loop:` (nested `verification:`, `pose_graph:`, `relocalisation:`)."""
+
+    enabled: bool = True
+    min_keyframes_in_map: int = 10  # ORB-SLAM: no loop detection in a map with fewer keyframes
+    min_keyframes_between_loops: int = 10  # ORB-SLAM: mLastLoopKFid + 10
+    consistency_threshold: int = 3  # ORB-SLAM mnCovisibilityConsistencyTh
+    covisibility_group_size: int = 10  # best covisible keyframes accumulated per candidate
+    min_score_floor: float = 0.0  # lower bound on the candidate score (ORB-SLAM uses the covisible minimum only)
+    max_verified_candidates: int = 5
+    verification: VerificationConfig = field(default_factory=VerificationConfig)
+    pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
+    relocalisation: RelocalisationConfig = field(default_factory=RelocalisationConfig)
+
+
+@dataclass(frozen=True)
+class LoopCorrection:
+    """A closed loop (mirrors msg LoopCorrection).
+
+    - `query_kf_id`, `match_kf_id`, `map_id`: the new keyframe, the old one it re-observes, their map;
+    - `T_match_query` (4, 4): verified pose of the query camera in the match camera's frame;
+    - `num_inliers`: verified 3D-3D inliers; `keypoint_matches` (M, 2) int64 their keypoint indices (match, query);
+    - `corrected_poses`: keyframe id -> corrected T_world_cam (4, 4), every keyframe of the map;
+    - `corrected_points`: point id -> corrected world position (3,), every point passed in;
+    - `fused_points`: (query point id, match point id) pairs of the same physical point mapped twice: the map
+      owner replaces the first by the second (ORB-SLAM's loop fusion);
+    - `pose_corrections`: keyframe id -> T_new @ T_old^-1 (4, 4), to move frames tracked against a keyframe.
+    """
+
+    query_kf_id: int
+    match_kf_id: int
+    map_id: int
+    T_match_query: F64
+    num_inliers: int
+    keypoint_matches: npt.NDArray[np.int64]
+    corrected_poses: dict[int, F64]
+    corrected_points: dict[int, F64]
+    fused_points: list[tuple[int, int]]
+    pose_corrections: dict[int, F64]
+
+
+class LoopCloser:
+    """Owns the keyframe database and the loop edges; see the module docstring for the steps."""
+
+    def __init__(self, config: LoopConfig, vocabulary: Vocabulary) -> None:
+        self.config = config
+        self.database = KeyframeDatabase(vocabulary, config.covisibility_group_size)
+        self._keyframes: dict[int, Keyframe] = {}
+        self._masks: dict[int, npt.NDArray[np.bool_]] = {}
+        self._consistency = ConsistencyChecker(config.consistency_threshold)
+        self._loop_edges: list[tuple[int, int]] = []  # (match, query) pairs of accepted loops
+        self._last_loop_kf_id = -(10**9)
+
+    # ------------------------------------------------------------------ bookkeeping
+    @property
+    def keyframes(self) -> Mapping[int, Keyframe]:
+        return self._keyframes
+
+    @property
+    def loop_edges(self) -> list[tuple[int, int]]:
+        return list(self._loop_edges)
+
+    def erase(self, kf_id: int) -> None:
+        """Forget a culled keyframe."""
+        self.database.erase(kf_id)
+        self._keyframes.pop(kf_id, None)
+        self._masks.pop(kf_id, None)
+
+    def update_poses(self, poses: Mapping[int, F64]) -> None:
+        """Set T_world_cam of held keyframes (map updates from local mapping, or an applied correction)."""
+        for kf_id, T in poses.items():
+            kf = self._keyframes.get(kf_id)
+            if kf is not None:
+                kf.T_world_cam = np.asarray(T, np.float64)
+
+    def add(self, keyframe: Keyframe, active_mask: npt.NDArray[np.bool_] | None = None) -> None:
+        """Index a keyframe without looking for a loop (maps loaded from disk, keyframes of other maps)."""
+        mask = loop_feature_mask(keyframe) if active_mask is None else np.asarray(active_mask, bool)
+        self._keyframes[keyframe.id] = keyframe
+        self._masks[keyframe.id] = mask
+        self.database.add(keyframe, mask)
+
+    # ------------------------------------------------------------------ loop closing
+    def process(
+        self,
+        keyframe: Keyframe,
+        covisibility: Covisibility,
+        spanning_parent: Mapping[int, int | None],
+        point_positions: Mapping[int, F64],
+        active_mask: npt.NDArray[np.bool_] | None = None,
+        point_reference_kf: Mapping[int, int] | None = None,
+    ) -> LoopCorrection | None:
+        """Add a new keyframe and close a loop through it if there is one.
+
+        `covisibility`: id -> covisible ids (or {id: shared points}, best first); `spanning_parent`: id -> parent
+        id (None for a map's first keyframe); `point_positions`: point id -> world (3,). `active_mask` (N,) bool
+        keeps keypoints allowed in place recognition (default: not DYNAMIC/UNUSED). `point_reference_kf` maps a
+        point to the keyframe it moves with (default: the oldest held keyframe observing it).
+        """
+        self.add(keyframe, active_mask)
+        cfg = self.config
+        if not cfg.enabled:
+            return None
+        in_map = sum(1 for k in self._keyframes.values() if k.map_id == keyframe.map_id)
+        if in_map <= cfg.min_keyframes_in_map or keyframe.id < self._last_loop_kf_id + cfg.min_keyframes_between_loops:
+            return None
+        # 2. candidates scoring at least as well as the worst covisible neighbour
+        connected = [k for k in neighbours(covisibility, keyframe.id) if k in self.database]
+        bow = self.database.bow(keyframe.id)
+        scores = [l1_score(bow, self.database.bow(k)) for k in connected]
+        min_score = max(min(scores) if scores else 0.0, cfg.min_score_floor)
+        candidates = self.database.loop_candidates(keyframe.id, connected, min_score, covisibility)
+        if not candidates:
+            self._consistency.reset()
+            return None
+        # 3. temporal consistency of candidate groups
+        consistent = self._consistency.update(candidates, covisibility)
+        consistent = sorted(consistent, key=lambda c: (-c.accumulated_score, c.keyframe_id))
+        # 4. geometric verification
+        for cand in consistent[: cfg.max_verified_candidates]:
+            match = self._keyframes.get(cand.keyframe_id)
+            if match is None:
+                continue
+            v = verify(match, keyframe, cfg.verification, self._masks[match.id], self._masks[keyframe.id])
+            if v is not None:
+                correction = self._correct(keyframe, match, v, covisibility, spanning_parent, point_positions,
+                                           point_reference_kf)
+                self._loop_edges.append((match.id, keyframe.id))
+                self._last_loop_kf_id = keyframe.id
+                self._consistency.reset()
+                return correction
+        return None
+
+    def _correct(
+        self,
+        query: Keyframe,
+        match: Keyframe,
+        v: Verification,
+        covisibility: Covisibility,
+        spanning_parent: Mapping[int, int | None],
+        point_positions: Mapping[int, F64],
+        point_reference_kf: Mapping[int, int] | None,
+    ) -> LoopCorrection:
+        map_id = query.map_id
+        before = {k: kf.T_world_cam.copy() for k, kf in self._keyframes.items() if kf.map_id == map_id}
+        # 5a. the loop says where the query really is; move it and its covisible neighbours rigidly
+        T_world_query = before[match.id] @ v.T_a_b
+        shift = T_world_query @ invert(before[query.id])
+        initial = dict(before)
+        for k in [query.id, *neighbours(covisibility, query.id)]:
+            if k in initial:
+                initial[k] = shift @ before[k]
+        # 5b. essential graph measured on the poses before the correction, plus every loop edge
+        parents = {c: p for c, p in spanning_parent.items() if c in before}
+        cov = {k: covisibility[k] for k in before if k in covisibility}
+        edges: list[PoseGraphEdge] = essential_graph_edges(before, parents, cov, self.config.pose_graph.min_covisibility_weight)
+        edges += relative_edges(before, [e for e in self._loop_edges if e[0] in before and e[1] in before], EdgeKind.LOOP)
+        edges.append(PoseGraphEdge(match.id, query.id, v.T_a_b, EdgeKind.LOOP))
+        origin = min(before)
+        after = optimise_pose_graph(initial, edges, origin, self.config.pose_graph)
+        # 5c. map points follow their reference keyframe
+        refs = dict(point_reference_kf) if point_reference_kf is not None else self._reference_keyframes(point_positions)
+        points = correct_points(point_positions, refs, before, after)
+        fused = self._fused_points(match, query, v.matches)
+        return LoopCorrection(
+            query_kf_id=query.id,
+            match_kf_id=match.id,
+            map_id=map_id,
+            T_match_query=v.T_a_b,
+            num_inliers=v.num_inliers,
+            keypoint_matches=v.matches,
+            corrected_poses=after,
+            corrected_points=points,
+            fused_points=fused,
+            pose_corrections={k: after[k] @ invert(before[k]) for k in before},
+        )
+
+    def _reference_keyframes(self, point_positions: Mapping[int, F64]) -> dict[int, int]:
+        refs: dict[int, int] = {}
+        for kf_id in sorted(self._keyframes):
+            kf = self._keyframes[kf_id]
+            for pid in kf.point_ids[kf.point_ids >= 0].tolist():
+                if pid not in refs and pid in point_positions:
+                    refs[pid] = kf_id
+        return refs
+
+    @staticmethod
+    def _fused_points(match: Keyframe, query: Keyframe, matches: npt.NDArray[np.int64]) -> list[tuple[int, int]]:
+        out = []
+        for i_m, i_q in matches.tolist():
+            pm, pq = int(match.point_ids[i_m]), int(query.point_ids[i_q])
+            if pm >= 0 and pq >= 0 and pm != pq:
+                out.append((pq, pm))
+        return out
+
+    # ------------------------------------------------------------------ relocalisation
+    def relocalise(
+        self,
+        keypoints_px: npt.NDArray[np.floating],
+        descriptors: npt.NDArray[np.uint8],
+        camera: CameraIntrinsics,
+        point_positions: Mapping[int, F64],
+        covisibility: Covisibility,
+        map_id: int | None = None,
+        active_mask: npt.NDArray[np.bool_] | None = None,
+    ) -> Relocalisation | None:
+        """Pose of a lost frame against the held keyframes (see `place_recognition.relocalise`)."""
+        return relocalise(
+            keypoints_px, descriptors, camera, self.database, self._keyframes, point_positions, covisibility,
+            self.config.relocalisation, map_id, active_mask,
+        )
