@@ -1,0 +1,404 @@
+"""The registry of named scenarios, modelled on the papers' sequences.
+
+TUM fr3-like (`walking_xyz`, `walking_static`, `walking_rpy`, `walking_halfsphere`, `sitting_xyz`): two
+people walk (or sit) between a hand-held camera and an office corner with a table, a monitor and chairs.
+PUC-USP-like (`static`, `one_chair`, `vanishing`, `changing`, `shift`, `replacing`): a camera on a
+wheeled robot (0.07 m/s, turning 30 deg/s) drives a square loop twice facing the four walls in turn;
+objects are moved, removed, replaced or added while the robot faces away, and every change is checked
+to be out of view when it happens. Dai-like `unknown_mover`: a box of no COCO class carried by hand in
+front of a nearly still camera. `walking_changing`: a short panning shot with a walker and an
+out-of-view move (the sample bag).
+
+A seed jitters placements, walking paths, speeds and motion phases; the same seed gives the same scenario.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.errors import SimError
+from changing_slam_ros.sim import actors as cat
+from changing_slam_ros.sim.actors import Actor, Change, ChangeKind
+from changing_slam_ros.sim.camera_path import (
+    HandHeld, RobotLoop, half_sphere, look_at, nearly_static, robot_loop, rotate_rpy, sway_xyz,
+)
+from changing_slam_ros.sim.motions import carried_by_hand, changed, seated, walking
+from changing_slam_ros.sim.renderer import fovy_for_focal, intrinsics_for
+from changing_slam_ros.sim.room import default_room
+from changing_slam_ros.sim.scene import Room
+from changing_slam_ros.sim.track import Track, pose_xyz_rpy, sampled_track
+
+F64 = npt.NDArray[np.float64]
+
+DEFAULT_WIDTH = 640
+DEFAULT_HEIGHT = 480
+DEFAULT_FY_PX = 525.0  # the ROS default for TUM bags: fx = fy = 525, cx = 319.5, cy = 239.5 at 640x480
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A scene over time: room, actors (each with a track), camera track, changes, length and rate."""
+
+    name: str
+    description: str
+    room: Room
+    actors: tuple[Actor, ...]
+    camera: Track
+    changes: tuple[Change, ...]
+    duration_s: float
+    fps: float
+    fovy_deg: float = fovy_for_focal(DEFAULT_HEIGHT, DEFAULT_FY_PX)
+
+    def n_frames(self) -> int:
+        return int(np.floor(self.duration_s * self.fps + 1e-9))
+
+    def frame_time_s(self, index: int) -> float:
+        return index / self.fps
+
+    def actor_index(self, name: str) -> int:
+        for i, a in enumerate(self.actors):
+            if a.name == name:
+                return i
+        raise SimError(f"scenario {self.name}: no actor named {name!r}")
+
+
+# --- placement helpers ---
+
+def _on(base: F64, dz: float, dx: float = 0.0, dy: float = 0.0, dyaw: float = 0.0) -> F64:
+    """Pose of something standing on `base` at height `dz`, offset in the base's frame."""
+    return base @ pose_xyz_rpy(dx, dy, dz, yaw=dyaw)
+
+
+def _jit(rng: np.random.Generator, scale: float) -> float:
+    return float(rng.uniform(-scale, scale))
+
+
+def _static(name: str, class_id: int, parts: tuple[cat.Part, ...], pose: F64) -> Actor:
+    return Actor(name, class_id, parts, Track.static(pose))
+
+
+def _office(rng: np.random.Generator) -> list[Actor]:
+    """The TUM-like office corner: table against the north wall, monitor, cup, two chairs, a plant."""
+    table = pose_xyz_rpy(_jit(rng, 0.1), 1.9, 0.0)
+    return [
+        _static("table", 60, cat.table_parts(), table),
+        _static("monitor", 62, cat.tv_parts("rocket"), _on(table, 0.77, -0.05, -0.3, -np.pi / 2)),
+        _static("cup", 41, cat.cup_parts(), _on(table, 0.77, -0.2, 0.35)),
+        _static("chair_left", 56, cat.chair_parts(), pose_xyz_rpy(-1.5, 1.7 + _jit(rng, 0.1), 0.0,
+                                                                  yaw=-0.6 + _jit(rng, 0.3))),
+        _static("chair_right", 56, cat.chair_parts(), pose_xyz_rpy(1.45, 1.65, 0.0, yaw=-2.4 + _jit(rng, 0.3))),
+        _static("plant", 58, cat.potted_plant_parts(), pose_xyz_rpy(2.55, 2.1, 0.0)),
+    ]
+
+
+TUM_EYE = (0.0, -1.3, 1.35)
+TUM_TARGET = (0.0, 1.5, 0.85)
+
+
+def _walkers(rng: np.random.Generator, duration_s: float) -> list[Actor]:
+    j = lambda s: _jit(rng, s)  # noqa: E731
+    a = walking([(-2.2 + j(0.2), 0.55 + j(0.15)), (2.2 + j(0.2), 0.7 + j(0.15))], duration_s,
+                speed_m_s=0.8 + j(0.1), start_s=abs(j(1.0)))
+    b = walking([(1.7 + j(0.2), 1.25), (-0.9 + j(0.2), 1.25), (-1.1 + j(0.2), 0.1 + j(0.1)),
+                 (0.9 + j(0.2), -0.1 + j(0.1))], duration_s, speed_m_s=0.75 + j(0.1), start_s=1.0 + abs(j(1.0)))
+    return [
+        Actor("person_astronaut", 0, cat.person_parts("astronaut"), a, moving=True),
+        Actor("person_cameraman", 0, cat.person_parts("cameraman"), b, moving=True),
+    ]
+
+
+def _tum_like(name: str, description: str, camera_fn: Callable[[HandHeld, float], Track], sitting: bool,
+              seed: int, duration_s: float = 30.0, fps: float = 30.0) -> Scenario:
+    rng = np.random.default_rng(seed)
+    actors = _office(rng)
+    hand = HandHeld(TUM_EYE, TUM_TARGET, phase=float(rng.uniform(0, 2 * np.pi)))
+    if sitting:
+        for k, (x, photo) in enumerate(((-0.55, "astronaut"), (0.55, "cameraman"))):
+            chair = pose_xyz_rpy(x + _jit(rng, 0.05), 1.05, 0.0, yaw=-np.pi / 2 + _jit(rng, 0.15))
+            actors.append(_static(f"chair_seat{k}", 56, cat.chair_parts(), chair))
+            yaw = float(np.arctan2(chair[1, 0], chair[0, 0]))
+            actors.append(Actor(f"person_{photo}", 0, cat.sitting_person_parts(photo),
+                                seated(chair[0, 3], chair[1, 3], yaw, duration_s, phase=float(rng.uniform(0, 6))),
+                                moving=True))
+    else:
+        actors += _walkers(rng, duration_s)
+    return Scenario(name, description, default_room(), tuple(actors), camera_fn(hand, duration_s), (),
+                    duration_s, fps)
+
+
+# --- PUC-USP-like: the robot loop and object zones ---
+
+ZONE_EAST = pose_xyz_rpy(2.1, -0.4, 0.0, yaw=np.pi)  # objects face the robot's start (west)
+ZONE_WEST = pose_xyz_rpy(-2.1, 0.4, 0.0, yaw=0.0)
+ZONE_SOUTH = pose_xyz_rpy(0.3, -1.9, 0.0, yaw=np.pi / 2)
+ROBOT_LOOP = RobotLoop()
+# when the robot faces each wall during its loop (s), from robot_loop(ROBOT_LOOP): E 0-11.4, N 14.4-25.8,
+# W 28.8-40.2, S 43.2-54.6, E 57.6-69.0, N 72.0-83.4, W 86.4-97.8, S 100.8-112.2
+T_FACING_W1, T_FACING_S1, T_FACING_E2, T_FACING_N2 = 34.0, 49.0, 63.0, 78.0
+
+
+def _puc_objects(rng: np.random.Generator) -> dict[str, tuple[int, tuple[cat.Part, ...], F64]]:
+    """The initial PUC-USP-like layout: name -> (class, parts, pose)."""
+    east = ZONE_EAST @ pose_xyz_rpy(_jit(rng, 0.1), _jit(rng, 0.15), 0.0, yaw=_jit(rng, 0.3))
+    west = ZONE_WEST @ pose_xyz_rpy(_jit(rng, 0.1), _jit(rng, 0.15), 0.0, yaw=_jit(rng, 0.2))
+    south = ZONE_SOUTH @ pose_xyz_rpy(_jit(rng, 0.1), _jit(rng, 0.15), 0.0, yaw=_jit(rng, 0.3))
+    table = pose_xyz_rpy(_jit(rng, 0.1), 1.9, 0.0)
+    return {
+        "chair": (56, cat.chair_parts(), east),
+        "teddy_bear": (77, cat.teddy_bear_parts(), _on(east, 0.5, 0.02)),
+        "table": (60, cat.table_parts(), table),
+        "monitor": (62, cat.tv_parts("rocket"), _on(table, 0.77, -0.05, -0.3, -np.pi / 2)),
+        "cup": (41, cat.cup_parts(), _on(table, 0.77, -0.2, 0.35)),
+        "suitcase": (28, cat.suitcase_parts(), west),
+        "monitor_2": (62, cat.tv_parts("motorcycle"), _on(west, 0.73, 0.0, -0.06)),
+        "cup_2": (41, cat.cup_parts(), _on(west, 0.73, 0.0, 0.17)),
+        "chair_2": (56, cat.chair_parts("wood"), south),
+        "book": (73, cat.book_parts(), _on(south, 0.5, 0.0, 0.0, 0.4)),
+        "plant": (58, cat.potted_plant_parts(), pose_xyz_rpy(2.55, 2.1, 0.0)),
+    }
+
+
+def _puc_like(name: str, description: str, seed: int, keep: list[str],
+              plan: Callable[[dict[str, F64], np.random.Generator], list[tuple[float, str, ChangeKind, F64 | None, str]]],
+              extra: dict[str, tuple[int, tuple[cat.Part, ...]]] | None = None, n_sides: int = 7,
+              fps: float = 15.0) -> Scenario:
+    """Build a robot-loop scenario with the objects `keep` of the standard layout and the changes
+    `plan(initial_poses, rng)` returns as (t_s, actor, kind, new pose or None, other actor).
+    `extra` declares actors that appear only through an ADDED / REPLACED change."""
+    rng = np.random.default_rng(seed)
+    layout = _puc_objects(rng)
+    initial = {k: layout[k][2] for k in keep}
+    changes = plan(initial, rng)
+    loop = RobotLoop(n_sides=n_sides, start_xy=(-0.4 + _jit(rng, 0.05), -0.4 + _jit(rng, 0.05)))
+    camera, _ = robot_loop(loop)
+    duration_s = camera.end_s
+    per_actor: dict[str, list[tuple[float, F64 | None]]] = {}
+    change_records: list[Change] = []
+    for t_s, actor, kind, pose, other in changes:
+        per_actor.setdefault(actor, []).append((t_s, pose))
+        change_records.append(Change(t_s, actor, kind, other))
+    actors = []
+    for k in keep:
+        class_id, parts, pose = layout[k]
+        track = changed(pose, per_actor.get(k, []))
+        actors.append(Actor(k, class_id, parts, track))
+    for k, (class_id, parts) in (extra or {}).items():
+        actors.append(Actor(k, class_id, parts, changed(None, per_actor.get(k, []))))
+    scenario = Scenario(name, description, default_room(), tuple(actors), camera,
+                        tuple(sorted(change_records, key=lambda c: c.t_s)), duration_s, fps)
+    check_changes_out_of_view(scenario)
+    return scenario
+
+
+def check_changes_out_of_view(scenario: Scenario, margin_px: float = 40.0) -> None:
+    """Raise SimError if any change happens while the object (before or after) is in the camera's view."""
+    cam = intrinsics_for(DEFAULT_WIDTH, DEFAULT_HEIGHT, scenario.fovy_deg)
+    for change in scenario.changes:
+        actor = scenario.actors[scenario.actor_index(change.actor)]
+        lo, hi = actor.box_m()
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        T_world_cam = scenario.camera.pose_at(change.t_s)
+        assert T_world_cam is not None
+        for t_s in (change.t_s - 1e-6, change.t_s + 1e-6):
+            pose = actor.track.pose_at(t_s)
+            if pose is None:
+                continue
+            pts = (invert(T_world_cam) @ pose @ np.c_[corners, np.ones(8)].T).T[:, :3]
+            front = pts[:, 2] > 0.05
+            if not front.any():
+                continue
+            uv = cam.project(pts[front])
+            inside = ((uv[:, 0] > -margin_px) & (uv[:, 0] < cam.width + margin_px)
+                      & (uv[:, 1] > -margin_px) & (uv[:, 1] < cam.height + margin_px))
+            if inside.any():
+                raise SimError(f"scenario {scenario.name}: change of {change.actor} at {change.t_s:.1f} s "
+                               "happens in the camera's view")
+
+
+def _moved(base: F64, dx: float, dy: float, dyaw: float) -> F64:
+    """`base` moved by (dx, dy) in the world and turned by dyaw about its own vertical."""
+    out = base @ pose_xyz_rpy(0.0, 0.0, 0.0, yaw=dyaw)
+    out[0, 3] += dx
+    out[1, 3] += dy
+    return out
+
+
+ALL_PUC = ["chair", "teddy_bear", "table", "monitor", "cup", "suitcase", "monitor_2", "cup_2", "chair_2", "book",
+           "plant"]
+M, R, A, P = ChangeKind.MOVED, ChangeKind.REMOVED, ChangeKind.ADDED, ChangeKind.REPLACED
+
+
+def _static_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    return []
+
+
+def _one_chair_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    chair = _moved(p["chair"], -0.2 + _jit(rng, 0.1), 1.0 + _jit(rng, 0.15), 0.6)
+    return [(T_FACING_W1, "chair", M, chair, ""), (T_FACING_W1, "teddy_bear", M, _on(chair, 0.5, 0.02), "")]
+
+
+def _vanishing_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    chair = _moved(p["chair"], -0.3, 1.0 + _jit(rng, 0.1), -0.4)
+    return [
+        (T_FACING_W1, "teddy_bear", R, None, ""),
+        (T_FACING_W1, "chair", M, chair, ""),
+        (T_FACING_S1, "cup", R, None, ""),
+        (T_FACING_S1, "monitor", M, _moved(p["monitor"], 0.55, 0.0, 0.3), ""),
+        (T_FACING_E2, "suitcase", R, None, ""),
+        (T_FACING_E2, "monitor_2", R, None, ""),
+        (T_FACING_E2, "cup_2", R, None, ""),
+        (T_FACING_N2, "book", R, None, ""),
+    ]
+
+
+def _changing_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    added = pose_xyz_rpy(1.2 + _jit(rng, 0.1), 1.95, 0.0, yaw=-np.pi / 2)
+    return [
+        (T_FACING_W1, "teddy_bear", M, _on(p["chair_2"], 0.5, 0.02), ""),  # to the other chair
+        (T_FACING_S1, "cup", R, None, ""),
+        (T_FACING_S1, "suitcase_new", A, added, ""),
+        (T_FACING_E2, "monitor_2", P, None, "plant_new"),
+        (T_FACING_E2, "plant_new", A, _on(p["suitcase"], 0.73, 0.0, -0.06), ""),
+    ]
+
+
+def _shift_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    chair = _moved(p["chair"], -0.1, 1.1 + _jit(rng, 0.1), 0.5)
+    dy = -1.0 + _jit(rng, 0.1)
+    return [
+        (T_FACING_W1, "chair", M, chair, ""),
+        (T_FACING_W1, "teddy_bear", M, _on(chair, 0.5, 0.02), ""),
+        (T_FACING_S1, "monitor", M, _moved(p["monitor"], 0.6, 0.0, 0.0), ""),
+        (T_FACING_E2, "suitcase", M, _moved(p["suitcase"], 0.0, dy, 0.0), ""),
+        (T_FACING_E2, "monitor_2", M, _moved(p["monitor_2"], 0.0, dy, 0.0), ""),
+        (T_FACING_E2, "cup_2", M, _moved(p["cup_2"], 0.0, dy, 0.0), ""),
+    ]
+
+
+def _replacing_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    return [
+        (T_FACING_W1, "chair", P, None, "plant_new"),
+        (T_FACING_W1, "teddy_bear", R, None, ""),
+        (T_FACING_W1, "plant_new", A, _moved(p["chair"], 0.0, 0.0, 0.0), ""),
+        (T_FACING_N2, "chair_2", R, None, ""),
+        (T_FACING_N2, "book", R, None, ""),
+    ]
+
+
+def _unknown_mover(seed: int) -> Scenario:
+    rng = np.random.default_rng(seed)
+    duration_s = 24.0
+    actors = _office(rng)
+    table = actors[0].track.pose_at(0.0)
+    assert table is not None
+    rest_from = _on(table, 0.77 + 0.08, 0.1, 0.05 + _jit(rng, 0.05), 0.3)
+    rest_to = _on(table, 0.77 + 0.08, 0.1, -0.45 + _jit(rng, 0.05), -0.5)
+    eye = np.array([0.0, 0.3, 1.3])
+    centre = eye + np.array([0.0, 1.0, -0.15])
+    box = carried_by_hand(rest_from, rest_to, centre, duration_s, pick_s=3.0, put_s=duration_s - 4.0,
+                          phase=float(rng.uniform(0, 2 * np.pi)))
+    actors.append(Actor("parcel", -1, cat.unknown_object_parts(), box, moving=True))
+    hand = HandHeld(tuple(eye), (0.0, 1.9, 0.85), phase=float(rng.uniform(0, 2 * np.pi)))
+    return Scenario("unknown_mover", "a box of no COCO class picked up from the table, carried and turned "
+                    "in front of a nearly still camera, and put down elsewhere (Dai et al.)", default_room(),
+                    tuple(actors), nearly_static(hand, duration_s), (), duration_s, 30.0)
+
+
+def _walking_changing(seed: int) -> Scenario:
+    """15 s: a person walks past the table; the camera pans to the east wall and back, and meanwhile the
+    chair and the cup by the table are moved."""
+    rng = np.random.default_rng(seed)
+    duration_s = 15.0
+    actors = _office(rng)
+    eye = np.array([0.0, -0.2, 1.3])
+    north, east = np.radians(90.0), np.radians(0.0)
+
+    def yaw_at(t: float) -> float:  # hold north, pan to east at 45 deg/s, hold, pan back
+        knots = [(0.0, north), (4.0, north), (6.0, east), (9.0, east), (11.0, north), (15.0, north)]
+        for (t0, y0), (t1, y1) in zip(knots, knots[1:]):
+            if t0 <= t <= t1:
+                u = (t - t0) / (t1 - t0)
+                return y0 + (y1 - y0) * (3 * u * u - 2 * u * u * u)
+        return north
+
+    def cam(t: float) -> F64:
+        yaw = yaw_at(t)
+        sway = 0.03 * np.array([np.sin(0.9 * t), np.sin(1.3 * t + 1.0), 0.5 * np.sin(1.7 * t)])
+        return look_at(eye + sway, eye + sway + np.array([np.cos(yaw), np.sin(yaw), -0.2]))
+
+    person = walking([(-2.0 + _jit(rng, 0.2), 0.9), (2.0 + _jit(rng, 0.2), 0.9)], duration_s,
+                     speed_m_s=0.8, start_s=0.5)
+    actors.append(Actor("person_astronaut", 0, cat.person_parts("astronaut"), person, moving=True))
+    idx = {a.name: i for i, a in enumerate(actors)}
+    chair0 = actors[idx["chair_left"]].track.pose_at(0.0)
+    cup0 = actors[idx["cup"]].track.pose_at(0.0)
+    assert chair0 is not None and cup0 is not None
+    t_change = 7.5
+    chair1 = _moved(chair0, 0.9, -0.5, 0.8)
+    cup1 = _moved(cup0, 0.5, -0.1, 0.0)
+    actors[idx["chair_left"]] = Actor("chair_left", 56, cat.chair_parts(), changed(chair0, [(t_change, chair1)]))
+    actors[idx["cup"]] = Actor("cup", 41, cat.cup_parts(), changed(cup0, [(t_change, cup1)]))
+    s = Scenario("walking_changing", "a person walks past a table while the camera pans away and back; "
+                 "the chair and the cup are moved while out of view (sample bag)", default_room(), tuple(actors),
+                 sampled_track(cam, duration_s), (Change(t_change, "chair_left", M), Change(t_change, "cup", M)),
+                 duration_s, 15.0)
+    check_changes_out_of_view(s)
+    return s
+
+
+@dataclass(frozen=True)
+class ScenarioInfo:
+    description: str
+    build: Callable[[int], Scenario]
+
+
+def _puc(name: str, description: str, keep: list[str], plan: Callable[..., list],
+         extra: dict[str, tuple[int, tuple[cat.Part, ...]]] | None = None, n_sides: int = 7) -> ScenarioInfo:
+    return ScenarioInfo(description, lambda seed: _puc_like(name, description, seed, keep, plan, extra, n_sides))
+
+
+def _tum(name: str, description: str, camera_fn: Callable[[HandHeld, float], Track],
+         sitting: bool = False) -> ScenarioInfo:
+    return ScenarioInfo(description, lambda seed: _tum_like(name, description, camera_fn, sitting, seed))
+
+
+SCENARIOS: dict[str, ScenarioInfo] = {
+    "walking_xyz": _tum("walking_xyz", "two people walk; the camera translates along x, y, z", sway_xyz),
+    "walking_static": _tum("walking_static", "two people walk; the camera is held still", nearly_static),
+    "walking_rpy": _tum("walking_rpy", "two people walk; the camera rotates in roll, pitch, yaw", rotate_rpy),
+    "walking_halfsphere": _tum("walking_halfsphere", "two people walk; the camera moves on a half-sphere",
+                               half_sphere),
+    "sitting_xyz": _tum("sitting_xyz", "two people sit and fidget; the camera translates along x, y, z",
+                        sway_xyz, sitting=True),
+    "static": _puc("static", "robot loop in a furnished room, nothing changes (baseline)", ALL_PUC, _static_plan),
+    "one_chair": _puc("one_chair", "robot loop; a chair with a teddy bear is moved while out of view",
+                      ["chair", "teddy_bear", "table"], _one_chair_plan),
+    "vanishing": _puc("vanishing", "robot loop; objects are moved and removed one by one out of view",
+                      ALL_PUC, _vanishing_plan, n_sides=8),
+    "changing": _puc("changing", "robot loop; the teddy bear changes chair, objects are removed, replaced, added",
+                     ALL_PUC, _changing_plan,
+                     {"suitcase_new": (28, cat.suitcase_parts()), "plant_new": (58, cat.potted_plant_parts())}),
+    "shift": _puc("shift", "robot loop; chair, monitor and the suitcase group are moved out of view", ALL_PUC,
+                  _shift_plan),
+    "replacing": _puc("replacing", "robot loop; the chair with the teddy bear is replaced by a plant, then the "
+                      "other chair is removed", ALL_PUC, _replacing_plan,
+                      {"plant_new": (58, cat.potted_plant_parts())}, n_sides=8),
+    "unknown_mover": ScenarioInfo("a box of no COCO class carried by hand in front of the camera (Dai et al.)",
+                                  _unknown_mover),
+    "walking_changing": ScenarioInfo("15 s pan with a walker and an out-of-view move (the sample bag)",
+                                     _walking_changing),
+}
+
+
+def build_scenario(name: str, seed: int = 0) -> Scenario:
+    """The scenario `name` for `seed`; SimError names the known scenarios when `name` is unknown."""
+    try:
+        info = SCENARIOS[name]
+    except KeyError as err:
+        raise SimError(f"scenario {name!r}: unknown; known: {', '.join(SCENARIOS)}") from err
+    return info.build(seed)

@@ -1,0 +1,94 @@
+"""Photographic textures for the simulated rooms, taken from the photos bundled with scikit-image.
+
+Real photographs give ORB corners, blobs and edges the statistics of real images, which flat colours and
+procedural checkerboards do not. Every texture is a named `TextureSource`: which scikit-image image it
+comes from, an optional colour tint (most of the bundled textures are grey), and the licence stated in
+scikit-image's `skimage/data/_fetchers.py`. `bags/README.md` lists the same table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.errors import SimError
+
+U8 = npt.NDArray[np.uint8]
+
+
+@dataclass(frozen=True)
+class TextureSource:
+    """One texture: a scikit-image photo, an optional RGB tint (multiplier in [0, 1]) and its licence."""
+
+    skimage_name: str
+    tint_rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    licence: str = ""
+    what: str = ""
+    rot90: bool = False  # turn the photo a quarter turn (the brick photo has vertical courses)
+
+
+# name used in scenes -> where it comes from. Licences as stated by scikit-image's data docstrings.
+TEXTURES: dict[str, TextureSource] = {
+    "brick": TextureSource("brick", (0.85, 0.55, 0.45), "CC0 (CC0Textures Bricks25)", "brick wall", True),
+    "brick_grey": TextureSource("brick", (0.8, 0.8, 0.78), "CC0 (CC0Textures Bricks25)", "painted brick wall",
+                                True),
+    "gravel": TextureSource("gravel", (0.75, 0.65, 0.55), "CC0 (CC0Textures Gravel04)", "floor"),
+    "grass": TextureSource("grass", (0.45, 0.7, 0.35), "CC0 (CC0Textures Grass)", "rug / plant"),
+    "coins": TextureSource("coins", (0.9, 0.85, 0.6), "public domain (Walters Art Museum)", "poster"),
+    "text": TextureSource("text", (1.0, 1.0, 0.95), "public domain (Stefan van der Walt)", "notice board"),
+    "page": TextureSource("page", (1.0, 0.98, 0.9), "public domain (Stefan van der Walt)", "book page"),
+    "hubble": TextureSource("hubble_deep_field", licence="public domain (NASA)", what="poster"),
+    "rocket": TextureSource("rocket", licence="public domain (SpaceX)", what="poster / monitor screen"),
+    "coffee": TextureSource("coffee", licence="CC0 (Rachel Michetti)", what="cup, poster"),
+    "chelsea": TextureSource("chelsea", licence="CC0 (Stefan van der Walt)", what="teddy-bear fur"),
+    "astronaut": TextureSource("astronaut", licence="public domain (NASA, Eileen Collins)", what="person"),
+    "cameraman": TextureSource("camera", (0.95, 0.9, 0.85), "public domain / no known restrictions (MIT)",
+                               "person"),
+    "clock": TextureSource("clock", (0.9, 0.9, 1.0), "CC0 (Stefan van der Walt)", "wall clock / box"),
+    "moon": TextureSource("moon", (0.95, 0.95, 0.92), "public domain (NASA)", "ceiling, plaster"),
+    "motorcycle": TextureSource("stereo_motorcycle", licence="CC0? see Middlebury 2014 stereo; "
+                                "scikit-image states no restriction", what="monitor screen"),
+    "fabric_dark": TextureSource("gravel", (0.25, 0.25, 0.35), "CC0 (CC0Textures Gravel04)", "trousers"),
+    "wood": TextureSource("grass", (0.6, 0.42, 0.25), "CC0 (CC0Textures Grass)", "wood-like furniture"),
+    "leather": TextureSource("moon", (0.45, 0.25, 0.15), "public domain (NASA)", "suitcase / chair"),
+    "plastic_blue": TextureSource("coins", (0.3, 0.45, 0.85), "public domain (Walters Art Museum)",
+                                  "unknown object"),
+}
+
+
+def load_texture(name: str) -> U8:
+    """The texture `name` as an (H, W, 3) uint8 RGB image, tinted.
+
+    Raises SimError for an unknown name. Loads from the scikit-image data folder (no network).
+    """
+    try:
+        source = TEXTURES[name]
+    except KeyError as err:
+        raise SimError(f"texture {name!r}: unknown; known: {', '.join(sorted(TEXTURES))}") from err
+    import skimage.data
+
+    try:
+        image = getattr(skimage.data, source.skimage_name)()
+    except Exception as err:  # noqa: BLE001 - scikit-image raises several kinds here
+        raise SimError(f"texture {name!r}: cannot load skimage.data.{source.skimage_name} ({err})") from err
+    if isinstance(image, tuple):  # stereo pairs: take the left image
+        image = image[0]
+    image = np.asarray(image)
+    if image.ndim == 2:
+        image = np.stack([image] * 3, axis=-1)
+    image = image[..., :3].astype(np.float32)
+    if source.rot90:
+        image = np.ascontiguousarray(np.rot90(image))
+    image *= np.asarray(source.tint_rgb, dtype=np.float32)
+    return np.clip(image + 0.5, 0, 255).astype(np.uint8)
+
+
+def png_bytes(image_rgb: U8) -> bytes:
+    """Encode an (H, W, 3) uint8 RGB image as PNG bytes (deterministic)."""
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise SimError("texture: PNG encoding failed")
+    return bytes(buf.tobytes())
