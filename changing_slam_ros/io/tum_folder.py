@@ -27,6 +27,7 @@ from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.errors import DatasetError, SlamError
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
+from changing_slam_ros.io.groundtruth import GroundTruth
 
 
 def parse_stamp_ns(text: str) -> int:
@@ -122,44 +123,6 @@ def associate(
         pairs.append((i, j))
     pairs.sort(key=lambda p: (first_ns[p[0]], second_ns[p[1]]))
     return pairs
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    """Ground truth with exact stamps: stamps_ns (N,), positions (N, 3) m, quats_xyzw (N, 4) unit."""
-
-    stamps_ns: npt.NDArray[np.int64]
-    positions: npt.NDArray[np.float64]
-    quats_xyzw: npt.NDArray[np.float64]
-
-    def trajectory(self) -> Trajectory:
-        return Trajectory(self.stamps_ns.astype(np.float64) * 1e-9, self.positions, self.quats_xyzw)
-
-    def nearest_pose(self, stamp_ns: int, max_diff_ns: int) -> npt.NDArray[np.float64] | None:
-        """T_world_cam (4, 4) of the nearest stamp with |difference| <= max_diff_ns, else None."""
-        if len(self.stamps_ns) == 0:
-            return None
-        k = int(np.searchsorted(self.stamps_ns, stamp_ns))
-        best = min(
-            (c for c in (k - 1, k) if 0 <= c < len(self.stamps_ns)),
-            key=lambda c: (abs(int(self.stamps_ns[c]) - stamp_ns), c),
-        )
-        if abs(int(self.stamps_ns[best]) - stamp_ns) > max_diff_ns:
-            return None
-        return pose_matrix(self.positions[best], self.quats_xyzw[best])
-
-
-def pose_matrix(position: npt.NDArray[np.float64], quat_xyzw: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """(3,) translation and (4,) unit quaternion (x, y, z, w) -> 4x4 transform."""
-    x, y, z, w = (float(v) for v in quat_xyzw)
-    T = np.eye(4)
-    T[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
-    T[:3, 3] = position
-    return T
 
 
 def read_groundtruth(path: Path) -> GroundTruth:
