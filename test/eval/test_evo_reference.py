@@ -29,11 +29,14 @@ def _row_id(row: dict) -> str:
 
 def test_fixture_was_made_by_evo_1_31_0_and_covers_every_pair_at_two_max_diffs() -> None:
     assert FIXTURE["evo_version"] == "1.31.0"
-    pairs = {(r["gt"], r["est"]) for r in FIXTURE["ape"] if r["max_diff_s"] == 0.02}
+    pairs = {(r["gt"], r["est"]) for r in FIXTURE["ape"]
+             if r["max_diff_s"] == 0.02 and not r.get("swapped")}
     assert len(pairs) == 6
     for gt, est in pairs:
         diffs = {r["max_diff_s"] for r in FIXTURE["ape"] if (r["gt"], r["est"]) == (gt, est)}
         assert {0.02, 0.01} <= diffs
+    # The estimate-longer branch of the association (with an offset) is covered too.
+    assert any(r.get("swapped") and r["offset_s"] != 0.0 for r in FIXTURE["ape"])
 
 
 @pytest.mark.parametrize("row", FIXTURE["ape"], ids=_row_id)
