@@ -180,6 +180,11 @@ class TumFolder:
     def groundtruth(self) -> Trajectory | None:
         return self._gt.trajectory() if self._gt is not None else None
 
+    @property
+    def groundtruth_stamped(self) -> GroundTruth | None:
+        """Ground truth with exact integer stamps."""
+        return self._gt
+
     def __len__(self) -> int:
         return len(self.pairs)
 

@@ -118,9 +118,7 @@ def test_bare_mcap_from_our_writer_reads_back(tmp_path: Path, compress: bool) ->
 
     folder = open_dataset(require(FR1_XYZ_10), "tum_fr1")
     out = tmp_path / "fr1.mcap"
-    n = write_rgbd_mcap(out, folder, gt=folder._gt)  # type: ignore[attr-defined]
-    if compress:
-        n = write_rgbd_mcap(out, folder, gt=folder._gt, compress=True)  # type: ignore[attr-defined]
+    n = write_rgbd_mcap(out, folder, gt=folder.groundtruth_stamped, compress=compress)  # type: ignore[attr-defined]
     assert n == 9
     back = open_dataset(out, "tum_fr1")
     assert len(back) == 9 and back.camera == folder.camera
