@@ -239,8 +239,14 @@ class BagMessages:
         topics: Collection[str] | None = None,
         start_ns: int | None = None,
         stop_ns: int | None = None,
+        *,
+        payload: bool = True,
     ) -> Iterator[RawMessage]:
-        """Messages in log-time order, optionally filtered by topic and [start_ns, stop_ns)."""
+        """Messages in log-time order, optionally filtered by topic and [start_ns, stop_ns).
+
+        `payload=False` skips the CDR conversion and copy (`cdr` is empty); header stamps are still
+        filled, which is what an indexing pass over large image topics needs.
+        """
         self._check_open()
         conns = self._conns if topics is None else [c for c in self._conns if c.topic in topics]
         if topics is not None and not conns:
@@ -251,14 +257,18 @@ class BagMessages:
             try:
                 conn, log_ns, raw = next(gen)
                 meta, _decode_type = self._by_rosbags_id[id(conn)]
-                cdr = self._to_cdr(conn, raw)
+                if payload:
+                    cdr = self._to_cdr(conn, raw)
+                    header_ns = _cdr_header_stamp_ns(cdr) if meta.has_header else None
+                else:
+                    cdr = b""
+                    header_ns = self._raw_header_stamp_ns(raw) if meta.has_header else None
             except StopIteration:
                 return
             except errors as err:
                 raise BagError(
                     f"{self.path}: corrupt or truncated {self.kind.value}: {_describe(err)}"
                 ) from err
-            header_ns = _cdr_header_stamp_ns(cdr) if meta.has_header else None
             yield RawMessage(meta.topic, meta.msgtype, int(log_ns), header_ns, cdr)
 
     def deserialize(self, msg: RawMessage) -> Any:
@@ -319,13 +329,21 @@ class BagMessages:
         except KeyError:
             raise BagError(f"{self.path}: no connection {topic} of type {msgtype}") from None
 
+    def _raw_header_stamp_ns(self, raw: bytes | memoryview) -> int | None:
+        if self._cdr_store is None:
+            return _cdr_header_stamp_ns(raw)
+        if len(raw) < 12:  # ROS 1: uint32 seq, uint32 sec, uint32 nsec, little endian
+            return None
+        sec, nsec = struct.unpack_from("<II", raw, 4)
+        return sec * 1_000_000_000 + nsec
+
     def _to_cdr(self, conn: Any, raw: bytes | memoryview) -> bytes:
         if self._cdr_store is None:
             return bytes(raw)
         return bytes(self._cdr_store.ros1_to_cdr(raw, conn.msgtype))
 
 
-def _cdr_header_stamp_ns(cdr: bytes) -> int | None:
+def _cdr_header_stamp_ns(cdr: bytes | memoryview) -> int | None:
     """`header.stamp` of a CDR message that starts with std_msgs/Header (int32 sec, uint32 nanosec)."""
     if len(cdr) < 12:
         return None

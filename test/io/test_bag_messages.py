@@ -210,3 +210,12 @@ def test_using_a_closed_reader_is_an_error(bags: dict[str, Path]) -> None:
     bag = BagMessages(bags["mcap"])
     with pytest.raises(BagError, match="not open"):
         list(bag.messages())
+
+
+@pytest.mark.parametrize("key", ["ros1", "sqlite", "mcap"])
+def test_index_pass_without_payload_gives_the_same_stamps(bags: dict[str, Path], key: str) -> None:
+    with BagMessages(bags[key]) as bag:
+        full = [(m.topic, m.log_stamp_ns, m.header_stamp_ns) for m in bag.messages()]
+        light = list(bag.messages(payload=False))
+    assert [(m.topic, m.log_stamp_ns, m.header_stamp_ns) for m in light] == full
+    assert all(m.cdr == b"" for m in light)
