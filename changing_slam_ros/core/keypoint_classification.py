@@ -67,7 +67,7 @@ class KeypointClassificationConfig:
     check_centre_in_object_band: bool = True
     centre_patch_fraction: float = 0.1
     exclude_overlaps: bool = True
-    stats_stride_px: int = 2
+    stats_stride_px: int = 4
     min_valid_depth_fraction: float = 0.2
     invalid_depth_is_object: bool = True
 
@@ -154,16 +154,24 @@ def box_depth_stats(
     if vals.size == 0 or vals.size < config.min_valid_depth_fraction * patch.size:
         return None
     lo = float(np.percentile(vals, config.min_depth_percentile)) if config.min_depth_percentile > 0 else float(vals.min())
+    mean = float(vals.mean())
     return BoxDepthStats(
-        median_m=float(np.median(vals)),
-        mean_m=float(vals.mean()),
+        median_m=_median(vals),
+        mean_m=mean,
         min_m=lo,
         max_m=float(vals.max()),
-        std_m=float(vals.std()),
+        std_m=float(np.sqrt(max(float(np.dot(vals, vals)) / vals.size - mean * mean, 0.0))),
         centre_m=_centre_depth(depth_m, (x0, y0, x1, y1), config.centre_patch_fraction),
         n_samples=int(vals.size),
         valid_fraction=float(vals.size / patch.size),
     )
+
+
+def _median(vals: F64) -> float:
+    """Median of a non-empty 1-D array (np.median without its NaN checks, which dominate on small boxes)."""
+    k = vals.size // 2
+    part = np.partition(vals, [k - 1, k] if vals.size % 2 == 0 and k > 0 else [k])
+    return float(0.5 * (part[k - 1] + part[k])) if vals.size % 2 == 0 and k > 0 else float(part[k])
 
 
 def _centre_depth(depth_m: npt.NDArray[np.float32], box: tuple[int, int, int, int], fraction: float) -> float:
@@ -172,8 +180,8 @@ def _centre_depth(depth_m: npt.NDArray[np.float32], box: tuple[int, int, int, in
     hw = max(1.0, 0.5 * fraction * (x1 - x0))
     hh = max(1.0, 0.5 * fraction * (y1 - y0))
     patch = depth_m[int(cy - hh) : int(np.ceil(cy + hh)), int(cx - hw) : int(np.ceil(cx + hw))]
-    vals = patch[patch > 0.0]
-    return float(np.median(vals)) if vals.size else float("nan")
+    vals = patch[patch > 0.0].astype(np.float64)
+    return _median(vals) if vals.size else float("nan")
 
 
 def is_occluded(stats: BoxDepthStats, margin_m: float, config: KeypointClassificationConfig) -> bool:

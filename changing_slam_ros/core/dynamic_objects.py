@@ -1,0 +1,274 @@
+"""Dynamic object classification (Changing-SLAM §4.5) and the per-frame component that tracking calls.
+
+Per frame: keypoint classification with repopulation (§4.1), short-term association of the detections
+(§4.3), one EKF per object fed with its keypoints' centroid (§4.4), and a Boolean verdict per object from
+its estimated speed and a per-class "DOC threshold" (§4.5):
+
+- a class in `always_dynamic_class_ids` (person) is dynamic even when standing still;
+- a new object is filtered *a priori* (`ObjectMotion.UNKNOWN`) until its filter says it is static;
+- an object whose speed exceeds its DOC threshold is dynamic and its keypoints are filtered;
+- a static object's (movable) keypoints are used for tracking.
+
+Tracking calls `classify()` before pose estimation (the verdicts then come from previous frames) and
+`update(T_world_cam)` with the estimated pose afterwards; `process()` does both for a known pose.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
+from changing_slam_ros.core.keyframe import KeypointClass
+from changing_slam_ros.core.keypoint_classification import (
+    KeypointClassification,
+    KeypointClassificationConfig,
+    classify_keypoints,
+)
+from changing_slam_ros.core.object_ekf import ObjectEkf, ObjectEkfConfig, centroid_measurement
+from changing_slam_ros.core.short_term_association import ShortTermAssociationConfig, ShortTermAssociator
+from changing_slam_ros.errors import ConfigError
+
+F64 = npt.NDArray[np.float64]
+
+
+class ObjectMotion(enum.IntEnum):
+    """Verdict of the dynamic object classification (values are what the object-state messages carry)."""
+
+    UNKNOWN = 0  # new object, filter not yet confident: filtered a priori
+    STATIC = 1
+    DYNAMIC = 2
+
+
+@dataclass(frozen=True)
+class DynamicObjectsConfig:
+    """`dynamic_objects` config section (the DOC thresholds are empirical in the paper, no values given).
+
+    - `doc_threshold_mps` / `default_doc_threshold_mps`: speed above which an object is moving.
+    - `always_dynamic_class_ids`: classes that are dynamic whatever their speed (paper: person).
+    - `min_updates`: measurements an object needs before any verdict other than UNKNOWN.
+    - `static_sigma_ratio`: STATIC also needs the velocity's standard deviation below this times the
+      threshold (the filter must be confident, not just unexcited).
+    - `min_object_keypoints`: fewer keypoints with depth on an object = no measurement this frame.
+    """
+
+    doc_threshold_mps: dict[int, float] = field(default_factory=lambda: {PERSON_CLASS_ID: 0.3, CHAIR_CLASS_ID: 0.15})
+    default_doc_threshold_mps: float = 0.1
+    always_dynamic_class_ids: tuple[int, ...] = (PERSON_CLASS_ID,)
+    min_updates: int = 3
+    static_sigma_ratio: float = 1.0
+    min_object_keypoints: int = 3
+    classification: KeypointClassificationConfig = field(default_factory=KeypointClassificationConfig)
+    association: ShortTermAssociationConfig = field(default_factory=ShortTermAssociationConfig)
+    ekf: ObjectEkfConfig = field(default_factory=ObjectEkfConfig)
+
+    def __post_init__(self) -> None:
+        if self.min_updates < 1 or self.min_object_keypoints < 1:
+            raise ConfigError("dynamic_objects: min_updates and min_object_keypoints must be >= 1")
+        if self.static_sigma_ratio <= 0.0:
+            raise ConfigError(f"dynamic_objects.static_sigma_ratio: expected > 0, got {self.static_sigma_ratio}")
+
+    def doc_threshold(self, class_id: int) -> float:
+        return self.doc_threshold_mps.get(class_id, self.default_doc_threshold_mps)
+
+
+@dataclass(frozen=True)
+class ObjectState:
+    """One tracked object in one frame (mirrors the object-state message).
+
+    `position_world` (3,) m and `velocity_world` (3,) m/s are NaN before the object's first measurement.
+    """
+
+    object_id: int
+    class_id: int
+    box_xyxy: tuple[float, float, float, float]
+    position_world: F64
+    velocity_world: F64
+    speed_mps: float
+    motion: ObjectMotion
+    n_updates: int
+    is_new: bool
+
+    @property
+    def is_filtered(self) -> bool:
+        """True when the object's keypoints are kept out of tracking."""
+        return self.motion != ObjectMotion.STATIC
+
+
+@dataclass(frozen=True)
+class DynamicFrameResult:
+    """Per-frame output for N keypoints and M detections (in input order).
+
+    - `classification`: the §4.1 result (keypoint classes, box statistics, IoU matrix);
+    - `kp_object_ids` (N,) int64 MapObject id per keypoint, -1 background;
+    - `use_for_tracking` (N,) bool: static keypoints and those of static objects;
+    - `objects` (M,) `ObjectState`.
+    """
+
+    stamp_ns: int
+    classification: KeypointClassification
+    kp_object_ids: npt.NDArray[np.int64]
+    use_for_tracking: npt.NDArray[np.bool_]
+    objects: tuple[ObjectState, ...]
+
+
+@dataclass
+class _Pending:
+    stamp_ns: int
+    detections: tuple[Detection, ...]
+    object_ids: npt.NDArray[np.int64]
+    is_new: npt.NDArray[np.bool_]
+    measurements: dict[int, F64]  # object id -> centroid (3,) in the camera frame
+    classification: KeypointClassification
+
+
+class DynamicObjectTracker:
+    """Keypoint classification, short-term association, per-object EKFs and DOC verdicts over a sequence."""
+
+    def __init__(self, camera: CameraIntrinsics, config: DynamicObjectsConfig | None = None) -> None:
+        self.camera = camera
+        self.config = config or DynamicObjectsConfig()
+        self._associator = ShortTermAssociator(self.config.association)
+        self._filters: dict[int, ObjectEkf] = {}
+        self._motion: dict[int, ObjectMotion] = {}
+        self._pending: _Pending | None = None
+
+    def reset(self) -> None:
+        """Forget every object (lost tracking, new map)."""
+        self._associator.reset()
+        self._filters.clear()
+        self._motion.clear()
+        self._pending = None
+
+    def motion_of(self, object_id: int) -> ObjectMotion:
+        return self._motion.get(object_id, ObjectMotion.UNKNOWN)
+
+    def filter_of(self, object_id: int) -> ObjectEkf | None:
+        return self._filters.get(object_id)
+
+    def classify(
+        self,
+        stamp_ns: int,
+        keypoints_px: npt.NDArray[np.floating],
+        depth_m: npt.NDArray[np.float32],
+        detections: tuple[Detection, ...] | list[Detection],
+        keypoint_depths_m: npt.NDArray[np.floating] | None = None,
+    ) -> DynamicFrameResult:
+        """Classify keypoints (N, 2) with depth image (H, W) metres and associate the detections; the
+        tracking mask uses the verdicts known before this frame's object update."""
+        dets = tuple(d for d in detections if d.score >= self.config.classification.min_detection_score)
+        kps = np.asarray(keypoints_px, dtype=np.float64).reshape(-1, 2)
+        cls = classify_keypoints(kps, depth_m, dets, self.config.classification, keypoint_depths_m)
+        assoc = self._associator.associate(dets)
+        for lost in assoc.lost_ids:
+            self._filters.pop(lost, None)
+            self._motion.pop(lost, None)
+        kp_depth = _keypoint_depths(kps, depth_m, keypoint_depths_m)
+        measurements: dict[int, F64] = {}
+        for b, det in enumerate(dets):
+            if not cls.box_usable[b]:
+                continue
+            sel = (cls.kp_box_index == b) & (kp_depth > 0.0)
+            sel &= (cls.kp_classes == KeypointClass.MOVABLE) | (cls.kp_classes == KeypointClass.DYNAMIC)
+            if int(sel.sum()) < self.config.min_object_keypoints:
+                continue
+            z = centroid_measurement(kps[sel], kp_depth[sel], self.camera)
+            if z is not None:
+                measurements[int(assoc.object_ids[b])] = z
+        self._pending = _Pending(stamp_ns, dets, assoc.object_ids, assoc.is_new, measurements, cls)
+        return self._result(self._pending)
+
+    def update(self, T_world_cam: F64) -> DynamicFrameResult:
+        """Feed the last classified frame's object centroids to the EKFs with the camera pose (4, 4) of that
+        frame (camera-to-world), refresh the verdicts and return the frame's result with them."""
+        if self._pending is None:
+            raise RuntimeError("DynamicObjectTracker.update() called before classify()")
+        pending = self._pending
+        for b, det in enumerate(pending.detections):
+            oid = int(pending.object_ids[b])
+            z = pending.measurements.get(oid)
+            ekf = self._filters.get(oid)
+            if z is not None:
+                if ekf is None:
+                    self._filters[oid] = ObjectEkf(det.class_id, z, T_world_cam, pending.stamp_ns, self.config.ekf)
+                else:
+                    ekf.update(z, T_world_cam, pending.stamp_ns)
+            elif ekf is not None:
+                ekf.predict(pending.stamp_ns)
+            self._motion[oid] = self._verdict(det.class_id, self._filters.get(oid), self._motion.get(oid))
+        return self._result(pending)
+
+    def process(
+        self,
+        stamp_ns: int,
+        keypoints_px: npt.NDArray[np.floating],
+        depth_m: npt.NDArray[np.float32],
+        detections: tuple[Detection, ...] | list[Detection],
+        T_world_cam: F64,
+        keypoint_depths_m: npt.NDArray[np.floating] | None = None,
+    ) -> DynamicFrameResult:
+        """`classify()` then `update()` for a frame whose camera pose is already known."""
+        self.classify(stamp_ns, keypoints_px, depth_m, detections, keypoint_depths_m)
+        return self.update(T_world_cam)
+
+    def _verdict(self, class_id: int, ekf: ObjectEkf | None, previous: ObjectMotion | None) -> ObjectMotion:
+        if class_id in self.config.always_dynamic_class_ids:
+            return ObjectMotion.DYNAMIC
+        if ekf is None or ekf.n_updates < self.config.min_updates:
+            return ObjectMotion.UNKNOWN
+        threshold = self.config.doc_threshold(class_id)
+        if ekf.speed_mps > threshold:
+            return ObjectMotion.DYNAMIC
+        if ekf.velocity_sigma_mps <= self.config.static_sigma_ratio * threshold:
+            return ObjectMotion.STATIC
+        # Slow but not yet certain: a static object stays static, anything else stays filtered.
+        return ObjectMotion.STATIC if previous == ObjectMotion.STATIC else ObjectMotion.UNKNOWN
+
+    def _result(self, pending: _Pending) -> DynamicFrameResult:
+        cls = pending.classification
+        objects = []
+        for b, det in enumerate(pending.detections):
+            oid = int(pending.object_ids[b])
+            ekf = self._filters.get(oid)
+            motion = self._motion.get(oid, ObjectMotion.UNKNOWN)
+            if det.class_id in self.config.always_dynamic_class_ids:
+                motion = ObjectMotion.DYNAMIC
+            x = ekf.x if ekf is not None else np.full(6, np.nan)
+            objects.append(
+                ObjectState(
+                    object_id=oid,
+                    class_id=det.class_id,
+                    box_xyxy=det.box_xyxy,
+                    position_world=x[:3],
+                    velocity_world=x[3:],
+                    speed_mps=float(np.linalg.norm(x[3:])) if ekf is not None else float("nan"),
+                    motion=motion,
+                    n_updates=ekf.n_updates if ekf is not None else 0,
+                    is_new=bool(pending.is_new[b]),
+                )
+            )
+        kp_object_ids = np.full(len(cls.kp_classes), -1, dtype=np.int64)
+        has_box = cls.kp_box_index >= 0
+        kp_object_ids[has_box] = pending.object_ids[cls.kp_box_index[has_box]]
+        use = cls.kp_classes == KeypointClass.STATIC
+        static_objects = np.array([o.motion == ObjectMotion.STATIC for o in objects] + [False], dtype=bool)
+        movable = cls.kp_classes == KeypointClass.MOVABLE
+        use |= movable & static_objects[cls.kp_box_index]  # index -1 hits the trailing False
+        return DynamicFrameResult(pending.stamp_ns, cls, kp_object_ids, np.asarray(use), tuple(objects))
+
+
+def _keypoint_depths(
+    kps: F64, depth_m: npt.NDArray[np.float32], keypoint_depths_m: npt.NDArray[np.floating] | None
+) -> F64:
+    if keypoint_depths_m is not None:
+        return np.asarray(keypoint_depths_m, dtype=np.float64).reshape(-1)
+    if len(kps) == 0:
+        return np.zeros(0)
+    h, w = depth_m.shape
+    u = np.clip(np.rint(kps[:, 0]).astype(np.int64), 0, w - 1)
+    v = np.clip(np.rint(kps[:, 1]).astype(np.int64), 0, h - 1)
+    return depth_m[v, u].astype(np.float64)
