@@ -1,0 +1,209 @@
+"""Moving object targets and their 6-DoF tracking (Dai et al. 2021, Sections 3.2.3, 3.3.2 and 3.5.1).
+
+A `MovingObject` is created from an object target of the segmentation: its frame has its origin at the
+centre of the target's points and the world's axes (the paper's T_0^g), and its points are stored in
+that frame. Each new frame, the object's matched points give its pose by motion-only object BA (eq. 7,
+initialised by a closed-form alignment of the measured points); when the object has moved or turned
+enough since the last keypose, or too few of its points are still tracked, the frame becomes a keypose,
+and full object BA (eq. 11) refines the points and the keyposes of a sliding window.
+
+Poses are object-to-world `T_world_obj` (4, 4), stamps in nanoseconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.backend.object_ba import (
+    ObjectBAConfig,
+    ObjectObservations,
+    align_points,
+    full_object_ba,
+    motion_only_object_ba,
+)
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad, transform_points
+from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.errors import ConfigError
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class ObjectTrackingConfig:
+    """Keypose policy and object BA settings.
+
+    - `min_tracked_points`: fewer matched points than this and the frame's pose is not estimated.
+    - `keypose_translation_m`, `keypose_rotation_rad`: motion since the last keypose that makes a keypose.
+    - `keypose_tracked_ratio`: a keypose is also made when fewer than this fraction of the points seen in
+      the last keypose are tracked ("the tracked features change significantly").
+    - `window_keyposes`: keyposes in the sliding window of full object BA (the reference keypose is
+      always kept, as it holds the gauge).
+    - `ba`: noise model and solver of object BA.
+    """
+
+    min_tracked_points: int = 6
+    keypose_translation_m: float = 0.05
+    keypose_rotation_rad: float = 0.1
+    keypose_tracked_ratio: float = 0.7
+    window_keyposes: int = 8
+    ba: ObjectBAConfig = field(default_factory=ObjectBAConfig)
+
+    def __post_init__(self) -> None:
+        if self.min_tracked_points < 3:
+            raise ConfigError(f"object_tracking.min_tracked_points: expected >= 3, got {self.min_tracked_points}")
+        if self.window_keyposes < 2:
+            raise ConfigError(f"object_tracking.window_keyposes: expected >= 2, got {self.window_keyposes}")
+
+
+@dataclass
+class MovingObject:
+    """One object target.
+
+    - `object_id`: unique id.
+    - `point_ids`: (P,) int64 map point ids of its points.
+    - `points_obj`: (P, 3) metres, the points in the object frame.
+    - `poses`: stamp_ns -> T_world_obj (4, 4) for every frame where the object was tracked.
+    - `keyposes`: the keypose measurements, oldest (the reference) first.
+    """
+
+    object_id: int
+    point_ids: I64
+    points_obj: F64
+    poses: dict[int, F64] = field(default_factory=dict)
+    keyposes: list[ObjectObservations] = field(default_factory=list)
+
+    @classmethod
+    def create(
+        cls,
+        object_id: int,
+        point_ids: I64,
+        points_world: F64,
+        stamp_ns: int,
+        frame: "FrameObjectMeasurements | None" = None,
+    ) -> "MovingObject":
+        """New target from its points (P, 3) in the world at `stamp_ns` (the paper's T_0^g: their centre).
+
+        `frame`, the measurements of the creation frame, becomes the reference keypose when given.
+        """
+        centre = points_world.mean(axis=0)
+        obj = cls(object_id, np.asarray(point_ids, dtype=np.int64), points_world - centre)
+        obj.poses[stamp_ns] = make_pose(np.eye(3), centre)
+        if frame is not None:
+            idx = obj.index_of(frame.point_ids)
+            hit = idx >= 0
+            obj.keyposes.append(ObjectObservations(stamp_ns, frame.T_world_cam, idx[hit], frame.points_cam[hit]))
+        return obj
+
+    @property
+    def stamps_ns(self) -> list[int]:
+        return sorted(self.poses)
+
+    def last_pose(self) -> tuple[int, F64]:
+        stamp = max(self.poses)
+        return stamp, self.poses[stamp]
+
+    def points_world(self, stamp_ns: int) -> F64:
+        """The object's points (P, 3) in the world at a tracked stamp."""
+        return transform_points(self.poses[stamp_ns], self.points_obj)
+
+    def trajectory(self) -> Trajectory:
+        """Object-to-world poses over time (TUM convention: origin of the object frame, orientation)."""
+        stamps = self.stamps_ns
+        return Trajectory.from_poses(np.array(stamps, dtype=np.float64) * 1e-9, np.stack([self.poses[s] for s in stamps]))
+
+    def index_of(self, point_ids: I64) -> I64:
+        """Indices (N,) into this object's points of `point_ids` (N,); -1 where a point is not the object's."""
+        order = np.argsort(self.point_ids)
+        pos = np.searchsorted(self.point_ids, point_ids, sorter=order)
+        pos = np.clip(pos, 0, len(order) - 1)
+        found = self.point_ids[order[pos]] == point_ids
+        return np.where(found, order[pos], -1).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class FrameObjectMeasurements:
+    """Matched points of one frame that may belong to objects.
+
+    - `stamp_ns`, `T_world_cam` (4, 4): the frame and its camera-to-world pose from camera tracking.
+    - `point_ids`: (N,) map point ids of the matched keypoints.
+    - `points_cam`: (N, 3) metres, their back-projection (u, v, depth) in the camera frame.
+    """
+
+    stamp_ns: int
+    T_world_cam: F64
+    point_ids: I64
+    points_cam: F64
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """Outcome of tracking one object in one frame: `tracked` False when too few points were matched."""
+
+    tracked: bool
+    n_points: int
+    n_inliers: int
+    is_keypose: bool
+    T_world_obj: F64 | None
+
+
+class ObjectTracker:
+    """Tracks `MovingObject`s frame by frame (eq. 7) and refines them at keyposes (eq. 11)."""
+
+    def __init__(self, camera: CameraIntrinsics, config: ObjectTrackingConfig) -> None:
+        self.camera = camera
+        self.config = config
+
+    def observations(self, obj: MovingObject, frame: FrameObjectMeasurements) -> ObjectObservations:
+        """The subset of the frame's measurements that hit the object's points."""
+        idx = obj.index_of(frame.point_ids)
+        hit = idx >= 0
+        return ObjectObservations(frame.stamp_ns, frame.T_world_cam, idx[hit], frame.points_cam[hit])
+
+    def track(self, obj: MovingObject, frame: FrameObjectMeasurements) -> TrackResult:
+        """Estimate the object's pose in `frame` (eq. 7) and decide whether it is a keypose."""
+        obs = self.observations(obj, frame)
+        n = len(obs.point_index)
+        if n < self.config.min_tracked_points:
+            return TrackResult(False, n, 0, False, None)
+        # Initial pose: closed-form alignment of the object's points with their measured world positions,
+        # refined robustly by motion-only object BA.
+        world = transform_points(frame.T_world_cam, obs.points_cam)
+        init = align_points(obj.points_obj[obs.point_index], world)
+        result = motion_only_object_ba(obj.points_obj, obs, init, self.camera, self.config.ba)
+        n_in = int(result.inliers.sum())
+        if n_in < self.config.min_tracked_points:
+            return TrackResult(False, n, n_in, False, None)
+        obj.poses[frame.stamp_ns] = result.T_world_obj
+        # A keypose keeps all the frame's measurements, not only eq. 7's inliers: a point whose shape is
+        # still wrong fails eq. 7 in every frame, and only full BA (with its own outlier rounds) can fix it.
+        keypose = self._is_keypose(obj, obs, result.T_world_obj)
+        if keypose:
+            obj.keyposes.append(obs)
+        return TrackResult(True, n, n_in, keypose, result.T_world_obj)
+
+    def _is_keypose(self, obj: MovingObject, obs: ObjectObservations, T_world_obj: F64) -> bool:
+        if not obj.keyposes:
+            return True
+        last = obj.keyposes[-1]
+        T_last = obj.poses[last.stamp_ns]
+        delta = invert(T_last) @ T_world_obj
+        moved = np.linalg.norm(delta[:3, 3]) > self.config.keypose_translation_m
+        turned = rotation_angle_rad(delta[:3, :3]) > self.config.keypose_rotation_rad
+        tracked = np.isin(last.point_index, obs.point_index).mean() < self.config.keypose_tracked_ratio
+        return bool(moved or turned or tracked)
+
+    def optimise(self, obj: MovingObject) -> None:
+        """Full object BA (eq. 11) over the reference keypose and the latest keyposes; updates in place."""
+        if len(obj.keyposes) < 2:
+            return
+        window = [obj.keyposes[0]] + obj.keyposes[1:][-(self.config.window_keyposes - 1) :]
+        init = np.stack([obj.poses[kp.stamp_ns] for kp in window])
+        result = full_object_ba(obj.points_obj, window, init, self.camera, self.config.ba)
+        obj.points_obj = result.points_obj
+        for kp, pose in zip(window, result.T_world_obj):
+            obj.poses[kp.stamp_ns] = pose
