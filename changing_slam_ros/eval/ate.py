@@ -18,6 +18,7 @@ from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.eval.alignment import Alignment, align_trajectories
 from changing_slam_ros.eval.association import DEFAULT_MAX_DIFF_S, Association, associate
 from changing_slam_ros.eval.statistics import ErrorStatistics
+from changing_slam_ros.errors import EvalError
 
 F64 = npt.NDArray[np.float64]
 
@@ -76,7 +77,10 @@ def ate(
     Equals `evo_ape tum GT EST -a --t_max_diff D --t_offset S` (and `-as` with `sim3`).
     """
     assoc = associate(gt, est, max_diff_s, offset_s, gt_name=gt_name, est_name=est_name)
-    return ate_associated(assoc, align=align, sim3=sim3)
+    try:
+        return ate_associated(assoc, align=align, sim3=sim3)
+    except EvalError as err:
+        raise EvalError(f"{est_name} vs {gt_name}: {err}") from err
 
 
 def ate_associated(assoc: Association, align: bool = True, sim3: bool = False) -> AteResult:

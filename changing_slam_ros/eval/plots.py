@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import io
 import os
+from typing import TYPE_CHECKING
 
 from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.ate import AteResult
 from changing_slam_ros.eval.rpe import RpeResult
 from changing_slam_ros.io.atomic import atomic_write_bytes
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -24,11 +28,11 @@ def _plane_axes(plane: str) -> tuple[int, int]:
     return _AXES[plane[0]], _AXES[plane[1]]
 
 
-def _save(fig: object, path: str | os.PathLike[str]) -> None:
+def _save(fig: Figure, path: str | os.PathLike[str]) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     buf = io.BytesIO()
-    FigureCanvasAgg(fig).print_png(buf)  # type: ignore[arg-type]
+    FigureCanvasAgg(fig).print_png(buf)
     try:
         atomic_write_bytes(path, buf.getvalue())
     except OSError as err:

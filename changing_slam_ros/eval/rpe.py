@@ -112,7 +112,7 @@ def time_pairs(stamps_s: F64, delta_s: float, rel_tol: float = 0.1, all_pairs: b
     best = np.full(n, -1, dtype=np.intp)
     for i in range(n - 1):
         target = t[i] + delta_s
-        k = int(np.searchsorted(t, target, side="left", sorter=None))
+        k = int(np.searchsorted(t, target, side="left"))
         cands = [c for c in (k - 1, k) if i < c < n]
         if not cands:
             continue
@@ -120,8 +120,8 @@ def time_pairs(stamps_s: F64, delta_s: float, rel_tol: float = 0.1, all_pairs: b
         if abs(t[j] - target) <= tol:
             best[i] = j
     if all_pairs:
-        i = np.flatnonzero(best >= 0).astype(np.intp)
-        return np.stack([i, best[i]], axis=1) if len(i) else np.empty((0, 2), dtype=np.intp)
+        first = np.flatnonzero(best >= 0).astype(np.intp)
+        return np.stack([first, best[first]], axis=1).astype(np.intp).reshape(-1, 2)
     chain: list[tuple[int, int]] = []
     i = 0
     while i < n - 1:
@@ -144,7 +144,8 @@ def rotation_angle_deg(r: F64) -> F64:
         axis=-1,
     )
     cos_part = 0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1.0)
-    return np.degrees(np.arctan2(sin_part, cos_part))
+    angles: F64 = np.degrees(np.arctan2(sin_part, cos_part))
+    return angles
 
 
 def relative_errors(gt_poses: F64, est_poses: F64, pairs: IDX) -> tuple[F64, F64]:
@@ -175,7 +176,10 @@ def rpe(
     equals `evo_rpe tum GT EST -r trans_part|angle_deg -d D -u f [--all_pairs] [-as]`.
     """
     assoc = associate(gt, est, max_diff_s, offset_s, gt_name=gt_name, est_name=est_name)
-    return rpe_associated(assoc, delta, delta_unit, all_pairs, rel_tol, sim3)
+    try:
+        return rpe_associated(assoc, delta, delta_unit, all_pairs, rel_tol, sim3)
+    except EvalError as err:
+        raise EvalError(f"{est_name} vs {gt_name}: {err}") from err
 
 
 def rpe_associated(

@@ -65,3 +65,20 @@ def test_report_names_an_empty_estimate_file(tmp_path: Path) -> None:
     empty.write_text("# nothing here\n")
     with pytest.raises(EvalError, match=rf"{empty}: trajectory is empty"):
         evaluate_files(TUM_REFERENCE / "freiburg1_xyz-groundtruth.txt", empty)
+
+
+def test_the_eval_library_and_cli_import_matplotlib_only_when_plotting() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import changing_slam_ros.eval.report, changing_slam_ros.eval.ate, changing_slam_ros.eval.rpe\n"
+        "import changing_slam_ros.commands.eval\n"
+        "assert 'matplotlib' not in sys.modules, 'matplotlib imported eagerly'\n"
+        "import changing_slam_ros.eval.plots\n"
+        "assert 'matplotlib' not in sys.modules, 'plots imports matplotlib at module level'\n"
+    )
+    repo = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-c", code], cwd=repo, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
