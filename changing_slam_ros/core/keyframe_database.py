@@ -13,7 +13,9 @@ keypoints, or points of MapObjects whose belief dropped - Changing-SLAM §4.6).
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Mapping
+from itertools import chain
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,12 +135,12 @@ class KeyframeDatabase:
         map_id: int | None,
     ) -> list[PlaceCandidate]:
         # 1. shared-word counts over the inverted index
-        common: dict[int, int] = {}
-        for w in bow.word_ids.tolist():
-            for other in self._postings.get(w, ()):
-                if other in excluded or (map_id is not None and self._map_of[other] != map_id):
-                    continue
-                common[other] = common.get(other, 0) + 1
+        postings = self._postings
+        counts = Counter(chain.from_iterable(postings.get(w, ()) for w in bow.word_ids.tolist()))
+        common = {
+            k: n for k, n in counts.items()
+            if k not in excluded and (map_id is None or self._map_of[k] == map_id)
+        }
         if not common:
             return []
         # 2. keep keyframes sharing > 80 % of the best count, with score >= min_score

@@ -162,16 +162,19 @@ def correct_points(
     """Move each map point (3,) rigidly with its reference keyframe: p' = T_after T_before^-1 p.
 
     Points without a reference keyframe (or whose keyframe did not move) are returned unchanged."""
-    out: dict[int, F64] = {}
-    for pid, p in point_positions.items():
-        ref = reference_kf.get(pid)
-        p = np.asarray(p, np.float64)
-        if ref is None or ref not in poses_before or ref not in poses_after:
-            out[pid] = p.copy()
+    if not point_positions:
+        return {}
+    pids = list(point_positions)
+    pos = np.array([point_positions[p] for p in pids], np.float64).reshape(-1, 3)
+    refs = np.array([reference_kf.get(p, -1) for p in pids], np.int64)
+    out_pos = pos.copy()
+    for ref in np.unique(refs).tolist():
+        if ref not in poses_before or ref not in poses_after:
             continue
         corr = poses_after[ref] @ invert(poses_before[ref])
-        out[pid] = corr[:3, :3] @ p + corr[:3, 3]
-    return out
+        sel = refs == ref
+        out_pos[sel] = pos[sel] @ corr[:3, :3].T + corr[:3, 3]
+    return {pid: out_pos[i] for i, pid in enumerate(pids)}
 
 
 def _orthonormal(T: F64) -> F64:
