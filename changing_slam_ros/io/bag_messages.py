@@ -335,7 +335,7 @@ class BagMessages:
         if len(raw) < 12:  # ROS 1: uint32 seq, uint32 sec, uint32 nsec, little endian
             return None
         sec, nsec = struct.unpack_from("<II", raw, 4)
-        return sec * 1_000_000_000 + nsec
+        return int(sec) * 1_000_000_000 + int(nsec)
 
     def _to_cdr(self, conn: Any, raw: bytes | memoryview) -> bytes:
         if self._cdr_store is None:
@@ -349,7 +349,7 @@ def _cdr_header_stamp_ns(cdr: bytes | memoryview) -> int | None:
         return None
     endian = "<" if cdr[1] & 1 else ">"
     sec, nanosec = struct.unpack_from(f"{endian}iI", cdr, 4)
-    return sec * 1_000_000_000 + nanosec
+    return int(sec) * 1_000_000_000 + int(nanosec)
 
 
 def _describe(err: BaseException) -> str:

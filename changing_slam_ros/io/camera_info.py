@@ -139,7 +139,7 @@ def format_camera_info_yaml(camera: CameraIntrinsics, camera_name: str = "camera
         "rectification_matrix": block(3, 3, f["r"]),
         "projection_matrix": block(3, 4, f["p"]),
     }
-    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+    return str(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
 
 
 def write_camera_info_yaml(

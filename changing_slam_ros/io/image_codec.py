@@ -247,7 +247,8 @@ def depth_to_mm(depth_m: F32) -> npt.NDArray[np.uint16]:
     """Metres -> uint16 millimetres, rounded; readings beyond 65.535 m become 0 (no reading)."""
     mm = np.rint(clean_depth(depth_m) * np.float32(1000.0))
     mm[mm > 65535] = 0
-    return mm.astype(np.uint16)
+    out: npt.NDArray[np.uint16] = mm.astype(np.uint16)
+    return out
 
 
 def encode_compressed_rgb(rgb: U8, fmt: str = "jpeg", quality: int = 95) -> tuple[str, U8]:

@@ -119,7 +119,10 @@ def associate(
         # associate.py keys dictionaries by stamp: a repeated stamp can match only once
         if i in used_a or j in used_b or ta in used_stamp_a or tb in used_stamp_b:
             continue
-        used_a.add(i), used_b.add(j), used_stamp_a.add(ta), used_stamp_b.add(tb)
+        used_a.add(i)
+        used_b.add(j)
+        used_stamp_a.add(ta)
+        used_stamp_b.add(tb)
         pairs.append((i, j))
     pairs.sort(key=lambda p: (first_ns[p[0]], second_ns[p[1]]))
     return pairs
