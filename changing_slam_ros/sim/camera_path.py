@@ -13,19 +13,23 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.se3 import make_pose
-from changing_slam_ros.sim.track import PoseKey, Track, pose_xyz_rpy, sampled_track
+from changing_slam_ros.sim.track import PoseKey, Track, pose_xyz_rpy, function_track
 
 F64 = npt.NDArray[np.float64]
 WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+def _cross(a: F64, b: F64) -> F64:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def look_at(eye_m: F64, target_m: F64, roll_rad: float = 0.0) -> F64:
     """Optical-frame pose at `eye_m` looking at `target_m`, image x horizontal, then rolled about z."""
     z = np.asarray(target_m, dtype=np.float64) - np.asarray(eye_m, dtype=np.float64)
     z /= np.linalg.norm(z)
-    x = np.cross(z, WORLD_UP)
+    x = _cross(z, WORLD_UP)
     x /= np.linalg.norm(x)
-    y = np.cross(z, x)
+    y = _cross(z, x)
     r = np.stack([x, y, z], axis=1)
     if roll_rad:
         c, s = np.cos(roll_rad), np.sin(roll_rad)
@@ -62,7 +66,7 @@ def sway_xyz(h: HandHeld, duration_s: float, amp_m: tuple[float, float, float] =
         wob = 0.02 * np.sin(2 * np.pi * t / 5.0 + h.phase)
         return look_at(eye0 + off, tgt0 + off + 0.5 * wob * WORLD_UP, roll_rad=wob)
 
-    return sampled_track(fn, duration_s)
+    return function_track(fn, duration_s)
 
 
 def nearly_static(h: HandHeld, duration_s: float) -> Track:
@@ -73,7 +77,7 @@ def nearly_static(h: HandHeld, duration_s: float) -> Track:
         off = 0.004 * np.array([np.sin(2.1 * t + h.phase), np.sin(1.7 * t), np.sin(2.9 * t + 1.0)])
         return look_at(eye0 + off, tgt0 + 3 * off, roll_rad=0.004 * np.sin(1.3 * t + h.phase))
 
-    return sampled_track(fn, duration_s)
+    return function_track(fn, duration_s)
 
 
 def rotate_rpy(h: HandHeld, duration_s: float, amp_deg: tuple[float, float, float] = (12.0, 15.0, 25.0)) -> Track:
@@ -91,7 +95,7 @@ def rotate_rpy(h: HandHeld, duration_s: float, amp_deg: tuple[float, float, floa
         t_pose[:3, 3] += 0.01 * np.array([np.sin(t), np.cos(1.3 * t), 0.0])
         return t_pose
 
-    return sampled_track(fn, duration_s)
+    return function_track(fn, duration_s)
 
 
 def half_sphere(h: HandHeld, duration_s: float, radius_m: float = 0.5) -> Track:
@@ -110,7 +114,7 @@ def half_sphere(h: HandHeld, duration_s: float, radius_m: float = 0.5) -> Track:
         centre = eye0 + radius_m * fwd
         return look_at(centre + radius_m * d, tgt0)
 
-    return sampled_track(fn, duration_s)
+    return function_track(fn, duration_s)
 
 
 @dataclass(frozen=True)
@@ -126,6 +130,7 @@ class RobotLoop:
     turn_deg_s: float = 30.0
     height_m: float = 0.75
     tilt_deg: float = 4.0  # camera pitched slightly down
+    vibration: bool = True  # floor irregularities: ~0.5 mm and ~0.15 deg of shake, as the paper notes
 
 
 def robot_loop(loop: RobotLoop) -> tuple[Track, list[tuple[float, float, float]]]:
@@ -154,4 +159,16 @@ def robot_loop(loop: RobotLoop) -> tuple[Track, list[tuple[float, float, float]]
             keys.append(PoseKey(t + turn_s * k / 3, cam(x, y, yaw + np.pi / 2 * k / 3)))
         t += turn_s
         yaw += np.pi / 2
-    return Track(keys), segments
+    smooth = Track(keys)
+    if not loop.vibration:
+        return smooth, segments
+
+    def shaken(t_s: float) -> F64:
+        base = smooth.pose_at(t_s)
+        assert base is not None
+        shake = pose_xyz_rpy(0.0, 0.0, 0.0005 * np.sin(2 * np.pi * 1.7 * t_s),
+                             roll=np.radians(0.15) * np.sin(2 * np.pi * 2.3 * t_s + 1.0),
+                             pitch=np.radians(0.15) * np.sin(2 * np.pi * 1.3 * t_s))
+        return base @ shake
+
+    return function_track(shaken, t), segments

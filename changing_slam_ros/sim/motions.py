@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.sim.track import PoseKey, Track, interpolate_pose, pose_xyz_rpy, sampled_track
+from changing_slam_ros.sim.track import PoseKey, Track, interpolate_pose, pose_xyz_rpy, function_track
 
 F64 = npt.NDArray[np.float64]
 
@@ -50,7 +50,7 @@ def walking(waypoints_xy: list[tuple[float, float]], duration_s: float, speed_m_
             pose[2, 3] += 0.02 * abs(np.sin(2 * np.pi * t_s))
         return pose
 
-    return sampled_track(fn, duration_s, rate_hz=60.0)
+    return function_track(fn, duration_s)
 
 
 def seated(x: float, y: float, yaw: float, duration_s: float, phase: float = 0.0) -> Track:
@@ -62,7 +62,7 @@ def seated(x: float, y: float, yaw: float, duration_s: float, phase: float = 0.0
         dx = 0.05 * np.sin(2 * np.pi * t_s / 5.0 + phase)
         return pose_xyz_rpy(x + dx * np.cos(yaw), y + dx * np.sin(yaw), 0.0, pitch=lean, yaw=yaw + turn)
 
-    return sampled_track(fn, duration_s, rate_hz=60.0)
+    return function_track(fn, duration_s)
 
 
 def carried_by_hand(rest_from: F64, rest_to: F64, centre_m: F64, duration_s: float, pick_s: float,
@@ -87,7 +87,7 @@ def carried_by_hand(rest_from: F64, rest_to: F64, centre_m: F64, duration_s: flo
         )
         return interpolate_pose(interpolate_pose(rest_from, rest_to, u), wave, weight)
 
-    return sampled_track(fn, duration_s, rate_hz=60.0)
+    return function_track(fn, duration_s)
 
 
 def changed(initial: F64 | None, changes: list[tuple[float, F64 | None]]) -> Track:

@@ -31,7 +31,7 @@ from changing_slam_ros.sim.motions import carried_by_hand, changed, seated, walk
 from changing_slam_ros.sim.renderer import fovy_for_focal, intrinsics_for
 from changing_slam_ros.sim.room import default_room
 from changing_slam_ros.sim.scene import Room
-from changing_slam_ros.sim.track import Track, pose_xyz_rpy, sampled_track
+from changing_slam_ros.sim.track import Track, pose_xyz_rpy, function_track
 
 F64 = npt.NDArray[np.float64]
 
@@ -345,7 +345,7 @@ def _walking_changing(seed: int) -> Scenario:
     actors[idx["cup"]] = Actor("cup", 41, cat.cup_parts(), changed(cup0, [(t_change, cup1)]))
     s = Scenario("walking_changing", "a person walks past a table while the camera pans away and back; "
                  "the chair and the cup are moved while out of view (sample bag)", default_room(), tuple(actors),
-                 sampled_track(cam, duration_s), (Change(t_change, "chair_left", M), Change(t_change, "cup", M)),
+                 function_track(cam, duration_s), (Change(t_change, "chair_left", M), Change(t_change, "cup", M)),
                  duration_s, 15.0)
     check_changes_out_of_view(s)
     return s

@@ -101,8 +101,20 @@ class Track:
         return self._times[-1]
 
 
-def sampled_track(fn: Callable[[float], F64], t_end_s: float, rate_hz: float = 200.0) -> Track:
-    """A Track sampling a smooth pose function `fn(t_s) -> (4, 4)` densely on [0, t_end_s]."""
-    n = max(2, int(np.ceil(t_end_s * rate_hz)) + 1)
-    ts = np.linspace(0.0, t_end_s, n)
-    return Track([PoseKey(float(t), fn(float(t))) for t in ts])
+class FunctionTrack(Track):
+    """A Track that evaluates a smooth pose function `fn(t_s) -> (4, 4)` on demand, clamped to
+    [0, end_s]; exact at every frame time, and free to build."""
+
+    def __init__(self, fn: Callable[[float], F64], end_s: float) -> None:
+        self._fn = fn
+        self._end_s = float(end_s)
+        self.keys = [PoseKey(0.0, fn(0.0)), PoseKey(self._end_s, fn(self._end_s))]
+        self._times = [0.0, self._end_s]
+
+    def pose_at(self, t_s: float) -> F64 | None:
+        return self._fn(min(max(t_s, 0.0), self._end_s))
+
+
+def function_track(fn: Callable[[float], F64], t_end_s: float) -> Track:
+    """A Track following the pose function `fn` on [0, t_end_s] (see `FunctionTrack`)."""
+    return FunctionTrack(fn, t_end_s)
