@@ -176,7 +176,7 @@ class LoopCloser:
             if v is not None:
                 correction = self._correct(keyframe, match, v, covisibility, spanning_parent, point_positions,
                                            point_reference_kf)
-                self._loop_edges.append((match.id, keyframe.id))
+                self._loop_edges.append((match.id, keyframe.id))  # as ORB-SLAM, only the pair is kept
                 self._last_loop_kf_id = keyframe.id
                 self._consistency.reset()
                 return correction
@@ -207,9 +207,19 @@ class LoopCloser:
         edges: list[PoseGraphEdge] = essential_graph_edges(before, parents, cov, self.config.pose_graph.min_covisibility_weight)
         edges += relative_edges(before, [e for e in self._loop_edges if e[0] in before and e[1] in before], EdgeKind.LOOP)
         edges.append(PoseGraphEdge(match.id, query.id, v.T_a_b, EdgeKind.LOOP))
+        # 5c. ORB-SLAM's loop connections: every keyframe around the query (already moved) is tied to every
+        #     keyframe around the match. One edge alone would lose against the chain plus its parallel
+        #     covisibility edges and leave part of the drift in the loop.
+        query_side = [k for k in [query.id, *neighbours(covisibility, query.id)] if k in before]
+        match_side = [k for k in [match.id, *neighbours(covisibility, match.id, self.config.covisibility_group_size)]
+                      if k in before and k not in query_side]
+        for m in match_side:
+            for q in query_side:
+                if (m, q) != (match.id, query.id):
+                    edges.append(PoseGraphEdge(m, q, invert(before[m]) @ initial[q], EdgeKind.LOOP))
         origin = min(before)
         after = optimise_pose_graph(initial, edges, origin, self.config.pose_graph)
-        # 5c. map points follow their reference keyframe
+        # 5d. map points follow their reference keyframe
         refs = dict(point_reference_kf) if point_reference_kf is not None else self._reference_keyframes(point_positions)
         points = correct_points(point_positions, refs, before, after)
         fused = self._fused_points(match, query, v.matches)
