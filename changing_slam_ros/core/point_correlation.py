@@ -33,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
-from scipy.sparse.linalg import splu
+from scipy.sparse.linalg import LinearOperator, cg
 from scipy.spatial import ConvexHull, Delaunay, QhullError
 
 from changing_slam_ros.core.camera import CameraIntrinsics
@@ -351,21 +351,19 @@ class _Problem:
     """The measurements of eq. 4, flattened: one row per (edge, frame) with both points observed."""
 
     edge: I64  # (Q,) edge index
-    frame: I64  # (Q,) frame index
     i: I64  # (Q,) first point (index into the optimised points)
     j: I64  # (Q,) second point
     z_meas: F64  # (Q, 3) y_ik - y_jk
     whiten: F64  # (Q, 3) 1 / std of each component of z_ijk
-    R_cam_world: F64  # (K, 3, 3)
-    t_cam_world: F64  # (K, 3)
+    R_cam_world: F64  # (Q, 3, 3) rotation of the measurement's frame
+    t_cam_world: F64  # (Q, 3)
 
 
 def _residuals(points_world: F64, prob: _Problem, camera: CameraIntrinsics, model: str) -> tuple[F64, F64, F64]:
     """Whitened residuals r (Q, 3) of eq. 5 and their Jacobians wrt p_i and p_j, each (Q, 3, 3)."""
-    r_cw = prob.R_cam_world[prob.frame]
-    t_cw = prob.t_cam_world[prob.frame]
-    pi_cam = np.matmul(r_cw, points_world[prob.i][:, :, None])[:, :, 0] + t_cw
-    pj_cam = np.matmul(r_cw, points_world[prob.j][:, :, None])[:, :, 0] + t_cw
+    r_cw = prob.R_cam_world
+    pi_cam = np.matmul(r_cw, points_world[prob.i][:, :, None])[:, :, 0] + prob.t_cam_world
+    pj_cam = np.matmul(r_cw, points_world[prob.j][:, :, None])[:, :, 0] + prob.t_cam_world
     gi, ji = _observation(pi_cam, camera, model)
     gj, jj = _observation(pj_cam, camera, model)
     w = prob.whiten[:, :, None]
@@ -375,40 +373,80 @@ def _residuals(points_world: F64, prob: _Problem, camera: CameraIntrinsics, mode
     return res, d_pi, d_pj
 
 
+class _NormalEquations:
+    """The (3M, 3M) normal matrix of eq. 5 plus anchors, in 3x3 blocks (BSR): one diagonal block per point
+    and two off-diagonal blocks per edge. The block layout is fixed per problem and built once."""
+
+    def __init__(self, edges: I64, prob: _Problem, m: int) -> None:
+        n_edges = len(edges)
+        block_row = np.concatenate([np.arange(m), edges[:, 0], edges[:, 1]])
+        block_col = np.concatenate([np.arange(m), edges[:, 1], edges[:, 0]])
+        self.order = np.lexsort((block_col, block_row))
+        self.indices = block_col[self.order].astype(np.int32)
+        self.indptr = np.searchsorted(block_row[self.order], np.arange(m + 1)).astype(np.int32)
+        self.m, self.n_edges = m, n_edges
+        self.i, self.j, self.edge = prob.i, prob.j, prob.edge
+
+    def _sum_blocks(self, index: I64, blocks: F64, size: int) -> F64:
+        """Sum 3x3 blocks (Q, 3, 3) by `index` (Q,) into (size, 3, 3)."""
+        flat = blocks.reshape(-1, 9)
+        out = np.empty((size, 9))
+        for e in range(9):
+            out[:, e] = np.bincount(index, weights=flat[:, e], minlength=size)
+        return out.reshape(size, 3, 3)
+
+    def matrix(self, d_pi: F64, d_pj: F64, weights: F64, anchor_info: F64) -> tuple[sp.bsr_matrix, F64]:
+        """H = sum_q w_q J_q^T J_q + diag(anchor information) for Jacobian blocks (Q, 3, 3), weights (Q,).
+
+        Also returns H's diagonal blocks (M, 3, 3), the block-Jacobi preconditioner.
+        """
+        w = weights[:, None, None]
+        ai = np.swapaxes(d_pi, 1, 2)
+        diag = (
+            self._sum_blocks(self.i, w * np.matmul(ai, d_pi), self.m)
+            + self._sum_blocks(self.j, w * np.matmul(np.swapaxes(d_pj, 1, 2), d_pj), self.m)
+            + anchor_info[:, None, None] * np.eye(3)
+        )
+        off = self._sum_blocks(self.edge, w * np.matmul(ai, d_pj), self.n_edges)
+        blocks = np.concatenate([diag, off, np.swapaxes(off, 1, 2)])[self.order]
+        shape = (3 * self.m, 3 * self.m)
+        return sp.bsr_matrix((blocks, self.indices, self.indptr), shape=shape), diag
+
+
 def _gauss_newton_step(
     points_world: F64,
     anchor_world: F64,
     anchor_info: F64,
     prob: _Problem,
+    normal: _NormalEquations,
+    residuals: tuple[F64, F64, F64],
     weights: F64,
-    camera: CameraIntrinsics,
-    cfg: SegmentationConfig,
 ) -> F64:
     """One IRLS Gauss-Newton update of all points (M, 3) for the weighted residuals plus the anchors.
 
-    `anchor_world` (M, 3) and `anchor_info` (M,) (isotropic information, 1/m^2) are the point anchors.
+    `anchor_world` (M, 3) and `anchor_info` (M,) (isotropic information, 1/m^2) are the point anchors;
+    `residuals` is `_residuals` at `points_world`, `weights` (Q,) the IRLS weights.
     """
     m = len(points_world)
-    res, d_pi, d_pj = _residuals(points_world, prob, camera, cfg.observation_model)
-    q = len(res)
-    sw = np.sqrt(weights)[:, None, None]
-    rows = np.broadcast_to((3 * np.arange(q))[:, None, None] + np.arange(3)[None, :, None], (q, 3, 3))
-    cols_i = np.broadcast_to((3 * prob.i)[:, None, None] + np.arange(3)[None, None, :], (q, 3, 3))
-    cols_j = np.broadcast_to((3 * prob.j)[:, None, None] + np.arange(3)[None, None, :], (q, 3, 3))
-    jac = sp.csr_matrix(
-        (
-            np.concatenate([(sw * d_pi).ravel(), (sw * d_pj).ravel()]),
-            (np.concatenate([rows.ravel(), rows.ravel()]), np.concatenate([cols_i.ravel(), cols_j.ravel()])),
-        ),
-        shape=(3 * q, 3 * m),
+    res, d_pi, d_pj = residuals
+    hessian, block_diag = normal.matrix(d_pi, d_pj, weights, anchor_info)
+    wr = (weights[:, None] * res)[:, :, None]
+    g_i = np.matmul(np.swapaxes(d_pi, 1, 2), wr)[:, :, 0]
+    g_j = np.matmul(np.swapaxes(d_pj, 1, 2), wr)[:, :, 0]
+    gradient = np.zeros((m, 3))
+    for axis in range(3):
+        gradient[:, axis] = np.bincount(prob.i, weights=g_i[:, axis], minlength=m) + np.bincount(
+            prob.j, weights=g_j[:, axis], minlength=m
+        )
+    gradient += anchor_info[:, None] * (points_world - anchor_world)
+    # H is symmetric positive definite (the anchors make it so) and well conditioned once each point's
+    # 3x3 block is inverted: block-Jacobi preconditioned conjugate gradients beat a sparse LU here.
+    inv_blocks = np.linalg.inv(block_diag)
+    precond = LinearOperator(
+        hessian.shape, matvec=lambda v: np.matmul(inv_blocks, v.reshape(m, 3, 1)).ravel(), dtype=np.float64
     )
-    r_w = (sw[:, :, 0] * res).ravel()
-    info = np.repeat(anchor_info, 3)
-    hessian = (jac.T @ jac + sp.diags(info, format="csr")).tocsc()
-    gradient = jac.T @ r_w + info * (points_world - anchor_world).ravel()
-    # The normal matrix is symmetric positive definite: a symmetric ordering keeps SuperLU's fill-in low.
-    lu = splu(hessian, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-    return points_world + lu.solve(-gradient).reshape(m, 3)
+    delta, _ = cg(hessian, -gradient.ravel(), M=precond, rtol=1e-5, maxiter=500)
+    return points_world + delta.reshape(m, 3)
 
 
 def _huber_weights(chi: F64, delta: float) -> F64:
@@ -416,9 +454,7 @@ def _huber_weights(chi: F64, delta: float) -> F64:
     return np.where(chi <= delta, 1.0, delta / np.maximum(chi, 1e-12))
 
 
-def _build_problem(
-    window: CorrelationWindow, keep: I64, edges: I64, cfg: SegmentationConfig
-) -> tuple[_Problem, BoolArr]:
+def _build_problem(window: CorrelationWindow, keep: I64, edges: I64, cfg: SegmentationConfig) -> _Problem:
     """Measurements of every edge (indices into `keep`) in every frame where both points are seen."""
     obs = window.observed[:, keep]  # (K, M')
     both = obs[:, edges[:, 0]] & obs[:, edges[:, 1]]  # (K, E)
@@ -429,18 +465,16 @@ def _build_problem(
     gi, _ = _observation(pi, window.camera, cfg.observation_model)
     gj, _ = _observation(pj, window.camera, cfg.observation_model)
     var = _observation_sigma(pi, window.camera, cfg) ** 2 + _observation_sigma(pj, window.camera, cfg) ** 2
-    t_cw = np.linalg.inv(window.T_world_cam)
-    prob = _Problem(
+    T_cam_world = np.linalg.inv(window.T_world_cam)
+    return _Problem(
         edge=edge.astype(np.int64),
-        frame=frame.astype(np.int64),
         i=i,
         j=j,
         z_meas=gi - gj,
         whiten=1.0 / np.sqrt(var),
-        R_cam_world=t_cw[:, :3, :3],
-        t_cam_world=t_cw[:, :3, 3],
+        R_cam_world=np.ascontiguousarray(T_cam_world[frame, :3, :3]),
+        t_cam_world=np.ascontiguousarray(T_cam_world[frame, :3, 3]),
     )
-    return prob, both
 
 
 def _anchor_information(window: CorrelationWindow, keep: I64, cfg: SegmentationConfig) -> F64:
@@ -475,18 +509,18 @@ def optimise_correlations(
     # of an edge to a static neighbour are equally (in)consistent.
     init = _median_world(world, obs)
     anchor_info = cfg.anchor_weight * _anchor_information(window, keep, cfg)
-    prob, _ = _build_problem(window, keep, edges, cfg)
+    prob = _build_problem(window, keep, edges, cfg)
+    normal = _NormalEquations(edges, prob, len(keep))
     n_meas = np.bincount(prob.edge, minlength=len(edges)).astype(np.int64)
     points = init.copy()
     active = np.ones(len(prob.edge), dtype=bool)
-    chi2 = np.zeros(len(prob.edge))
+    residuals = _residuals(points, prob, window.camera, cfg.observation_model)
     for _ in range(cfg.rounds):
         for _ in range(cfg.iterations_per_round):
-            res, _, _ = _residuals(points, prob, window.camera, cfg.observation_model)
-            weights = _huber_weights(np.linalg.norm(res, axis=1), cfg.huber_delta) * active
-            points = _gauss_newton_step(points, init, anchor_info, prob, weights, window.camera, cfg)
-        res, _, _ = _residuals(points, prob, window.camera, cfg.observation_model)
-        chi2 = np.einsum("qa,qa->q", res, res)
+            weights = _huber_weights(np.linalg.norm(residuals[0], axis=1), cfg.huber_delta) * active
+            points = _gauss_newton_step(points, init, anchor_info, prob, normal, residuals, weights)
+            residuals = _residuals(points, prob, window.camera, cfg.observation_model)
+        chi2 = np.einsum("qa,qa->q", residuals[0], residuals[0])
         active = chi2 <= cfg.outlier_chi2
     inliers = np.bincount(prob.edge, weights=active.astype(float), minlength=len(edges))
     fraction = inliers / np.maximum(n_meas, 1)
