@@ -45,7 +45,7 @@ def test_repopulation_keeps_background_keypoints_behind_a_person_box_and_drops_t
     assert (res.kp_classes[n1:n2] == KeypointClass.STATIC).all()  # repopulated background
     assert (res.kp_object_class_ids[n1:] == -1).all() and (res.kp_box_index[n1:] == -1).all()
     assert (res.kp_classes[n2:] == KeypointClass.STATIC).all()
-    assert res.box_usable[0] and res.box_background_depth_m[0] == pytest.approx(1.5 + 0.5)
+    assert res.box_usable[0] and res.box_background_depth_m[0] == pytest.approx(1.5 + 0.8)
     assert res.static_mask().sum() == len(behind) + len(outside)
     # Without repopulation every keypoint in the box shares the person's class (paper Fig. 3a).
     plain = classify_keypoints(kps, depth, [box], KeypointClassificationConfig(repopulation=False))
@@ -111,12 +111,17 @@ def test_a_large_depth_spread_disables_the_objects_keypoints() -> None:
     assert (relaxed.kp_classes[len(on_person) :] == KeypointClass.STATIC).all()
 
 
-def test_an_unlabelled_object_nearer_than_the_box_centre_disables_it() -> None:
+def test_the_optional_centre_band_check_disables_an_object_behind_an_unlabelled_table() -> None:
     depth, box, on_person, behind = person_scene()
-    depth[380:460, 230:410] = 0.8  # a table in front of the person's legs; the box centre stays on the person
-    res = classify_keypoints(np.concatenate([on_person, behind]), depth, [box])
-    assert not res.box_usable[0]  # otherwise the person (1.5 m > 0.8 + 0.5) would be taken for background
+    depth[380:460, 230:410] = 0.5  # a table in front of the person's legs; the box centre stays on the person
+    kps = np.concatenate([on_person, behind])
+    res = classify_keypoints(kps, depth, [box], KeypointClassificationConfig(check_centre_in_object_band=True))
+    assert not res.box_usable[0]
     assert (res.kp_classes == KeypointClass.UNUSED).all()
+    # Without the check (the paper's rule, default) the person's torso (1.5 m > 0.5 + 0.8) is taken for background.
+    paper = classify_keypoints(kps, depth, [box])
+    assert paper.box_usable[0]
+    assert (paper.kp_classes[: len(on_person)][on_person[:, 1] < 380] == KeypointClass.STATIC).all()
 
 
 def test_overlapping_detected_boxes_are_left_out_of_each_others_statistics() -> None:

@@ -86,7 +86,7 @@ def test_static_chair_is_used_pushed_chair_and_standing_person_are_filtered_with
         verdicts.append([o.motion for o in res.objects])
         on = [inside(kps, r) for r in rects]
         in_person_box = inside(kps, np.array(dets[2].box_xyxy), 0.0)
-        behind_person = in_person_box & ~inside(kps, rects[2], -2.0) & ~inside(kps, rects[0], -2.0) & ~inside(kps, rects[1], -2.0)
+        behind_person = in_person_box & ~inside(kps, rects[2], -4.0) & ~inside(kps, rects[0], -4.0) & ~inside(kps, rects[1], -4.0)
         # The person's keypoints are never used; the wall seen inside its box always is (repopulation).
         assert not res.use_for_tracking[on[2]].any()
         assert (res.classification.kp_classes[on[2]] == KeypointClass.DYNAMIC).all()
@@ -117,7 +117,7 @@ def test_without_repopulation_the_background_behind_the_person_is_lost() -> None
     without = DynamicObjectTracker(CAM, plain).process(0, kps, depth, dets, camera_pose(0))
     in_box = inside(kps, np.array(dets[2].box_xyxy), 0.0)
     assert not without.use_for_tracking[in_box].any()
-    on_wall = in_box & ~inside(kps, rects[2], -2.0) & ~inside(kps, rects[1], -2.0)
+    on_wall = in_box & ~inside(kps, rects[2], -4.0) & ~inside(kps, rects[1], -4.0)
     assert on_wall.sum() > 10 and with_repop.use_for_tracking[on_wall].all()
     assert not with_repop.use_for_tracking[inside(kps, rects[2])].any()
     assert with_repop.use_for_tracking.sum() > without.use_for_tracking.sum()
@@ -126,3 +126,30 @@ def test_without_repopulation_the_background_behind_the_person_is_lost() -> None
 def test_update_before_classify_is_an_error() -> None:
     with pytest.raises(RuntimeError, match="before classify"):
         DynamicObjectTracker(CAM).update(np.eye(4))
+
+
+def test_every_threshold_is_read_from_a_yaml_section_with_the_papers_defaults(tmp_path) -> None:
+    from changing_slam_ros.config import load_yaml, section
+    from changing_slam_ros.core.detector import DetectorConfig
+    from changing_slam_ros.errors import ConfigError
+
+    path = tmp_path / "dynamic.yaml"
+    path.write_text(
+        "detector:\n  score_threshold: 0.5\n  intra_op_threads: 1\n  providers: [CPUExecutionProvider]\n"
+        "dynamic_objects:\n  doc_threshold_mps: {56: 0.2}\n  min_updates: 4\n"
+        "  classification:\n    background_margin_m: {0: 0.7}\n    repopulation: true\n"
+        "  ekf:\n    measurement_sigma_m: [0.02, 0.02, 0.04]\n"
+        "  association:\n    min_iou: 0.4\n"
+    )
+    data = load_yaml(path)
+    det = section(DetectorConfig, data["detector"], f"{path}: detector")
+    dyn = section(DynamicObjectsConfig, data["dynamic_objects"], f"{path}: dynamic_objects")
+    assert det.score_threshold == 0.5 and det.providers == ("CPUExecutionProvider",)
+    assert dyn.doc_threshold(CHAIR_CLASS_ID) == 0.2 and dyn.min_updates == 4
+    assert dyn.classification.margin_m(PERSON_CLASS_ID) == 0.7
+    assert dyn.ekf.measurement_sigma_m == (0.02, 0.02, 0.04) and dyn.association.min_iou == 0.4
+    # Defaults: the paper's sigma_a per class, persons always dynamic.
+    assert (dyn.ekf.sigma_a(PERSON_CLASS_ID), dyn.ekf.sigma_a(CHAIR_CLASS_ID), dyn.ekf.sigma_a(62)) == (0.5, 0.02, 0.01)
+    assert dyn.always_dynamic_class_ids == (PERSON_CLASS_ID,)
+    with pytest.raises(ConfigError, match="dynamic_objects.classification: unknown key"):
+        section(DynamicObjectsConfig, {"classification": {"margin": 1.0}}, f"{path}: dynamic_objects")
