@@ -16,7 +16,7 @@ copies (ROS transport). `relocalise` serves tracking when it is lost.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,9 +32,11 @@ from changing_slam_ros.core.backend.pose_graph import (
     relative_edges,
 )
 from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.geometric_verification import Verification, VerificationConfig, verify
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.keyframe_database import Covisibility, KeyframeDatabase, loop_feature_mask
+from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.place_recognition import (
     ConsistencyChecker,
     Relocalisation,
@@ -43,6 +45,7 @@ from changing_slam_ros.core.place_recognition import (
     relocalise,
 )
 from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.slam_map import SlamMap
 from changing_slam_ros.core.vocabulary import Vocabulary, l1_score
 
 F64 = npt.NDArray[np.float64]
@@ -148,7 +151,10 @@ class LoopCloser:
         keeps keypoints allowed in place recognition (default: not DYNAMIC/UNUSED). `point_reference_kf` maps a
         point to the keyframe it moves with (default: the oldest held keyframe observing it).
         """
-        self.add(keyframe, active_mask)
+        mask = loop_feature_mask(keyframe) if active_mask is None else np.asarray(active_mask, bool)
+        stored = self._masks.get(keyframe.id)
+        if stored is None or not np.array_equal(stored, mask):  # not indexed yet (or its mask changed)
+            self.add(keyframe, mask)
         cfg = self.config
         if not cfg.enabled:
             return None
@@ -270,3 +276,129 @@ class LoopCloser:
             keypoints_px, descriptors, camera, self.database, self._keyframes, point_positions, covisibility,
             self.config.relocalisation, map_id, active_mask,
         )
+
+
+# ---------------------------------------------------------------------- binding to the offline map
+class SlamMapLoopClosing:
+    """`LoopCloser` bound to `core.slam_map.SlamMap`, the offline runner's map. It fits both seams of
+    `core.system.SlamSystem`: `process(kf, slam_map) -> bool` (loop_closer) and `add` / `erase` /
+    `candidates(frame, slam_map)` (keyframe_index), so one object serves as both:
+
+        closing = SlamMapLoopClosing(LoopCloser(config.loop, Vocabulary.load()))
+        SlamSystem(config, loop_closer=closing, keyframe_index=closing)
+
+    On a loop it applies the correction to the map: keyframe poses, point positions and normals, fusion of
+    the duplicated points, the loop edge, and fresh covisibility links around the query. The latest
+    correction is kept in `last_correction` (tracking moves its last frame with `pose_corrections`).
+    """
+
+    def __init__(self, closer: LoopCloser, max_candidates: int = 6) -> None:
+        self.closer = closer
+        self.max_candidates = max_candidates
+        self.last_correction: LoopCorrection | None = None
+
+    # keyframe index seam
+    def add(self, kf: Keyframe) -> None:
+        self.closer.add(kf)
+
+    def erase(self, kf_id: int) -> None:
+        self.closer.erase(kf_id)
+
+    def candidates(self, frame: Frame, slam_map: SlamMap) -> list[int]:
+        """Relocalisation candidates of `frame` among `slam_map`'s keyframes, best first."""
+        db = self.closer.database
+        bow = db.vocabulary.transform(frame.features.descriptors).bow
+        found = db.relocalisation_candidates(bow, slam_map.covisibility, slam_map.id)
+        ranked = sorted(found, key=lambda c: (-c.score, c.keyframe_id))
+        return [c.keyframe_id for c in ranked if c.keyframe_id in slam_map.keyframes][: self.max_candidates]
+
+    # loop closer seam
+    def process(self, kf: Keyframe, slam_map: SlamMap) -> bool:
+        points = slam_map.points
+        mask = loop_feature_mask(kf)
+        seen = kf.point_ids >= 0
+        mask[seen] &= points.active[kf.point_ids[seen]]  # Changing-SLAM: inactive object points take no part
+        correction = self.closer.process(
+            kf, slam_map.covisibility, slam_map.parent, _PointPositions(points), mask, _ReferenceKeyframes(points)
+        )
+        if correction is None:
+            return False
+        apply_correction(slam_map, correction)
+        self.closer.update_poses(correction.corrected_poses)
+        self.last_correction = correction
+        return True
+
+
+def apply_correction(slam_map: SlamMap, correction: LoopCorrection) -> None:
+    """Write a `LoopCorrection` into a `SlamMap`: poses, points (positions, normals), fusion, loop edge, links."""
+    for kf_id, T in correction.corrected_poses.items():
+        if kf_id in slam_map.keyframes:
+            slam_map.keyframes[kf_id].T_world_cam = np.asarray(T, np.float64)
+    points = slam_map.points
+    if correction.corrected_points:
+        ids = np.fromiter(correction.corrected_points.keys(), np.int64, len(correction.corrected_points))
+        points.positions[ids] = np.stack(list(correction.corrected_points.values()))
+        refs = points.ref_kf[ids]
+        for ref in np.unique(refs).tolist():
+            corr = correction.pose_corrections.get(ref)
+            if corr is not None:
+                sel = ids[refs == ref]
+                points.normals[sel] = points.normals[sel] @ corr[:3, :3].T
+    touched = {correction.query_kf_id}
+    usable = points.usable()
+    for dup, keep in correction.fused_points:
+        if dup == keep or not (usable[dup] and usable[keep]):
+            continue
+        for kf_id, idx in list(points.observations[dup].items()):
+            kf = slam_map.keyframes.get(kf_id)
+            if kf is None:
+                continue
+            if kf_id in points.observations[keep]:
+                kf.point_ids[idx] = -1
+            else:
+                slam_map.add_observation(keep, kf_id, idx)
+            touched.add(kf_id)
+        points.observations[dup] = {}
+        points.set_bad(np.array([dup]))
+    slam_map.loop_edges.setdefault(correction.match_kf_id, set()).add(correction.query_kf_id)
+    slam_map.loop_edges.setdefault(correction.query_kf_id, set()).add(correction.match_kf_id)
+    for kf_id in sorted(touched):
+        if kf_id in slam_map.keyframes:
+            slam_map.update_connections(kf_id)
+
+
+class _PointPositions(Mapping[int, F64]):
+    """Read-only id -> world position (3,) view of a PointStore's usable points (no copy)."""
+
+    def __init__(self, points: PointStore) -> None:
+        self._points = points
+        self._usable = points.usable()
+
+    def __getitem__(self, pid: int) -> F64:
+        if not 0 <= pid < len(self._usable) or not self._usable[pid]:
+            raise KeyError(pid)
+        return self._points.positions[pid]
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(np.flatnonzero(self._usable).tolist())
+
+    def __len__(self) -> int:
+        return int(self._usable.sum())
+
+
+class _ReferenceKeyframes(Mapping[int, int]):
+    """Read-only id -> reference keyframe id view of a PointStore."""
+
+    def __init__(self, points: PointStore) -> None:
+        self._points = points
+
+    def __getitem__(self, pid: int) -> int:
+        if not 0 <= pid < self._points.size:
+            raise KeyError(pid)
+        return int(self._points.ref_kf[pid])
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(range(self._points.size))
+
+    def __len__(self) -> int:
+        return self._points.size

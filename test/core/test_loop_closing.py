@@ -185,3 +185,82 @@ def test_a_synthetic_loop_is_closed_and_the_final_ate_is_far_below_the_online_at
     e = invert(rel_truth) @ first.T_match_query
     assert np.linalg.norm(e[:3, 3]) < 0.01 and np.degrees(rotation_angle_rad(e[:3, :3])) < 0.2
     assert ate_final < 0.15 * ate_online  # measured 68.4 -> 6.8 cm
+
+
+def test_the_slam_map_binding_corrects_poses_fuses_duplicates_and_serves_relocalisation_candidates():
+    """The offline map with a tracker that re-uses points of the last 3 keyframes only: after a turn it maps
+    the start again as new (duplicated, drifted) points; the loop must correct poses and points and fuse."""
+    from changing_slam_ros.core.frame import Frame
+    from changing_slam_ros.core.loop_closing import SlamMapLoopClosing
+    from changing_slam_ros.core.orb_features import Features
+    from changing_slam_ros.core.slam_map import SlamMap
+
+    room = SyntheticRoom(seed=1)
+    n_per_turn, n_kf = 48, 58
+    closing = SlamMapLoopClosing(LoopCloser(LoopConfig(), Vocabulary.load()))
+    slam_map = SlamMap(0)
+    truth, online = {}, {}
+    world_to_map: dict[int, tuple[int, int]] = {}  # world point -> (map point id, last keyframe that saw it)
+    map_to_world: dict[int, int] = {}
+    created: list[np.ndarray] = []  # point positions as first mapped (online)
+    scales = FeatureConfig().level_scales()
+    loops = 0
+    for k in range(n_kf):
+        truth[k] = room.pose(k, n_per_turn)
+        if k == 0:
+            online[k] = truth[0].copy()
+        else:
+            rel = invert(truth[k - 1]) @ truth[k]
+            online[k] = slam_map.keyframes[k - 1].T_world_cam @ make_pose(_rot_y(np.radians(1.0)) @ rel[:3, :3], rel[:3, 3])
+        kf, seen = room.keyframe(k, truth[k], online[k])
+        slam_map.add_keyframe(kf)
+        new_rows = []
+        for row, w in enumerate(seen.tolist()):
+            known = world_to_map.get(w)
+            if known is not None and k - known[1] <= 3 and not slam_map.points.bad[known[0]]:
+                slam_map.add_observation(known[0], k, row)
+                world_to_map[w] = (known[0], k)
+            else:
+                new_rows.append(row)
+        rows = np.array(new_rows, np.int64)
+        p_cam = kf.camera.backproject(kf.keypoints_px[rows].astype(np.float64), kf.depths_m[rows].astype(np.float64))
+        p_w = p_cam @ online[k][:3, :3].T + online[k][:3, 3]
+        ids = slam_map.points.add(p_w, kf.descriptors[rows], k, rows, online[k][:3, 3], np.zeros(len(rows), np.int64), scales)
+        kf.point_ids[rows] = ids
+        for pid, row in zip(ids.tolist(), rows.tolist()):
+            world_to_map[int(seen[row])] = (pid, k)
+            map_to_world[pid] = int(seen[row])
+        created.append(p_w)
+        slam_map.update_connections(k)
+        closing.add(kf)  # the system feeds the index first, then offers the keyframe to loop closing
+        loops += int(closing.process(kf, slam_map))
+    assert loops >= 1
+    c = closing.last_correction
+    assert c is not None and c.match_kf_id < 5 and c.query_kf_id >= n_per_turn - 3  # views overlap a turn apart
+    final = {k: slam_map.keyframes[k].T_world_cam for k in truth}
+    ate_online, ate_final = rmse_position(online, truth), rmse_position(final, truth)
+    usable = np.flatnonzero(slam_map.points.usable())
+    usable = usable[slam_map.points.ref_kf[usable] <= c.query_kf_id]  # later keyframes drift on after the loop
+    true_pos = room.points[[map_to_world[p] for p in usable]]
+    pts_err = np.linalg.norm(slam_map.points.positions[usable] - true_pos, axis=1)
+    pts_err_online = np.linalg.norm(np.concatenate(created)[usable] - true_pos, axis=1)
+    print(f"slam map: loop {c.query_kf_id}->{c.match_kf_id}, {len(c.fused_points)} points fused, "
+          f"ATE {100 * ate_online:.1f} -> {100 * ate_final:.1f} cm, point error median {100 * np.median(pts_err_online):.1f} -> {100 * np.median(pts_err):.1f} cm")
+    assert ate_final < 0.2 * ate_online  # measured 66.6 -> 6.2 cm
+    assert np.median(pts_err) < 0.25 * np.median(pts_err_online)  # measured 125 -> 10 cm
+    # duplicates fused: the query now observes points first mapped at the start, and the two sides are linked
+    assert len(c.fused_points) > 100
+    query = slam_map.keyframes[c.query_kf_id]
+    assert np.any(slam_map.points.first_kf[query.point_ids[query.point_ids >= 0]] < 5)
+    assert c.match_kf_id in slam_map.covisibility[c.query_kf_id]
+    assert c.query_kf_id in slam_map.loop_edges[c.match_kf_id]
+    for dup, keep in c.fused_points:
+        assert slam_map.points.bad[dup] and not slam_map.points.bad[keep]
+    # relocalisation candidates for a frame taken where keyframe 10 was
+    kf, _ = room.keyframe(999, truth[10], np.eye(4))
+    feats = Features(
+        kf.keypoints_px.astype(np.float64), kf.keypoints_px.astype(np.float64), kf.octaves.astype(np.int64),
+        np.zeros(len(kf)), np.ones(len(kf)), kf.descriptors, kf.depths_m.astype(np.float64), np.full(len(kf), -1.0),
+    )
+    cands = closing.candidates(Frame(0, 0, kf.camera, feats), slam_map)
+    assert cands and abs(cands[0] - 10) <= 2
