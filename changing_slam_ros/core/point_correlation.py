@@ -288,18 +288,12 @@ def delaunay_graph(points: F64) -> DelaunayGraph:
             return DelaunayGraph(edges, no_triangles)
     nv = simplices.shape[1]
     # Every triple of a simplex's vertices is a triangle; sides are coded i * n + j with i < j.
-    tri_vertices = np.concatenate(
-        [simplices[:, list(c)] for c in ([0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3])[: 1 if nv == 3 else 4]]
-    )
-    tri_vertices = np.unique(np.sort(tri_vertices, axis=1), axis=0).astype(np.int64)
-    sides = np.stack(
-        [
-            tri_vertices[:, 0] * n + tri_vertices[:, 1],
-            tri_vertices[:, 0] * n + tri_vertices[:, 2],
-            tri_vertices[:, 1] * n + tri_vertices[:, 2],
-        ],
-        axis=1,
-    )
+    faces = ([0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3])[: 1 if nv == 3 else 4]
+    tri = np.sort(np.concatenate([simplices[:, f] for f in faces]).astype(np.int64), axis=1)
+    # Unique triangles through one integer key per vertex triple (faces are shared by two tetrahedra).
+    tri_keys = np.unique((tri[:, 0] * n + tri[:, 1]) * n + tri[:, 2])
+    tri = np.stack([tri_keys // (n * n), (tri_keys // n) % n, tri_keys % n], axis=1)
+    sides = np.stack([tri[:, 0] * n + tri[:, 1], tri[:, 0] * n + tri[:, 2], tri[:, 1] * n + tri[:, 2]], axis=1)
     codes, inverse = np.unique(sides, return_inverse=True)
     edges = np.stack([codes // n, codes % n], axis=1).astype(np.int64)
     return DelaunayGraph(edges, inverse.reshape(-1, 3).astype(np.int64))
@@ -319,22 +313,12 @@ def triangle_supported(graph: DelaunayGraph, consistent: BoolArr, min_triangles:
     return consistent & (support >= min_triangles)
 
 
-def _observation(points_cam: F64, camera: CameraIntrinsics, model: str) -> tuple[F64, F64]:
-    """g(p) and its Jacobian dg/dp_cam for points (N, 3): returns (N, 3) and (N, 3, 3)."""
-    n = len(points_cam)
-    jac = np.zeros((n, 3, 3))
+def _observation(points_cam: F64, camera: CameraIntrinsics, model: str) -> F64:
+    """The RGB-D observation g(p) (N, 3) of points (N, 3) in the camera frame: [u, v, d] or [x, y, z]."""
     if model == "point_3d":
-        jac[:, 0, 0] = jac[:, 1, 1] = jac[:, 2, 2] = 1.0
-        return points_cam.copy(), jac
+        return points_cam.copy()
     x, y, z = points_cam[:, 0], points_cam[:, 1], points_cam[:, 2]
-    inv_z = 1.0 / z
-    g = np.stack([camera.fx * x * inv_z + camera.cx, camera.fy * y * inv_z + camera.cy, z], axis=1)
-    jac[:, 0, 0] = camera.fx * inv_z
-    jac[:, 0, 2] = -camera.fx * x * inv_z * inv_z
-    jac[:, 1, 1] = camera.fy * inv_z
-    jac[:, 1, 2] = -camera.fy * y * inv_z * inv_z
-    jac[:, 2, 2] = 1.0
-    return g, jac
+    return np.stack([camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy, z], axis=1)
 
 
 def _observation_sigma(points_cam: F64, camera: CameraIntrinsics, cfg: SegmentationConfig) -> F64:
@@ -359,17 +343,31 @@ class _Problem:
     t_cam_world: F64  # (Q, 3)
 
 
+def _jacobian_world(points_cam: F64, r_cam_world: F64, camera: CameraIntrinsics, model: str) -> F64:
+    """d g(R p + t) / d p (Q, 3, 3) = dg/dp_cam R for camera-frame points (Q, 3) and rotations (Q, 3, 3).
+
+    Written row by row: the pixel rows of dg/dp_cam have two non-zeros each, the depth row is (0, 0, 1).
+    """
+    if model == "point_3d":
+        return r_cam_world
+    inv_z = 1.0 / points_cam[:, 2:3]
+    r0, r1, r2 = r_cam_world[:, 0, :], r_cam_world[:, 1, :], r_cam_world[:, 2, :]
+    row0 = camera.fx * inv_z * (r0 - points_cam[:, 0:1] * inv_z * r2)
+    row1 = camera.fy * inv_z * (r1 - points_cam[:, 1:2] * inv_z * r2)
+    return np.stack([row0, row1, r2], axis=1)
+
+
 def _residuals(points_world: F64, prob: _Problem, camera: CameraIntrinsics, model: str) -> tuple[F64, F64, F64]:
     """Whitened residuals r (Q, 3) of eq. 5 and their Jacobians wrt p_i and p_j, each (Q, 3, 3)."""
     r_cw = prob.R_cam_world
     pi_cam = np.matmul(r_cw, points_world[prob.i][:, :, None])[:, :, 0] + prob.t_cam_world
     pj_cam = np.matmul(r_cw, points_world[prob.j][:, :, None])[:, :, 0] + prob.t_cam_world
-    gi, ji = _observation(pi_cam, camera, model)
-    gj, jj = _observation(pj_cam, camera, model)
+    gi = _observation(pi_cam, camera, model)
+    gj = _observation(pj_cam, camera, model)
     w = prob.whiten[:, :, None]
     res = prob.whiten * (prob.z_meas - (gi - gj))
-    d_pi = -w * np.matmul(ji, r_cw)
-    d_pj = w * np.matmul(jj, r_cw)
+    d_pi = -w * _jacobian_world(pi_cam, r_cw, camera, model)
+    d_pj = w * _jacobian_world(pj_cam, r_cw, camera, model)
     return res, d_pi, d_pj
 
 
@@ -462,8 +460,8 @@ def _build_problem(window: CorrelationWindow, keep: I64, edges: I64, cfg: Segmen
     i, j = edges[edge, 0], edges[edge, 1]
     pts = window.points_cam[:, keep]
     pi, pj = pts[frame, i], pts[frame, j]
-    gi, _ = _observation(pi, window.camera, cfg.observation_model)
-    gj, _ = _observation(pj, window.camera, cfg.observation_model)
+    gi = _observation(pi, window.camera, cfg.observation_model)
+    gj = _observation(pj, window.camera, cfg.observation_model)
     var = _observation_sigma(pi, window.camera, cfg) ** 2 + _observation_sigma(pj, window.camera, cfg) ** 2
     T_cam_world = np.linalg.inv(window.T_world_cam)
     return _Problem(

@@ -1,0 +1,119 @@
+"""Speed and accuracy of the Dai et al. pieces: point-correlation segmentation, object BA, overlap merging.
+
+Prints, never asserts. Scenes are the synthetic ones of the unit tests (a room of static points and two
+rigid cubes; a box on a 6-DoF path), so the figures are reproducible:
+
+    .venv/bin/python bench/bench_segmentation.py [--runs 5] [--static 800] [--object 100]
+
+Wall and CPU milliseconds are both printed: on a shared machine the wall time includes waiting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(REPO), str(REPO / "test" / "core")]
+
+from test_object_tracking import CAMERA, object_sequence  # noqa: E402  (scene builders of the tests)
+from test_point_correlation import make_scene, precision_recall  # noqa: E402
+
+from changing_slam_ros.core.object_merging import MergeConfig, overlapping_groups  # noqa: E402
+from changing_slam_ros.core.object_tracking import MovingObject, ObjectTracker, ObjectTrackingConfig  # noqa: E402
+from changing_slam_ros.core.point_correlation import SegmentationConfig, segment  # noqa: E402
+from changing_slam_ros.core.se3 import invert, transform_points  # noqa: E402
+
+
+def timed(fn: Callable[[], object], runs: int) -> tuple[object, float, float]:
+    """Result of the last run, median wall ms and median CPU ms over `runs` (after one warm-up)."""
+    result = fn()
+    wall, cpu = [], []
+    for _ in range(runs):
+        w0, c0 = time.perf_counter(), time.process_time()
+        result = fn()
+        wall.append((time.perf_counter() - w0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return result, statistics.median(wall), statistics.median(cpu)
+
+
+def bench_segmentation(args: argparse.Namespace) -> None:
+    print("point-correlation segmentation (precision/recall of moving points; unassigned counts as missed)")
+    cases = [
+        ("two-frame", 2, [np.array([0.06, 0.0, 0.0]), np.array([0.0, 0.05, -0.04])], 0.05, 0.03, SegmentationConfig.two_frame()),
+        ("5-frame window", 5, [np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.025, -0.015])], 0.08, 0.01, SegmentationConfig.multi_frame()),
+    ]
+    for name, k, steps, outliers, spin, cfg in cases:
+        rng = np.random.default_rng(0)
+        window, truth, _ = make_scene(
+            rng, k, steps, np.array([0.03, 0.0, 0.01]), n_static=args.static, n_object=args.object,
+            outlier_rate=outliers, spin_rad_per_frame=spin,
+        )
+        result, wall, cpu = timed(lambda: segment(window, cfg), args.runs)
+        precision, recall = precision_recall(result.dynamic_mask, truth > 0)  # type: ignore[attr-defined]
+        seen = int((window.observed.sum(axis=0) >= 2).sum())
+        print(
+            f"  {name:15s} points {len(truth):5d} (seen twice {seen}), edges {len(result.edges):5d}, "  # type: ignore[attr-defined]
+            f"{outliers:.0%} outlier measurements: {wall:7.1f} ms wall, {cpu:7.1f} ms CPU; "
+            f"targets {result.num_targets}, P {precision:.3f} R {recall:.3f}"  # type: ignore[attr-defined]
+        )
+
+
+def bench_object_tracking(args: argparse.Namespace) -> None:
+    print("object tracking (80-point box, 30 frames, 5 % outliers)")
+    T_true, _, frames, _ = object_sequence(30, seed=0)
+    tracker = ObjectTracker(CAMERA, ObjectTrackingConfig())
+
+    def run(optimise: bool) -> tuple[MovingObject, list[float], list[float]]:
+        first = frames[0]
+        obj = MovingObject.create(1, first.point_ids, transform_points(first.T_world_cam, first.points_cam), first.stamp_ns, first)
+        track_ms, ba_ms = [], []
+        for frame in frames[1:]:
+            t0 = time.process_time()
+            result = tracker.track(obj, frame)
+            track_ms.append((time.process_time() - t0) * 1e3)
+            if optimise and result.is_keypose:
+                t0 = time.process_time()
+                tracker.optimise(obj)
+                ba_ms.append((time.process_time() - t0) * 1e3)
+        return obj, track_ms, ba_ms
+
+    for optimise in (False, True):
+        obj, track_ms, ba_ms = run(optimise)
+        offset = invert(T_true[0]) @ obj.poses[frames[0].stamp_ns]
+        err = [np.linalg.norm(obj.poses[f.stamp_ns][:3, 3] - (T_true[k] @ offset)[:3, 3]) for k, f in enumerate(frames)]
+        label = "eq. 7 + eq. 11 at keyposes" if optimise else "eq. 7 only               "
+        ba = f", full BA {statistics.median(ba_ms):.1f} ms CPU median over {len(ba_ms)}" if ba_ms else ""
+        print(
+            f"  {label}: trajectory RMSE {1e3 * np.sqrt(np.mean(np.square(err))):.2f} mm, "
+            f"motion-only BA {statistics.median(track_ms):.1f} ms CPU per frame{ba}"
+        )
+
+
+def bench_merging(args: argparse.Namespace) -> None:
+    rng = np.random.default_rng(0)
+    sets = [rng.normal([x, 0.0, 1.5], 0.1, (100, 3)) for x in np.linspace(0.0, 3.0, 10)]
+    groups, wall, cpu = timed(lambda: overlapping_groups(sets, MergeConfig()), args.runs)
+    print(f"overlap checking, 10 targets of 100 points: {wall:.1f} ms wall, {cpu:.1f} ms CPU, {len(groups)} groups")  # type: ignore[arg-type]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5, help="timed runs per case (median reported)")
+    parser.add_argument("--static", type=int, default=800, help="static points in the segmentation scene")
+    parser.add_argument("--object", type=int, default=100, help="points per moving cube")
+    args = parser.parse_args()
+    bench_segmentation(args)
+    bench_object_tracking(args)
+    bench_merging(args)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
