@@ -73,6 +73,21 @@ def se3_exp_left(delta: F64) -> F64:
     return t
 
 
+def orthonormalised(T: F64) -> F64:
+    """The rigid transform (4, 4) nearest to T: its rotation block projected onto SO(3) (SVD).
+
+    Chained products of poses drift off SO(3) in floating point; `se3.invert` assumes they do not.
+    """
+    u, _, vt = np.linalg.svd(T[:3, :3])
+    r = u @ vt
+    if np.linalg.det(r) < 0:
+        r = u @ np.diag([1.0, 1.0, -1.0]) @ vt
+    out = np.array(T, dtype=np.float64)
+    out[:3, :3] = r
+    out[3] = (0.0, 0.0, 0.0, 1.0)
+    return out
+
+
 def residuals(T_cam_world: F64, obs: PoseObservations, cam: PinholeStereo) -> tuple[F64, F64, F64]:
     """Errors (N, 3) (observation - projection; third column 0 for monocular), points in camera (N, 3),
     and chi2 (N,) weighted by `inv_sigma2`."""
@@ -120,7 +135,7 @@ def optimize_pose(
 ) -> PoseResult:
     """Refine T_cam_world (4, 4) from N matches; return the pose, an inlier mask (N,) and chi2 (N,)."""
     n = len(obs.points_w)
-    T = np.array(T_cam_world, dtype=np.float64)
+    T = orthonormalised(T_cam_world)
     stereo = obs.u_right_px >= 0
     th = np.where(stereo, CHI2_STEREO, CHI2_MONO)
     inliers = np.ones(n, bool)
@@ -153,4 +168,4 @@ def optimize_pose(
         inliers = chi2 <= th
         if inliers.sum() < 10:
             break
-    return PoseResult(T, inliers, chi2)
+    return PoseResult(orthonormalised(T), inliers, chi2)

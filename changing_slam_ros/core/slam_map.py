@@ -56,25 +56,38 @@ class SlamMap:
         for i, pid in zip(idx.tolist(), kf.point_ids[idx].tolist()):
             obs[pid][kf.id] = i
 
-    def remove_keyframe(self, kf_id: int) -> None:
-        """Cull a keyframe: erase its observations, re-attach its children to its parent."""
+    def remove_keyframe(self, kf_id: int) -> bool:
+        """Cull a keyframe: erase its observations, re-attach its children to its parent.
+
+        Returns False (and keeps it) for the map origin or a keyframe with nothing to attach to.
+        """
         kf = self.keyframes[kf_id]
         par = self.parent.get(kf_id, -1)
+        if par < 0 or par not in self.keyframes:
+            par = self._best_covisible(kf_id, exclude=kf_id)
+        if par < 0 or kf_id == self.origin_kf_id:
+            return False
         for i in np.flatnonzero(kf.point_ids >= 0).tolist():
             self.erase_observation(kf_id, i)
         for other in list(self.covisibility.get(kf_id, {})):
             self.covisibility.get(other, {}).pop(kf_id, None)
         self.covisibility.pop(kf_id, None)
+        grand = self.parent.get(kf_id, -1)
         for child in self.children.pop(kf_id, set()):
-            new_parent = par if par >= 0 else self._best_covisible(child, exclude=kf_id)
-            self.parent[child] = new_parent
-            if new_parent >= 0:
-                self.children.setdefault(new_parent, set()).add(child)
-        if par >= 0:
-            self.children.get(par, set()).discard(kf_id)
-            self.removed[kf_id] = RemovedKeyframe(par, invert(self.keyframes[par].T_world_cam) @ kf.T_world_cam)
+            if child == par:  # the new parent was a child: it inherits the grandparent
+                if grand >= 0 and grand in self.keyframes:
+                    self.parent[par] = grand
+                    self.children.setdefault(grand, set()).add(par)
+                else:
+                    self.parent.pop(par, None)
+                continue
+            self.parent[child] = par
+            self.children.setdefault(par, set()).add(child)
+        self.children.get(par, set()).discard(kf_id)
+        self.removed[kf_id] = RemovedKeyframe(par, invert(self.keyframes[par].T_world_cam) @ kf.T_world_cam)
         self.parent.pop(kf_id, None)
         del self.keyframes[kf_id]
+        return True
 
     def pose_of(self, kf_id: int) -> F64:
         """Camera-to-world (4, 4) of a keyframe, following parents for culled keyframes."""

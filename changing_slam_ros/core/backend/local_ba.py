@@ -1,0 +1,185 @@
+"""Local bundle adjustment with gtsam (ORB-SLAM `LocalBundleAdjustment`, RGB-D as virtual stereo).
+
+Variables: poses X(k) (gtsam `Pose3` = camera-to-world) of the local keyframes (the new keyframe and
+its covisible neighbours) and positions L(p) of every usable map point they see. Keyframes outside
+the window that also observe those points enter as fixed poses (constrained, not optimised).
+Factors: `GenericStereoFactor3D` for keypoints with depth (u_l, u_r, v in pixels, sigma = level scale
+px on each), `GenericProjectionFactorCal3_S2` for keypoints without (u, v), both with a Huber kernel
+on the whitened error (k = sqrt(7.815) stereo, sqrt(5.991) mono). Afterwards observations whose
+chi2 exceeds those thresholds are erased from the map (ORB-SLAM's outlier removal).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+import numpy.typing as npt
+from gtsam.symbol_shorthand import L, X
+
+from changing_slam_ros.core.pose_optimizer import CHI2_MONO, CHI2_STEREO
+from changing_slam_ros.core.slam_map import SlamMap
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class LocalBAConfig:
+    """`n_window`: covisible keyframes optimised with the new one; `max_fixed`: fixed keyframes kept
+    (most observations first); `iterations`: Levenberg-Marquardt iterations; `level_scales`: pyramid
+    scales, set by the caller from the feature config; `bf_m_px`: virtual stereo baseline * fx."""
+
+    n_window: int = 10
+    max_fixed: int = 10
+    iterations: int = 5
+    bf_m_px: float = 40.0
+    level_scales: tuple[float, ...] = tuple(1.2**i for i in range(8))
+
+
+@dataclass(frozen=True)
+class Observations:
+    """E observations: keyframe ids (E,), point ids (E,), u v (E, 2), u_right (E,) (< 0 mono), level (E,), kp index (E,)."""
+
+    kf_ids: npt.NDArray[np.int64]
+    point_ids: npt.NDArray[np.int64]
+    uv: F64
+    u_right: F64
+    level: npt.NDArray[np.int64]
+    kp_index: npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class LocalBAResult:
+    n_local: int
+    n_fixed: int
+    n_points: int
+    n_observations: int
+    rms_before_px: float
+    rms_after_px: float
+    n_outliers_removed: int
+
+
+def gather_observations(slam_map: SlamMap, kf_ids: list[int], point_ids: npt.NDArray[np.int64], bf: float) -> Observations:
+    """Every observation of `point_ids` (sorted) in keyframes `kf_ids`, as flat arrays."""
+    parts = []
+    for k in kf_ids:
+        kf = slam_map.keyframes[k]
+        idx = np.flatnonzero(kf.point_ids >= 0)
+        pids = kf.point_ids[idx]
+        pos = np.searchsorted(point_ids, pids)
+        pos = np.minimum(pos, max(len(point_ids) - 1, 0))
+        keep = point_ids[pos] == pids if len(point_ids) else np.zeros(len(pids), bool)
+        idx, pids = idx[keep], pids[keep]
+        d = kf.depths_m[idx].astype(np.float64)
+        uv = kf.keypoints_px[idx].astype(np.float64)
+        ur = np.where(d > 0, uv[:, 0] - bf / np.maximum(d, 1e-9), -1.0)
+        parts.append((np.full(len(idx), k, np.int64), pids, uv, ur, kf.octaves[idx].astype(np.int64), idx))
+    if not parts:
+        z = np.zeros(0, np.int64)
+        return Observations(z, z, np.zeros((0, 2)), np.zeros(0), z, z)
+    cols = list(zip(*parts))
+    return Observations(*(np.concatenate(c) for c in cols))  # type: ignore[arg-type]
+
+
+def reprojection_chi2(
+    poses_wc: dict[int, F64], positions: dict[int, F64] | F64, obs: Observations, fx: float, fy: float, cx: float, cy: float,
+    bf: float, scales: F64,
+) -> tuple[F64, F64]:
+    """Per observation: squared pixel error (E,) and level-weighted chi2 (E,). `positions` (P, 3) is indexed by point id."""
+    T_cw = {k: np.linalg.inv(T) for k, T in poses_wc.items()}
+    R = np.stack([T_cw[k][:3, :3] for k in obs.kf_ids.tolist()]) if len(obs.kf_ids) else np.zeros((0, 3, 3))
+    t = np.stack([T_cw[k][:3, 3] for k in obs.kf_ids.tolist()]) if len(obs.kf_ids) else np.zeros((0, 3))
+    pw = np.asarray(positions)[obs.point_ids]
+    pc = np.einsum("nij,nj->ni", R, pw) + t
+    z = np.where(np.abs(pc[:, 2]) < 1e-6, 1e-6, pc[:, 2])
+    u = fx * pc[:, 0] / z + cx
+    v = fy * pc[:, 1] / z + cy
+    e2 = (obs.uv[:, 0] - u) ** 2 + (obs.uv[:, 1] - v) ** 2
+    stereo = obs.u_right >= 0
+    e2 = e2 + np.where(stereo, (obs.u_right - (u - bf / z)) ** 2, 0.0)
+    chi2 = e2 / scales[obs.level] ** 2
+    chi2 = np.where(pc[:, 2] > 0, chi2, 1e9)
+    return e2, chi2
+
+
+def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> LocalBAResult:
+    """Optimise the window around keyframe `kf_id` in place; erase outlier observations."""
+    scales = np.asarray(cfg.level_scales)
+    # 1. Local keyframes: the new one and its best covisible neighbours.
+    local = [kf_id] + [k for k in slam_map.covisible(kf_id, cfg.n_window) if k in slam_map.keyframes]
+    local_set = set(local)
+    point_ids = slam_map.local_point_ids(local)
+    # 2. Fixed keyframes: others seeing those points, most observations first.
+    counts: dict[int, int] = {}
+    for pid in point_ids.tolist():
+        for k in slam_map.points.observations[pid]:
+            if k not in local_set and k in slam_map.keyframes:
+                counts[k] = counts.get(k, 0) + 1
+    fixed = sorted(counts, key=lambda k: -counts[k])[: cfg.max_fixed]
+    if not fixed:
+        # Fix the gauge: the oldest local keyframe stays where it is.
+        oldest = min(local)
+        if len(local) == 1:
+            return LocalBAResult(1, 0, len(point_ids), 0, 0.0, 0.0, 0)
+        local.remove(oldest)
+        fixed = [oldest]
+    all_kfs = local + fixed
+    cam = slam_map.keyframes[kf_id].camera
+    obs = gather_observations(slam_map, all_kfs, point_ids, cfg.bf_m_px)
+    # Points seen only once in the window carry no constraint: leave them out.
+    n_per_point = np.bincount(np.searchsorted(point_ids, obs.point_ids), minlength=len(point_ids))
+    keep_pts = point_ids[n_per_point >= 2]
+    keep_obs = np.isin(obs.point_ids, keep_pts)
+    obs = Observations(*(getattr(obs, f)[keep_obs] for f in ("kf_ids", "point_ids", "uv", "u_right", "level", "kp_index")))
+    if len(keep_pts) == 0:
+        return LocalBAResult(len(local), len(fixed), 0, 0, 0.0, 0.0, 0)
+    poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
+    e2_before, _ = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales)
+
+    # 3. Graph: fixed poses as equality constraints (they fix the gauge), robust reprojection factors.
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for k in all_kfs:
+        values.insert(X(k), gtsam.Pose3(poses[k]))
+    for k in fixed:
+        graph.add(gtsam.NonlinearEqualityPose3(X(k), gtsam.Pose3(poses[k])))
+    for pid in keep_pts.tolist():
+        values.insert(L(pid), slam_map.points.positions[pid])
+    k_stereo = gtsam.Cal3_S2Stereo(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, cfg.bf_m_px / cam.fx)
+    k_mono = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
+    huber_s = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_STEREO)))
+    huber_m = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO)))
+    # Noise per pyramid level: sigma = level scale in pixels, on (u_l, u_r, v) or (u, v).
+    noise_s = [gtsam.noiseModel.Robust.Create(huber_s, gtsam.noiseModel.Isotropic.Sigma(3, float(s))) for s in scales]
+    noise_m = [gtsam.noiseModel.Robust.Create(huber_m, gtsam.noiseModel.Isotropic.Sigma(2, float(s))) for s in scales]
+    for k, p, (u, v), ur, lv in zip(obs.kf_ids.tolist(), obs.point_ids.tolist(), obs.uv.tolist(), obs.u_right.tolist(), obs.level.tolist()):
+        if ur >= 0:
+            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), noise_s[lv], X(k), L(p), k_stereo))
+        else:
+            graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise_m[lv], X(k), L(p), k_mono))
+
+    # 4. Optimise.
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(cfg.iterations)
+    try:
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    except RuntimeError:
+        # Cheirality or an indeterminate system: keep the map as it was.
+        return LocalBAResult(len(local), len(fixed), len(keep_pts), len(obs.kf_ids), 0.0, 0.0, 0)
+
+    # 5. Write back, then erase outlier observations.
+    for k in local:
+        slam_map.keyframes[k].T_world_cam = result.atPose3(X(k)).matrix()
+    new_pos = np.array([result.atPoint3(L(p)) for p in keep_pts.tolist()])
+    slam_map.points.positions[keep_pts] = new_pos
+    poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
+    e2_after, chi2 = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales)
+    th = np.where(obs.u_right >= 0, CHI2_STEREO, CHI2_MONO)
+    bad = np.flatnonzero(chi2 > th)
+    for i in bad.tolist():
+        slam_map.erase_observation(int(obs.kf_ids[i]), int(obs.kp_index[i]))
+    return LocalBAResult(
+        len(local), len(fixed), len(keep_pts), len(obs.kf_ids),
+        float(np.sqrt(e2_before.mean())), float(np.sqrt(e2_after.mean())), len(bad),
+    )

@@ -1,0 +1,147 @@
+"""Local mapping (ORB-SLAM `LocalMapping` for RGB-D): what happens when tracking makes a keyframe.
+
+1. insert the keyframe (its tracked points gain an observation) and update the covisibility graph;
+2. create map points from its unmatched keypoints with valid depth (back-projected, RGB-D);
+3. cull recently created points that tracking rarely finds (found / visible < 0.25) or that fewer than
+   `min_observations` keyframes see after two more keyframes;
+4. local bundle adjustment with gtsam (`backend.local_ba`);
+5. cull keyframes whose points are 90 % seen by at least three other keyframes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.backend.local_ba import LocalBAConfig, LocalBAResult, local_bundle_adjust
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.orb_features import FeatureConfig
+from changing_slam_ros.core.se3 import transform_points
+from changing_slam_ros.core.slam_map import Atlas, SlamMap
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """YAML section `mapping:`.
+
+    - `max_new_point_depth_m`: keypoints deeper than this make no new point.
+    - `cull_found_ratio`, `min_observations`: recent point culling (ORB-SLAM 0.25, 3 with stereo observations counted twice).
+    - `local_ba`: enable local BA; `ba_window`, `ba_max_fixed`, `ba_iterations`: its size and effort.
+    - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
+    """
+
+    max_new_point_depth_m: float = 6.0
+    cull_found_ratio: float = 0.25
+    min_observations: int = 2
+    local_ba: bool = True
+    ba_window: int = 10
+    ba_max_fixed: int = 10
+    ba_iterations: int = 5
+    keyframe_culling: bool = True
+    redundancy: float = 0.9
+
+
+@dataclass
+class MappingStats:
+    new_points: int = 0
+    culled_points: int = 0
+    culled_keyframes: list[int] = field(default_factory=list)
+    ba: LocalBAResult | None = None
+
+
+class LocalMapper:
+    """Owns map growth and local optimisation for `atlas.current`."""
+
+    def __init__(self, atlas: Atlas, features: FeatureConfig, config: MappingConfig | None = None) -> None:
+        self.atlas = atlas
+        self.fcfg = features
+        self.cfg = config or MappingConfig()
+        self.scales = features.level_scales()
+        self._recent: list[tuple[int, npt.NDArray[np.int64]]] = []  # (kf id that created, point ids)
+
+    @property
+    def map(self) -> SlamMap:
+        return self.atlas.current
+
+    def process(self, kf: Keyframe) -> MappingStats:
+        m = self.map
+        stats = MappingStats()
+        if kf.map_id != m.id:
+            self._recent = []
+        # 1. Insert.
+        m.add_keyframe(kf)
+        # 2. New points from depth.
+        stats.new_points = self._create_points(kf)
+        m.update_connections(kf.id)
+        # 3. Recent point culling.
+        stats.culled_points = self._cull_points(kf.id)
+        # 4. Local BA.
+        if self.cfg.local_ba and len(m.keyframes) > 1:
+            ba_cfg = LocalBAConfig(
+                self.cfg.ba_window, self.cfg.ba_max_fixed, self.cfg.ba_iterations, self.fcfg.bf_m_px,
+                tuple(float(s) for s in self.scales),
+            )
+            stats.ba = local_bundle_adjust(m, kf.id, ba_cfg)
+            m.update_connections(kf.id)
+        # 5. Keyframe culling.
+        if self.cfg.keyframe_culling:
+            stats.culled_keyframes = self._cull_keyframes(kf.id)
+        return stats
+
+    def _create_points(self, kf: Keyframe) -> int:
+        d = kf.depths_m.astype(np.float64)
+        idx = np.flatnonzero((kf.point_ids < 0) & (d > 0) & (d <= self.cfg.max_new_point_depth_m))
+        if len(idx) == 0:
+            return 0
+        pc = kf.camera.backproject(kf.keypoints_px[idx].astype(np.float64), d[idx])
+        pw = transform_points(kf.T_world_cam, pc)
+        ids = self.map.points.add(
+            pw, kf.descriptors[idx], kf.id, idx, kf.T_world_cam[:3, 3], kf.octaves[idx].astype(np.int64), self.scales,
+        )
+        kf.point_ids[idx] = ids
+        self._recent.append((kf.id, ids))
+        return len(ids)
+
+    def _cull_points(self, current_kf: int) -> int:
+        m = self.map
+        pts = m.points
+        n_culled = 0
+        keep: list[tuple[int, npt.NDArray[np.int64]]] = []
+        order = sorted(m.keyframes)
+        rank = {k: i for i, k in enumerate(order)}
+        cur = rank.get(current_kf, len(order))
+        for kf_id, ids in self._recent:
+            ids = ids[~pts.bad[ids]]
+            age = cur - rank.get(kf_id, -10**6) if kf_id in rank else 10**6
+            if len(ids) == 0:
+                continue
+            bad = pts.found_ratio(ids) < self.cfg.cull_found_ratio
+            if age >= 2:
+                bad |= pts.n_obs(ids) < self.cfg.min_observations
+            for pid in ids[bad].tolist():
+                m.erase_point(pid)
+            n_culled += int(bad.sum())
+            if age < 3:
+                keep.append((kf_id, ids[~bad]))
+        self._recent = keep
+        return n_culled
+
+    def _cull_keyframes(self, current_kf: int) -> list[int]:
+        m = self.map
+        culled: list[int] = []
+        for k in m.covisible(current_kf):
+            if k == m.origin_kf_id or k == current_kf or k not in m.keyframes:
+                continue
+            ids = m.keyframes[k].point_ids
+            ids = ids[ids >= 0]
+            ids = ids[m.points.usable()[ids]]
+            if len(ids) < 20:
+                continue
+            redundant = (m.points.n_obs(ids) >= 4).sum()  # itself + at least three others
+            if redundant > self.cfg.redundancy * len(ids) and m.remove_keyframe(k):
+                culled.append(k)
+        return culled

@@ -1,0 +1,198 @@
+"""The SLAM system: features -> tracking -> local mapping -> loop closing, deterministically per frame.
+
+This is the offline wiring of the same components the ROS nodes wrap. Every frame is fully
+processed before the next one (a keyframe is mapped, bundle-adjusted and offered to loop closing
+before tracking sees the next frame), so a run is reproducible for a given config.
+
+Trajectories: the *online* pose is what tracking estimated for the frame at the time; the *final*
+pose is re-expressed from the frame's reference keyframe after all optimisation
+(T_world_cam = T_world_ref(final) @ T_ref_cam), as ORB-SLAM saves its trajectory.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.frame import Frame
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig, MappingStats
+from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.tracking import KeyframeCandidates, Tracker, TrackingConfig, TrackingState, TrackResult
+from changing_slam_ros.core.trajectory import Trajectory
+
+F64 = npt.NDArray[np.float64]
+
+
+class LoopCloser(Protocol):
+    """The seam for the loop-closing component: offered every new keyframe after local mapping.
+
+    Returns True when it corrected the map (keyframe poses and points moved).
+    """
+
+    def process(self, kf: Keyframe, slam_map: SlamMap) -> bool: ...
+
+
+class KeyframeIndex(KeyframeCandidates, Protocol):
+    """A keyframe database (bag-of-words): fed every keyframe, asked for relocalisation candidates."""
+
+    def add(self, kf: Keyframe) -> None: ...
+
+    def erase(self, kf_id: int) -> None: ...
+
+
+@dataclass(frozen=True)
+class SystemConfig:
+    """The YAML sections this system reads: `features`, `tracking`, `mapping` (parsed at the edge)."""
+
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+
+
+@dataclass
+class FrameRecord:
+    """Bookkeeping for the trajectories: one per input frame."""
+
+    stamp_ns: int
+    index: int
+    state: TrackingState
+    map_id: int
+    ref_kf_id: int
+    T_ref_cam: F64 | None
+    T_world_cam_online: F64 | None
+
+
+@dataclass
+class FrameOutput:
+    """What `SlamSystem.process` returns for one frame."""
+
+    state: TrackingState
+    T_world_cam: F64 | None
+    n_inliers: int
+    n_keypoints: int
+    keyframe: Keyframe | None
+    mapping: MappingStats | None
+    loop_corrected: bool
+    timings_ms: dict[str, float]
+
+
+class SlamSystem:
+    """Feed `RgbdFrame`s in order with `process`; read trajectories and timings afterwards."""
+
+    def __init__(
+        self,
+        config: SystemConfig | None = None,
+        loop_closer: LoopCloser | None = None,
+        keyframe_index: KeyframeIndex | None = None,
+    ) -> None:
+        self.config = config or SystemConfig()
+        cv2.setNumThreads(1)
+        cv2.setRNGSeed(0)
+        self.atlas = Atlas()
+        self.tracker = Tracker(self.atlas, self.config.features, self.config.tracking, keyframe_index)
+        self.mapper = LocalMapper(self.atlas, self.config.features, self.config.mapping)
+        self.loop_closer = loop_closer
+        self.keyframe_index = keyframe_index
+        self._extractor: OrbExtractor | None = None
+        self._camera: CameraIntrinsics | None = None
+        self.records: list[FrameRecord] = []
+        self.timings_ms: dict[str, list[float]] = defaultdict(list)
+        self.n_loops = 0
+
+    def _extractor_for(self, camera: CameraIntrinsics) -> OrbExtractor:
+        if self._extractor is None or camera != self._camera:
+            self._extractor = OrbExtractor(self.config.features, camera)
+            self._camera = camera
+        return self._extractor
+
+    def process(self, rgbd: RgbdFrame) -> FrameOutput:
+        t0 = time.perf_counter()
+        feats = self._extractor_for(rgbd.camera).extract(rgbd.rgb, rgbd.depth_m)
+        t1 = time.perf_counter()
+        frame = Frame(rgbd.stamp_ns, rgbd.index, rgbd.camera, feats)
+        res: TrackResult = self.tracker.track(frame)
+        t2 = time.perf_counter()
+        stats = None
+        corrected = False
+        if res.new_keyframe is not None:
+            stats = self.mapper.process(res.new_keyframe)
+            if self.keyframe_index is not None:
+                for k in stats.culled_keyframes:
+                    self.keyframe_index.erase(k)
+                self.keyframe_index.add(res.new_keyframe)
+        t3 = time.perf_counter()
+        if res.new_keyframe is not None and self.loop_closer is not None and res.new_keyframe.id in self.atlas.current.keyframes:
+            corrected = bool(self.loop_closer.process(res.new_keyframe, self.atlas.current))
+            self.n_loops += int(corrected)
+        t4 = time.perf_counter()
+        self._record(frame, res)
+        timings = {
+            "features": (t1 - t0) * 1e3,
+            "tracking": (t2 - t0) * 1e3,  # includes feature extraction, as ORB-SLAM reports it
+            "local_mapping": (t3 - t2) * 1e3,
+            "loop_closing": (t4 - t3) * 1e3,
+            "total": (t4 - t0) * 1e3,
+        }
+        for k, v in timings.items():
+            self.timings_ms[k].append(v)
+        if res.new_keyframe is not None:
+            self.timings_ms["local_mapping_per_keyframe"].append(timings["local_mapping"])
+        return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings)
+
+    def _record(self, frame: Frame, res: TrackResult) -> None:
+        m = self.atlas.current
+        T_ref_cam = None
+        if res.state == TrackingState.OK and frame.T_world_cam is not None and frame.ref_kf_id >= 0:
+            T_ref_cam = invert(m.pose_of(frame.ref_kf_id)) @ frame.T_world_cam
+        online = None if frame.T_world_cam is None else frame.T_world_cam.copy()
+        self.records.append(
+            FrameRecord(frame.stamp_ns, frame.index, res.state, m.id, frame.ref_kf_id, T_ref_cam, online)
+        )
+
+    # Results ------------------------------------------------------------------------------------
+    def online_trajectory(self) -> Trajectory:
+        recs = [r for r in self.records if r.state == TrackingState.OK and r.T_world_cam_online is not None]
+        return Trajectory.from_poses(
+            np.array([r.stamp_ns * 1e-9 for r in recs]), np.array([r.T_world_cam_online for r in recs]).reshape(-1, 4, 4)
+        )
+
+    def final_trajectory(self) -> Trajectory:
+        stamps, poses = [], []
+        for r in self.records:
+            if r.T_ref_cam is None:
+                continue
+            m = self.atlas.maps[r.map_id]
+            poses.append(m.pose_of(r.ref_kf_id) @ r.T_ref_cam)
+            stamps.append(r.stamp_ns * 1e-9)
+        return Trajectory.from_poses(np.array(stamps), np.array(poses).reshape(-1, 4, 4))
+
+    def keyframe_trajectory(self) -> Trajectory:
+        kfs = sorted((kf for m in self.atlas.maps for kf in m.keyframes.values()), key=lambda k: k.stamp_ns)
+        return Trajectory.from_poses(
+            np.array([k.stamp_ns * 1e-9 for k in kfs]), np.array([k.T_world_cam for k in kfs]).reshape(-1, 4, 4)
+        )
+
+    def n_tracked(self) -> int:
+        return sum(1 for r in self.records if r.state == TrackingState.OK)
+
+    def timing_summary(self) -> dict[str, dict[str, float]]:
+        """Per stage: count, mean, p50, p90, p99, max (milliseconds)."""
+        out: dict[str, dict[str, float]] = {}
+        for k, v in self.timings_ms.items():
+            a = np.asarray(v)
+            out[k] = {
+                "count": float(len(a)), "mean": float(a.mean()), "p50": float(np.percentile(a, 50)),
+                "p90": float(np.percentile(a, 90)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
+            }
+        return out
