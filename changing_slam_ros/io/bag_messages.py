@@ -240,12 +240,13 @@ class BagMessages:
         start_ns: int | None = None,
         stop_ns: int | None = None,
         *,
-        payload: bool = True,
+        payload: bool | Collection[str] = True,
     ) -> Iterator[RawMessage]:
         """Messages in log-time order, optionally filtered by topic and [start_ns, stop_ns).
 
         `payload=False` skips the CDR conversion and copy (`cdr` is empty); header stamps are still
-        filled, which is what an indexing pass over large image topics needs.
+        filled, which is what an indexing pass over large image topics needs. A collection of topic
+        names keeps the payload of those topics only (one pass, so compressed chunks are read once).
         """
         self._check_open()
         conns = self._conns if topics is None else [c for c in self._conns if c.topic in topics]
@@ -257,7 +258,7 @@ class BagMessages:
             try:
                 conn, log_ns, raw = next(gen)
                 meta, _decode_type = self._by_rosbags_id[id(conn)]
-                if payload:
+                if payload is True or (payload is not False and meta.topic in payload):
                     cdr = self._to_cdr(conn, raw)
                     header_ns = _cdr_header_stamp_ns(cdr) if meta.has_header else None
                 else:

@@ -183,10 +183,13 @@ class BagRgbdReader:
         gt_poses: list[np.ndarray] = []
         tf = TfBuffer(str(self.path))
         images = {self.topics.rgb, self.topics.depth}
-        for msg in bag.messages(topics=images, payload=False):  # stamps only: no image copies
-            (rgb_stamps if msg.topic == self.topics.rgb else depth_stamps).append(_stamp(msg))
-        for msg in bag.messages(topics=wanted - images):
-            if msg.topic == self.topics.camera_info:
+        # one pass; image payloads are skipped (stamps only), the small topics are decoded
+        for msg in bag.messages(topics=wanted, payload=wanted - images):
+            if msg.topic == self.topics.rgb:
+                rgb_stamps.append(_stamp(msg))
+            elif msg.topic == self.topics.depth:
+                depth_stamps.append(_stamp(msg))
+            elif msg.topic == self.topics.camera_info:
                 if self._first_info is None:
                     self._first_info = intrinsics_from_camera_info(bag.deserialize(msg), msg.topic)
             elif msg.topic == gt_pose:

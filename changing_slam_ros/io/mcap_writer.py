@@ -96,7 +96,10 @@ class RgbdMcapWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, self._tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
         self._fh = os.fdopen(fd, "wb")
-        self._writer = Writer(self._fh, compression=CompressionType.ZSTD, chunk_size=4 * 1024 * 1024)
+        # Raw images: lz4 chunks (half the size, reads at about half the speed of uncompressed; zstd is
+        # smaller still but reads 4x slower). JPEG/PNG payloads do not compress further: no chunk codec.
+        codec = CompressionType.NONE if self.compress else CompressionType.LZ4
+        self._writer = Writer(self._fh, compression=codec, chunk_size=4 * 1024 * 1024)
         self._writer.start(profile="ros2", library="changing_slam_ros")
         img_type = COMPRESSED if self.compress else IMAGE
         for topic, msgtype in (

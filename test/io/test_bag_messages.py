@@ -219,3 +219,10 @@ def test_index_pass_without_payload_gives_the_same_stamps(bags: dict[str, Path],
         light = list(bag.messages(payload=False))
     assert [(m.topic, m.log_stamp_ns, m.header_stamp_ns) for m in light] == full
     assert all(m.cdr == b"" for m in light)
+
+
+def test_payload_can_be_kept_for_some_topics_only(bags: dict[str, Path]) -> None:
+    with BagMessages(bags["sqlite"]) as bag:
+        msgs = list(bag.messages(payload={"/camera/color/camera_info"}))
+    assert [len(m.cdr) > 0 for m in msgs] == [True, False, False, False]
+    assert msgs[1].header_stamp_ns == STAMPS[0][0] * 10**9 + STAMPS[0][1]
