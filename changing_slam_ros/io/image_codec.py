@@ -149,9 +149,18 @@ def decode_compressed_rgb(msg: Any, topic: str = "image") -> U8:
         raise BagError(f"{topic}: compressed colour image decodes to {img.dtype}, expected 8-bit")
     if img.ndim == 2:
         return np.repeat(img[:, :, None], 3, axis=2)
+    if _stored_as_rgb(fmt):
+        return np.ascontiguousarray(img[:, :, :3])
     code = cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB
-    # OpenCV decodes to BGR whatever the message's "rgb8; jpeg compressed bgr8" prefix says.
     return np.ascontiguousarray(cv2.cvtColor(img, code))
+
+
+def _stored_as_rgb(fmt: str) -> bool:
+    """image_transport's rule: with 'ENC; jpeg compressed TARGET', OpenCV's decoded channel order is
+    BGR when TARGET is bgr8/bgra8 and RGB otherwise; a bare 'jpeg' / 'png' means BGR."""
+    if ";" not in fmt:
+        return False
+    return "compressed rgb" in fmt.split(";", 1)[1]
 
 
 def decode_compressed_depth(msg: Any, topic: str = "depth") -> F32:

@@ -140,6 +140,15 @@ def test_compressed_colour_png_is_lossless_and_jpeg_close(fr1: tuple[np.ndarray,
     np.testing.assert_array_equal(ic.decode_compressed_rgb(_msg(format="jpeg", data=buf.reshape(-1))), ref)
 
 
+def test_compressed_colour_channel_order_follows_the_format_string(fr1: tuple[np.ndarray, np.ndarray]) -> None:
+    rgb, _ = fr1
+    ok, bgr_png = cv2.imencode(".png", rgb[:, :, ::-1])  # what compressed_image_transport stores for bgr8 targets
+    ok, rgb_png = cv2.imencode(".png", rgb)  # an encoder that stored RGB bytes ("... compressed rgb8")
+    for fmt in ("png", "rgb8; png compressed bgr8", "bgr8; png compressed bgr8"):
+        np.testing.assert_array_equal(ic.decode_compressed_rgb(_msg(format=fmt, data=bgr_png)), rgb, err_msg=fmt)
+    np.testing.assert_array_equal(ic.decode_compressed_rgb(_msg(format="rgb8; png compressed rgb8", data=rgb_png)), rgb)
+
+
 def test_png_depth_is_millimetres(fr1: tuple[np.ndarray, np.ndarray]) -> None:
     _, depth = fr1
     fmt, data = ic.encode_png_depth(depth)
