@@ -83,6 +83,8 @@ class RgbdMcapWriter:
         self._fh: Any = None
         self._tmp: str | None = None
         self._channels: dict[str, int] = {}
+        self._channel_types: dict[str, str] = {}
+        self._schemas: dict[str, int] = {}
         self._seq: dict[int, int] = {}
         self._pending_gt: deque[tuple[int, np.ndarray]] = deque()
         self._full_gt = False
@@ -101,21 +103,6 @@ class RgbdMcapWriter:
         codec = CompressionType.NONE if self.compress else CompressionType.LZ4
         self._writer = Writer(self._fh, compression=codec, chunk_size=4 * 1024 * 1024)
         self._writer.start(profile="ros2", library="changing_slam_ros")
-        img_type = COMPRESSED if self.compress else IMAGE
-        for topic, msgtype in (
-            (self.rgb_topic, img_type),
-            (self.depth_topic, img_type),
-            (self.info_topic, CAMERA_INFO),
-            (self.gt_topic, POSE),
-        ):
-            schema = self._writer.register_schema(
-                name=msgtype,
-                encoding="ros2msg",
-                data=self._store.generate_msgdef(msgtype, ros_version=2)[0].encode(),
-            )
-            self._channels[topic] = self._writer.register_channel(
-                topic=topic, message_encoding="cdr", schema_id=schema
-            )
         return self
 
     def __exit__(
@@ -193,6 +180,19 @@ class RgbdMcapWriter:
         q = rot_to_quat(np.asarray(T_world_cam)[:3, :3])
         self._write_pose_values(stamp_ns, np.concatenate([np.asarray(T_world_cam)[:3, 3], q]))
 
+    @property
+    def typestore(self) -> Any:
+        """The rosbags typestore messages are built and serialised with (ROS 2 Jazzy types; register
+        project message types on it before writing them)."""
+        return self._store
+
+    def write_message(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
+        """Any other message (a rosbags dataclass of `typestore`), logged at `stamp_ns`.
+
+        The channel and its schema are registered on first use; e.g. the simulator's object poses.
+        """
+        self._write(topic, msgtype, msg, int(stamp_ns))
+
     # -- internals -----------------------------------------------------------------------------
     def _flush_gt(self, until_ns: int | None) -> None:
         while self._pending_gt and (until_ns is None or self._pending_gt[0][0] <= until_ns):
@@ -214,8 +214,25 @@ class RgbdMcapWriter:
         sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
         return t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](sec, nsec), frame_id or self.frame_id)
 
+    def _channel(self, topic: str, msgtype: str) -> int:
+        """Channel id of `topic`, registered (with its schema) on first use."""
+        if topic not in self._channels:
+            if msgtype not in self._schemas:
+                self._schemas[msgtype] = self._writer.register_schema(
+                    name=msgtype,
+                    encoding="ros2msg",
+                    data=self._store.generate_msgdef(msgtype, ros_version=2)[0].encode(),
+                )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="cdr", schema_id=self._schemas[msgtype]
+            )
+            self._channel_types[topic] = msgtype
+        elif self._channel_types[topic] != msgtype:
+            raise ValueError(f"{topic} already carries {self._channel_types[topic]}, not {msgtype}")
+        return self._channels[topic]
+
     def _write(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
-        channel = self._channels[topic]
+        channel = self._channel(topic, msgtype)
         data = bytes(self._store.serialize_cdr(msg, msgtype))
         seq = self._seq.get(channel, 0)
         self._seq[channel] = seq + 1

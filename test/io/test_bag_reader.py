@@ -220,3 +220,29 @@ def test_corrupt_and_truncated_bags_name_the_file(ros1_tum_bag: Path, tmp_path: 
     junk.write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)) * 4)
     with pytest.raises(BagError, match=r"junk\.mcap: cannot open mcap file"):
         open_dataset(junk, "tum_fr1")
+
+
+def test_mcap_writer_carries_extra_topics_and_omits_unused_ones(tmp_path: Path) -> None:
+    from changing_slam_ros.io.bag_messages import BagMessages
+    from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
+    from helpers import FR1_XYZ_10, require
+
+    frame = next(iter(open_dataset(require(FR1_XYZ_10), "tum_fr1")))
+    frame.T_world_cam_gt = None
+    out = tmp_path / "extra.mcap"
+    with RgbdMcapWriter(out) as w:
+        t = w.typestore.types
+        w.write_frame(frame)
+        point = t["geometry_msgs/msg/PointStamped"](
+            t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](1, 5), "world"),
+            t["geometry_msgs/msg/Point"](1.0, 2.0, 3.0),
+        )
+        w.write_message("/objects/centroid", "geometry_msgs/msg/PointStamped", point, frame.stamp_ns)
+        with pytest.raises(ValueError, match="already carries"):
+            w.write_message("/objects/centroid", "geometry_msgs/msg/PoseStamped", point, frame.stamp_ns)
+    with BagMessages(out) as bag:
+        assert sorted(bag.topics) == ["/camera/depth/image", "/camera/rgb/camera_info",
+                                      "/camera/rgb/image_color", "/objects/centroid"]  # fmt: skip
+        msg = next(bag.messages(topics={"/objects/centroid"}))
+        assert bag.deserialize(msg).point.z == 3.0 and msg.header_stamp_ns == 1_000_000_005
+    assert open_dataset(out, None).groundtruth is None
