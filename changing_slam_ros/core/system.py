@@ -120,8 +120,9 @@ class SlamSystem:
         t0 = time.perf_counter()
         feats = self._extractor_for(rgbd.camera).extract(rgbd.rgb, rgbd.depth_m)
         t1 = time.perf_counter()
-        frame = Frame(rgbd.stamp_ns, rgbd.index, rgbd.camera, feats)
+        frame = Frame(rgbd.stamp_ns, len(self.records), rgbd.camera, feats)  # own counter: input order
         res: TrackResult = self.tracker.track(frame)
+        self._record(frame, res)  # relative to the reference keyframe, before mapping moves it
         t2 = time.perf_counter()
         stats = None
         corrected = False
@@ -136,7 +137,8 @@ class SlamSystem:
             corrected = bool(self.loop_closer.process(res.new_keyframe, self.atlas.current))
             self.n_loops += int(corrected)
         t4 = time.perf_counter()
-        self._record(frame, res)
+        if res.new_keyframe is not None:
+            self._reanchor_last_frame()
         timings = {
             "features": (t1 - t0) * 1e3,
             "tracking": (t2 - t0) * 1e3,  # includes feature extraction, as ORB-SLAM reports it
@@ -153,12 +155,26 @@ class SlamSystem:
     def _record(self, frame: Frame, res: TrackResult) -> None:
         m = self.atlas.current
         T_ref_cam = None
-        if res.state == TrackingState.OK and frame.T_world_cam is not None and frame.ref_kf_id >= 0:
+        if res.new_keyframe is not None and frame.ref_kf_id == res.new_keyframe.id:
+            T_ref_cam = np.eye(4)  # the frame is its own (not yet mapped) keyframe
+        elif res.state == TrackingState.OK and frame.T_world_cam is not None and frame.ref_kf_id >= 0:
             T_ref_cam = invert(m.pose_of(frame.ref_kf_id)) @ frame.T_world_cam
         online = None if frame.T_world_cam is None else frame.T_world_cam.copy()
         self.records.append(
             FrameRecord(frame.stamp_ns, frame.index, res.state, m.id, frame.ref_kf_id, T_ref_cam, online)
         )
+
+    def _reanchor_last_frame(self) -> None:
+        """After BA or a loop correction moved keyframes, move the last frame with its reference
+        keyframe (ORB-SLAM `UpdateLastFrame`) so the motion model predicts in the corrected map."""
+        rec = self.records[-1]
+        last = self.tracker.last_frame
+        if rec.T_ref_cam is None or last is None or last.T_world_cam is None:
+            return
+        m = self.atlas.maps[rec.map_id]
+        if rec.ref_kf_id in m.keyframes or rec.ref_kf_id in m.removed:
+            last.T_world_cam = m.pose_of(rec.ref_kf_id) @ rec.T_ref_cam
+            self.tracker.last_good_pose = last.T_world_cam
 
     # Results ------------------------------------------------------------------------------------
     def online_trajectory(self) -> Trajectory:
