@@ -188,13 +188,17 @@ def decode_compressed_depth(msg: Any, topic: str = "depth") -> F32:
 def _decode_compressed_depth_transport(msg: Any, fmt: str, topic: str) -> F32:
     encoding = fmt.split(";", 1)[0].strip()
     codec = fmt.split("compressedDepth", 1)[1].strip() or "png"
-    if codec != "png":
-        raise BagError(f"{topic}: compressedDepth codec '{codec}' (format '{fmt}') unsupported; expected png")
+    if codec not in ("png", "rvl"):
+        raise BagError(f"{topic}: compressedDepth codec '{codec}' (format '{fmt}') unsupported; expected png or rvl")
     data = bytes(_as_bytes(msg.data))
     if len(data) <= COMPRESSED_DEPTH_HEADER.size:
         raise BagError(f"{topic}: compressedDepth data has {len(data)} bytes, shorter than its 12-byte header")
     _, quant_a, quant_b = COMPRESSED_DEPTH_HEADER.unpack_from(data, 0)
-    img = _imdecode(data[COMPRESSED_DEPTH_HEADER.size :], topic, f"compressedDepth PNG (format '{fmt}')")
+    payload = data[COMPRESSED_DEPTH_HEADER.size :]
+    if codec == "rvl":
+        img = _decode_rvl_payload(payload, topic, fmt)
+    else:
+        img = _imdecode(payload, topic, f"compressedDepth PNG (format '{fmt}')")
     if img.dtype != np.uint16 or img.ndim != 2:
         raise BagError(f"{topic}: compressedDepth PNG is {img.dtype} x{img.ndim}D, expected 16-bit single channel")
     if encoding in ("16UC1", "mono16"):
@@ -206,6 +210,21 @@ def _decode_compressed_depth_transport(msg: Any, fmt: str, topic: str) -> F32:
         depth[img == 0] = 0.0
         return clean_depth(depth)
     raise BagError(f"{topic}: compressedDepth encoding '{encoding}' unsupported; expected 16UC1 or 32FC1")
+
+
+def _decode_rvl_payload(payload: bytes, topic: str, fmt: str) -> npt.NDArray[np.uint16]:
+    """uint32 cols, uint32 rows, then the RVL stream (image_transport's layout)."""
+    from changing_slam_ros.io.rvl_codec import decode_rvl
+
+    if len(payload) < 8:
+        raise BagError(f"{topic}: compressedDepth rvl data has no size header (format '{fmt}')")
+    cols, rows = struct.unpack_from("<II", payload, 0)
+    if rows == 0 or cols == 0 or rows * cols > 5 * len(payload) + 64:  # RVL compresses at most ~4x
+        raise BagError(f"{topic}: compressedDepth rvl reports size {cols}x{rows} for {len(payload)} bytes")
+    try:
+        return decode_rvl(payload[8:], rows * cols).reshape(rows, cols)
+    except ValueError as err:
+        raise BagError(f"{topic}: compressedDepth rvl data is corrupt ({err})") from err
 
 
 def decode_any_rgb(msg: Any, topic: str = "image") -> U8:
@@ -283,7 +302,11 @@ def encode_png_depth(depth_m: F32) -> tuple[str, U8]:
 
 
 def encode_compressed_depth(
-    depth_m: F32, encoding: str = "16UC1", depth_max_m: float = 10.0, depth_quantization: float = 100.0
+    depth_m: F32,
+    encoding: str = "16UC1",
+    depth_max_m: float = 10.0,
+    depth_quantization: float = 100.0,
+    codec: str = "png",
 ) -> tuple[str, U8]:
     """(H, W) metres -> image_transport `compressedDepth` (format, data), PNG codec.
 
@@ -305,8 +328,16 @@ def encode_compressed_depth(
         img = np.clip(inv, 0, 65535).astype(np.uint16)  # truncation, as the C++ cast does
     else:
         raise ValueError(f"compressedDepth encodes 16UC1 or 32FC1, not '{encoding}'")
-    ok, buf = cv2.imencode(".png", img)
-    if not ok:
-        raise ValueError("OpenCV failed to encode the compressedDepth PNG")
-    payload = np.frombuffer(header + buf.tobytes(), dtype=np.uint8)
-    return f"{encoding}; compressedDepth png", payload
+    if codec == "rvl":
+        from changing_slam_ros.io.rvl_codec import encode_rvl
+
+        body = struct.pack("<II", img.shape[1], img.shape[0]) + encode_rvl(img)
+    elif codec == "png":
+        ok, buf = cv2.imencode(".png", img)
+        if not ok:
+            raise ValueError("OpenCV failed to encode the compressedDepth PNG")
+        body = buf.tobytes()
+    else:
+        raise ValueError(f"compressedDepth codec '{codec}' unknown; use png or rvl")
+    payload = np.frombuffer(header + body, dtype=np.uint8)
+    return f"{encoding}; compressedDepth {codec}", payload

@@ -182,10 +182,36 @@ def test_compressed_depth_32fc1_inverts_the_quantisation(fr1: tuple[np.ndarray, 
     assert float(err.max()) < 0.002
 
 
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_compressed_depth_rvl_matches_png(fr1: tuple[np.ndarray, np.ndarray], encoding: str) -> None:
+    _, depth = fr1
+    fmt_png, png = ic.encode_compressed_depth(depth, encoding, codec="png")
+    fmt_rvl, rvl = ic.encode_compressed_depth(depth, encoding, codec="rvl")
+    assert fmt_rvl == f"{encoding}; compressedDepth rvl" and len(rvl) < depth.size * 2 / 3
+    out = ic.decode_compressed_depth(_msg(format=fmt_rvl, data=rvl))
+    np.testing.assert_array_equal(out, ic.decode_compressed_depth(_msg(format=fmt_png, data=png)))
+    cut = _msg(format=fmt_rvl, data=rvl[: len(rvl) // 2])
+    with pytest.raises(BagError, match=r"/d: compressedDepth rvl data is corrupt \(RVL stream ends after"):
+        ic.decode_compressed_depth(cut, "/d")
+
+
+def test_rvl_stream_layout_on_a_hand_worked_example() -> None:
+    from changing_slam_ros.io.rvl_codec import decode_rvl, encode_rvl
+
+    # pixels 0 0 5 5: values 2 (zeros), 2 (nonzeros), zigzag(5)=10, zigzag(0)=0
+    # nibbles: 2 | 2 | 10 = 0b010 + continue -> 0xA, then 0b001 -> 0x1 | 0  => 0x2, 0x2, 0xA, 0x1, 0x0
+    # packed from the high end of one little-endian word, padded with zero nibbles: 0x22A10000
+    words = np.array([0x22A10000], dtype="<u4").tobytes()
+    assert encode_rvl(np.array([0, 0, 5, 5], np.uint16)) == words
+    np.testing.assert_array_equal(decode_rvl(words, 4), [0, 0, 5, 5])
+
+
 def test_compressed_depth_errors_are_named() -> None:
     with pytest.raises(BagError, match=r"/d: compressedDepth data has 5 bytes"):
         ic.decode_compressed_depth(_msg(format="16UC1; compressedDepth png", data=b"12345"), "/d")
-    with pytest.raises(BagError, match=r"/d: compressedDepth codec 'rvl'"):
+    with pytest.raises(BagError, match=r"/d: compressedDepth codec 'zlib'"):
+        ic.decode_compressed_depth(_msg(format="16UC1; compressedDepth zlib", data=b"0" * 40), "/d")
+    with pytest.raises(BagError, match=r"/d: compressedDepth rvl reports size 808464432x808464432"):
         ic.decode_compressed_depth(_msg(format="16UC1; compressedDepth rvl", data=b"0" * 40), "/d")
     with pytest.raises(BagError, match=r"/d: compressed depth image \(format 'png'\) .*cannot be decoded"):
         ic.decode_compressed_depth(_msg(format="png", data=b"garbage!"), "/d")
