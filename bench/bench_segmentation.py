@@ -3,7 +3,7 @@
 Prints, never asserts. Scenes are the synthetic ones of the unit tests (a room of static points and two
 rigid cubes; a box on a 6-DoF path), so the figures are reproducible:
 
-    .venv/bin/python bench/bench_segmentation.py [--runs 5] [--static 800] [--object 100]
+    .venv/bin/python bench/bench_segmentation.py [--runs 5] [--static 800] [--object 100] [--sim [--seed 0]]
 
 Wall and CPU milliseconds are both printed: on a shared machine the wall time includes waiting.
 """
@@ -96,6 +96,44 @@ def bench_object_tracking(args: argparse.Namespace) -> None:
         )
 
 
+def bench_unknown_mover(args: argparse.Namespace) -> None:
+    """Segmentation on the simulator's unknown_mover over the carried part (oracle correspondences)."""
+    from test_point_correlation_sim import oracle_window
+
+    from changing_slam_ros.sim.renderer import SimRenderer
+    from changing_slam_ros.sim.scenarios import build_scenario
+    from changing_slam_ros.sim.scene import SceneSpec
+
+    scenario = build_scenario("unknown_mover", args.seed)
+    spec = SceneSpec(scenario.room, scenario.actors, scenario.fovy_deg, 640, 480)
+    rng = np.random.default_rng(args.seed)
+    print(f"unknown_mover (seed {args.seed}), ORB keypoints with oracle correspondences, every second from 4 s to 19 s")
+    modes = [
+        ("two frames 1/15 s apart", lambda t: [t, t + 2 / 30], SegmentationConfig.two_frame()),
+        ("5 keyframes 0.2 s apart", lambda t: [t + 0.2 * i for i in range(5)], SegmentationConfig.multi_frame()),
+    ]
+    with SimRenderer(spec) as renderer:
+        for name, times, cfg in modes:
+            tp = fp = fn = 0
+            cpu: list[float] = []
+            missed: list[str] = []
+            for t in np.arange(4.0, 20.0, 1.0):
+                sim = oracle_window(renderer, scenario, times(float(t)), rng)
+                c0 = time.process_time()
+                result = segment(sim.window, cfg)
+                cpu.append((time.process_time() - c0) * 1e3)
+                pred = result.dynamic_mask
+                tp += int(np.sum(pred & sim.on_box))
+                fp += int(np.sum(pred & ~sim.on_box))
+                fn += int(np.sum(~pred & sim.on_box))
+                if sim.on_box.any() and not (pred & sim.on_box).any():
+                    missed.append(f"{t:.0f} s ({100 * sim.mover_displacement_m:.1f} cm)")
+            print(
+                f"  {name}: P {tp / max(tp + fp, 1):.3f} R {tp / max(tp + fn, 1):.3f} over {len(cpu)} windows, "
+                f"{statistics.median(cpu):.0f} ms CPU median; box not found at: {', '.join(missed) or 'none'}"
+            )
+
+
 def bench_merging(args: argparse.Namespace) -> None:
     rng = np.random.default_rng(0)
     sets = [rng.normal([x, 0.0, 1.5], 0.1, (100, 3)) for x in np.linspace(0.0, 3.0, 10)]
@@ -108,8 +146,12 @@ def main() -> int:
     parser.add_argument("--runs", type=int, default=5, help="timed runs per case (median reported)")
     parser.add_argument("--static", type=int, default=800, help="static points in the segmentation scene")
     parser.add_argument("--object", type=int, default=100, help="points per moving cube")
+    parser.add_argument("--sim", action="store_true", help="also run on the simulator's unknown_mover (renders)")
+    parser.add_argument("--seed", type=int, default=0, help="scenario seed for --sim")
     args = parser.parse_args()
     bench_segmentation(args)
+    if args.sim:
+        bench_unknown_mover(args)
     bench_object_tracking(args)
     bench_merging(args)
     return 0
