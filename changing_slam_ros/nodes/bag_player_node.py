@@ -1,0 +1,335 @@
+"""`bag_player`: replays a ROS 1 bag, a ROS 2 bag (sqlite3 / mcap) or a bare mcap onto ROS 2 topics.
+
+    bag_player BAG [--ros-args -p rate:=2.0 -p start_offset_s:=1.5 -p loop:=true
+                                -p lossless:=true -r /camera/rgb/image_color:=/image ...]
+
+Messages go out as recorded (raw CDR from `io.bag_messages`, no decoding) at the recorded log times x `rate`,
+with `/clock` (rosgraph_msgs/Clock) following the bag's time, so nodes run with `use_sim_time:=true`.
+Topics are renamed by standard `--ros-args -r from:=to` remaps or by the `remap` parameter.
+
+Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
+1. before the first message, wait until every topic in `wait_for_topics` (default: all played topics) has at
+   least `min_subscribers` matched subscriptions (`wait_subscribers_timeout_s`, then the player stops with
+   an error rather than play to nobody);
+2. publishers are reliable with KEEP_ALL history, and after each message the player waits until every
+   matched reliable subscription has acknowledged it at the DDS level (`Publisher.wait_for_all_acked`);
+3. after each message on an `ack_topics` topic (e.g. the colour image), wait until `ack_count` distinct nodes
+   have published a `std_msgs/Header` on `ack_topic` whose stamp equals the message's header stamp (the
+   node has *processed* the frame), at most `ack_timeout_s` (then a throttled warning, counted).
+Time spent waiting does not count against the schedule: playback resumes at the recorded spacing.
+The timing logic is ROS-free, in `changing_slam_ros.io.playback`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.executors import Executor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from rcl_interfaces.msg import ParameterDescriptor
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
+
+from changing_slam_ros.errors import BagError, ConfigError
+from changing_slam_ros.io.bag_messages import BagMessages
+from changing_slam_ros.io.playback import (
+    NS_PER_S,
+    PlaybackClock,
+    PlaybackOptions,
+    PlaybackProgress,
+    first_bag_ns,
+    parse_remaps,
+    plan,
+)
+from changing_slam_ros.nodes.node_runner import message_class, run_node
+
+STRING_ARRAY = Parameter.Type.STRING_ARRAY
+
+
+@dataclass
+class PlaybackResult:
+    """What a `play()` call did."""
+
+    published: int = 0
+    per_topic: dict[str, int] = field(default_factory=dict)
+    passes: int = 0
+    ack_timeouts: int = 0
+    dds_ack_timeouts: int = 0
+    wall_s: float = 0.0
+    completed: bool = False
+    error: str = ""
+
+
+class BagPlayerNode(Node):
+    """Publishes a bag's messages on schedule; call `play(executor)` (it returns at the end of the bag)."""
+
+    def __init__(self, bag_path: str | None = None, **node_kwargs: Any) -> None:
+        super().__init__("bag_player", **node_kwargs)
+        p = self._declare_parameters(bag_path)
+        self.options = PlaybackOptions(
+            rate=p["rate"],
+            start_offset_s=p["start_offset_s"],
+            loop=p["loop"],
+            topics=tuple(p["topics"]),
+            remap=parse_remaps(p["remap"]),
+        )
+        self.lossless: bool = p["lossless"]
+        self._clock_period_ns = round(NS_PER_S / p["clock_hz"]) if p["publish_clock"] else None
+        self._progress_period_ns = round(p["progress_period_s"] * NS_PER_S)
+        self._wait_topics: list[str] = p["wait_for_topics"]
+        self._min_subscribers: int = p["min_subscribers"]
+        self._wait_subscribers_timeout_s: float = p["wait_subscribers_timeout_s"]
+        self._ack_topics = set(p["ack_topics"])
+        self._ack_count: int = p["ack_count"]
+        self._ack_timeout_s: float = p["ack_timeout_s"]
+        if not p["bag"]:
+            raise ConfigError("bag_player: no bag given (bag_player BAG, or -p bag:=PATH)")
+
+        self.bag = BagMessages(p["bag"]).open()
+        try:
+            self.bag_publishers = self._make_publishers(p["qos_depth"])
+        except BaseException:
+            self.bag.close()
+            raise
+        self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+        self._acks: dict[int, set[str]] = {}
+        if self.lossless and self._ack_count > 0 and self._ack_topics:
+            self.create_subscription(Header, p["ack_topic"], self._on_ack, QoSProfile(depth=1000))
+        self.get_logger().info(
+            f"bag_player: {self.bag.path} ({self.bag.kind.value}), {len(self.bag_publishers)} topics, "
+            f"{self.bag.message_count} messages, {(self.bag.end_ns - self.bag.start_ns) / NS_PER_S:.2f} s, "
+            f"rate {self.options.rate}, offset {self.options.start_offset_s} s"
+            + (", loop" if self.options.loop else "")
+            + (", lossless" if self.lossless else "")
+        )
+
+    # -- set-up ------------------------------------------------------------------------------
+    def _declare_parameters(self, bag_path: str | None) -> dict[str, Any]:
+        specs: list[tuple[str, Any, str]] = [
+            ("bag", bag_path or "", "ROS 1 .bag, ROS 2 bag folder or .mcap file to play (or the first argument)"),
+            ("rate", 1.0, "playback speed factor relative to the recorded timing"),
+            ("start_offset_s", 0.0, "seconds of the bag skipped at the start"),
+            ("loop", False, "play again from the offset after the end, until stopped"),
+            ("topics", STRING_ARRAY, "bag topics to play; empty = all"),
+            ("remap", STRING_ARRAY, "topic renames 'from:=to' (as well as --ros-args -r)"),
+            ("publish_clock", True, "publish rosgraph_msgs/Clock on /clock"),
+            ("clock_hz", 100.0, "/clock publishing rate while waiting between messages"),
+            ("qos_depth", 10, "publisher history depth (ignored in lossless mode: KEEP_ALL)"),
+            ("progress_period_s", 2.0, "seconds between progress log lines"),
+            ("lossless", False, "wait for subscribers and acknowledgements instead of dropping"),
+            ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = all played"),
+            ("min_subscribers", 1, "lossless: subscriptions each waited-for topic needs before playing"),
+            ("wait_subscribers_timeout_s", 60.0, "lossless: give up (error) after this long without subscribers"),
+            ("ack_topics", STRING_ARRAY, "lossless: bag topics whose messages wait for a processing ack"),
+            ("ack_topic", "/bag_player/ack", "lossless: std_msgs/Header acks (stamp = acknowledged stamp)"),
+            ("ack_count", 1, "lossless: distinct acknowledging nodes awaited per message on ack_topics"),
+            ("ack_timeout_s", 2.0, "lossless: longest wait per message for acks (DDS and processing)"),
+        ]
+        values: dict[str, Any] = {}
+        for name, default, description in specs:
+            param = self.declare_parameter(name, default, ParameterDescriptor(description=description))
+            value = param.value
+            values[name] = list(value) if default is STRING_ARRAY and value is not None else value
+            if default is STRING_ARRAY and value is None:
+                values[name] = []
+        for name in ("clock_hz", "progress_period_s"):
+            if not values[name] > 0:
+                raise ConfigError(f"bag_player: {name} must be > 0, got {values[name]}")
+        return values
+
+    def _make_publishers(self, depth: int) -> dict[str, Any]:
+        """One publisher per bag topic with a known Python type; unknown types are skipped with a warning."""
+        pubs: dict[str, Any] = {}
+        wanted = set(self.options.topics)
+        for topic, conn in sorted(self.bag.topics.items()):
+            if wanted and topic not in wanted:
+                continue
+            try:
+                cls = message_class(conn.msgtype)
+            except (ImportError, ValueError) as err:
+                self.get_logger().warning(f"bag_player: skipping {topic}: no Python type ({err})")
+                continue
+            qos = QoSProfile(
+                history=HistoryPolicy.KEEP_ALL if self.lossless else HistoryPolicy.KEEP_LAST,
+                depth=max(1, depth),
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if conn.latched else DurabilityPolicy.VOLATILE,
+            )
+            pubs[topic] = self.create_publisher(
+                cls,
+                self.options.output_topic(topic),
+                qos,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            )
+        missing = wanted - set(self.bag.topics)
+        if missing:
+            raise BagError(
+                f"{self.bag.path}: no topic {', '.join(sorted(missing))}; the bag has {self.bag.describe_topics()}"
+            )
+        if not pubs:
+            raise BagError(f"{self.bag.path}: nothing to publish; the bag has {self.bag.describe_topics()}")
+        return pubs
+
+    def destroy_node(self) -> None:
+        self.bag.close()
+        super().destroy_node()
+
+    # -- playback ----------------------------------------------------------------------------
+    def play(self, executor: Executor) -> PlaybackResult:
+        """Publish the bag on schedule, spinning `executor` while waiting; returns at the end of the bag."""
+        result = PlaybackResult()
+        t_start = time.monotonic()
+        if self.lossless and not self._wait_for_subscribers(executor):
+            result.wall_s = time.monotonic() - t_start
+            result.error = "lossless: no subscribers"
+            return result
+        start_bag_ns = first_bag_ns(self.bag, self.options)
+        span_ns = self.bag.end_ns - start_bag_ns
+        clock = PlaybackClock(self.options.rate, start_bag_ns, _now_ns())
+        progress = PlaybackProgress(self._pass_message_count(), span_ns, self._progress_period_ns)
+        current_pass = 0
+        for item in plan(self.bag, self.options):
+            if not self.context.ok():
+                break
+            pub = self.bag_publishers.get(item.msg.topic)
+            if pub is None:
+                continue
+            if item.pass_index != current_pass:
+                self.get_logger().info(f"bag_player: end of pass {current_pass + 1}, looping")
+                current_pass = item.pass_index
+                clock.restart(start_bag_ns, _now_ns())
+                progress = PlaybackProgress(progress.total_messages, span_ns, self._progress_period_ns)
+            if not self._sleep_until(clock, item.msg.log_stamp_ns, executor):
+                break
+            self._publish_clock(item.msg.log_stamp_ns)
+            pub.publish(item.msg.cdr)
+            clock.mark_published(item.msg.log_stamp_ns)
+            result.published += 1
+            result.per_topic[item.topic] = result.per_topic.get(item.topic, 0) + 1
+            progress.record(item.topic)
+            if self.lossless:
+                waited_from = _now_ns()
+                self._wait_delivered(pub, item.msg, executor, result)
+                clock.pause(_now_ns() - waited_from)
+            if progress.due(_now_ns()):
+                self.get_logger().info(
+                    "bag_player: " + progress.line(current_pass, item.msg.log_stamp_ns - start_bag_ns)
+                )
+        else:
+            result.completed = True
+        result.passes = current_pass + 1
+        result.wall_s = time.monotonic() - t_start
+        self.get_logger().info(
+            f"bag_player: {'finished' if result.completed else 'stopped'}: {result.published} messages "
+            f"in {result.wall_s:.2f} s"
+            + (f", {result.ack_timeouts} ack timeouts" if self.lossless else "")
+        )
+        return result
+
+    def _pass_message_count(self) -> int:
+        return sum(self.bag.topics[t].msgcount for t in self.bag_publishers)
+
+    def _sleep_until(self, clock: PlaybackClock, bag_ns: int, executor: Executor) -> bool:
+        """Spin until the message is due, publishing /clock; False if the context shut down."""
+        last_clock_ns = 0
+        while self.context.ok():
+            now = _now_ns()
+            remaining = clock.wait_ns(bag_ns, now)
+            if remaining <= 0:
+                return True
+            if self._clock_period_ns is not None and now - last_clock_ns >= self._clock_period_ns:
+                self._publish_clock(clock.bag_now_ns(now))
+                last_clock_ns = now
+            step = remaining if self._clock_period_ns is None else min(remaining, self._clock_period_ns)
+            executor.spin_once(timeout_sec=step / NS_PER_S)
+        return False
+
+    def _publish_clock(self, bag_ns: int) -> None:
+        if self._clock_period_ns is None:
+            return
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(bag_ns, NS_PER_S)
+        self._clock_pub.publish(msg)
+
+    def _wait_for_subscribers(self, executor: Executor) -> bool:
+        topics = self._wait_topics or list(self.bag_publishers)
+        unknown = [t for t in topics if t not in self.bag_publishers]
+        if unknown:
+            raise ConfigError(f"bag_player: wait_for_topics {', '.join(unknown)} are not played topics")
+        deadline = time.monotonic() + self._wait_subscribers_timeout_s
+        logged = False
+        while self.context.ok():
+            missing = [
+                self.options.output_topic(t)
+                for t in topics
+                if self.bag_publishers[t].get_subscription_count() < self._min_subscribers
+            ]
+            if not missing:
+                return True
+            if time.monotonic() > deadline:
+                self.get_logger().error(
+                    f"bag_player: lossless: no subscriber on {', '.join(missing)} after "
+                    f"{self._wait_subscribers_timeout_s} s; not playing"
+                )
+                return False
+            if not logged:
+                self.get_logger().info(f"bag_player: lossless: waiting for subscribers on {', '.join(missing)}")
+                logged = True
+            executor.spin_once(timeout_sec=0.05)
+        return False
+
+    def _wait_delivered(self, pub: Any, msg: Any, executor: Executor, result: PlaybackResult) -> None:
+        if not pub.wait_for_all_acked(Duration(nanoseconds=round(self._ack_timeout_s * NS_PER_S))):
+            result.dds_ack_timeouts += 1
+        if self._ack_count <= 0 or msg.topic not in self._ack_topics:
+            return
+        stamp = msg.header_stamp_ns if msg.header_stamp_ns is not None else msg.log_stamp_ns
+        deadline = time.monotonic() + self._ack_timeout_s
+        while self.context.ok() and len(self._acks.get(stamp, ())) < self._ack_count:
+            if time.monotonic() > deadline:
+                result.ack_timeouts += 1
+                self.get_logger().warning(
+                    f"bag_player: lossless: no processing ack for {msg.topic} at {stamp / NS_PER_S:.6f} "
+                    f"after {self._ack_timeout_s} s ({len(self._acks.get(stamp, ()))}/{self._ack_count})",
+                    throttle_duration_sec=5.0,
+                )
+                break
+            executor.spin_once(timeout_sec=0.01)
+        self._acks.pop(stamp, None)
+
+    def _on_ack(self, msg: Header) -> None:
+        stamp = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec
+        self._acks.setdefault(stamp, set()).add(msg.frame_id)
+        while len(self._acks) > 1000:  # acks for stamps never waited for (another publisher, a late ack)
+            del self._acks[next(iter(self._acks))]
+
+
+def _now_ns() -> int:
+    return time.monotonic_ns()
+
+
+def _play(node: Node, executor: Any) -> int:
+    assert isinstance(node, BagPlayerNode)
+    result = node.play(executor)
+    return 1 if result.error else 0
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    def make(argv: list[str]) -> BagPlayerNode:
+        if len(argv) > 1:
+            raise ConfigError(f"bag_player: expected at most one bag argument, got {' '.join(argv)}")
+        return BagPlayerNode(bag_path=argv[0] if argv else None)
+
+    return run_node(make, args, body=_play)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

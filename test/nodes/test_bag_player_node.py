@@ -1,0 +1,202 @@
+"""bag_player in-process: every frame arrives with its stamps, /clock advances, lossless mode loses nothing."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.ros
+S = 1_000_000_000
+
+rclpy = pytest.importorskip("rclpy")
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
+from std_msgs.msg import Header  # noqa: E402
+
+from changing_slam_ros.errors import BagError, ConfigError  # noqa: E402
+from changing_slam_ros.io.image_codec import decode_rgb, decode_depth  # noqa: E402
+from changing_slam_ros.nodes.bag_player_node import BagPlayerNode, main  # noqa: E402
+
+
+def stamp_ns(msg) -> int:  # noqa: ANN001
+    return msg.header.stamp.sec * S + msg.header.stamp.nanosec
+
+
+class Recorder(Node):
+    """Subscribes to images and /clock and keeps what arrives (with the wall time of arrival)."""
+
+    def __init__(self, context, topics=("/camera/rgb/image_color",), depth=100, work_s=0.0, ack_topic=None):  # noqa: ANN001
+        super().__init__("recorder", context=context)
+        self.images: dict[str, list[Image]] = {t: [] for t in topics}
+        self.arrival_s: list[float] = []
+        self.clock_ns: list[int] = []
+        self.work_s = work_s
+        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+        for topic in topics:
+            self.create_subscription(Image, topic, lambda m, t=topic: self._on_image(t, m), qos)
+        self.create_subscription(Clock, "/clock", self._on_clock, 100)
+        self.ack_pub = self.create_publisher(Header, ack_topic, 100) if ack_topic else None
+
+    def _on_image(self, topic: str, msg: Image) -> None:
+        self.images[topic].append(msg)
+        self.arrival_s.append(time.monotonic())
+        if self.work_s:
+            time.sleep(self.work_s)  # a slow consumer (tracking at a few Hz)
+        if self.ack_pub is not None:
+            self.ack_pub.publish(Header(stamp=msg.header.stamp, frame_id=self.get_name()))
+
+    def _on_clock(self, msg: Clock) -> None:
+        self.clock_ns.append(msg.clock.sec * S + msg.clock.nanosec)
+
+
+def make_player(context, bag, **params) -> BagPlayerNode:  # noqa: ANN001
+    overrides = [Parameter("bag", value=str(bag))] + [Parameter(k, value=v) for k, v in params.items()]
+    return BagPlayerNode(context=context, parameter_overrides=overrides)
+
+
+def play(context, player, *others):  # noqa: ANN001, ANN201
+    executor = SingleThreadedExecutor(context=context)
+    for node in (player, *others):
+        executor.add_node(node)
+    # Let discovery match the subscriptions before playing (lossless mode waits by itself).
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and any(p.get_subscription_count() == 0 for p in player.bag_publishers.values()
+                                               if p.topic_name in {t for o in others for t in o.images}):
+        executor.spin_once(timeout_sec=0.05)
+    try:
+        return player.play(executor)
+    finally:
+        for _ in range(20):  # drain what is still queued
+            executor.spin_once(timeout_sec=0.01)
+        executor.shutdown()
+
+
+def test_every_image_arrives_with_its_recorded_stamp_and_pixels_and_clock_advances(ros_context, fr1_bag):
+    rec = Recorder(ros_context, topics=("/camera/rgb/image_color", "/camera/depth/image"))
+    player = make_player(ros_context, fr1_bag.path)
+    result = play(ros_context, player, rec)
+
+    n = len(fr1_bag.rgb_stamps_ns)  # 9: the folder associates 9 of its 10 colour frames
+    assert n == 9 and result.completed and result.published == 3 * n  # colour, depth, camera_info
+    rgb = rec.images["/camera/rgb/image_color"]
+    assert [stamp_ns(m) for m in rgb] == fr1_bag.rgb_stamps_ns
+    assert [stamp_ns(m) for m in rec.images["/camera/depth/image"]] == fr1_bag.depth_stamps_ns
+    np.testing.assert_array_equal(decode_rgb(rgb[0]), fr1_bag.first_rgb)
+    depth = decode_depth(rec.images["/camera/depth/image"][0])
+    assert depth.shape == (480, 640) and 0.5 < float(np.median(depth[depth > 0])) < 2.0  # metres
+
+    # /clock: published in bag time, never backwards, from the first stamp up to the last message.
+    clock = rec.clock_ns
+    assert len(clock) >= 10 and all(b >= a for a, b in zip(clock, clock[1:]))
+    assert clock[0] >= fr1_bag.rgb_stamps_ns[0] and clock[-1] >= fr1_bag.depth_stamps_ns[-1]
+    player.destroy_node()
+    rec.destroy_node()
+
+
+def test_playback_follows_the_recorded_timing_times_the_rate(ros_context, fr1_bag):
+    rec = Recorder(ros_context)
+    span_s = (fr1_bag.depth_stamps_ns[-1] - fr1_bag.rgb_stamps_ns[0]) / S  # 0.31 s of bag
+    player = make_player(ros_context, fr1_bag.path, rate=0.5, topics=["/camera/rgb/image_color", "/camera/depth/image"])
+    result = play(ros_context, player, rec)
+    assert result.completed and abs(result.wall_s - span_s / 0.5) < 0.15  # 0.62 s at half speed
+    gaps = np.diff(rec.arrival_s)
+    recorded = np.diff(fr1_bag.rgb_stamps_ns) / S / 0.5
+    assert np.median(np.abs(gaps - recorded)) < 0.02  # each frame spaced as recorded / rate
+    player.destroy_node()
+    rec.destroy_node()
+
+
+def test_offset_and_remaps_by_parameter_and_by_ros_args(ros_context, fr1_bag):
+    rec = Recorder(ros_context, topics=("/image", "/depth"))
+    player = BagPlayerNode(
+        context=ros_context,
+        cli_args=["--ros-args", "-r", "/camera/rgb/image_color:=/image"],
+        parameter_overrides=[
+            Parameter("bag", value=str(fr1_bag.path)),
+            Parameter("remap", value=["/camera/depth/image:=/depth"]),
+            Parameter("start_offset_s", value=0.1),
+            Parameter("rate", value=4.0),
+        ],
+    )
+    result = play(ros_context, player, rec)
+    assert result.completed
+    first = fr1_bag.rgb_stamps_ns[0]
+    expected_rgb = [t for t in fr1_bag.rgb_stamps_ns if t >= first + S // 10]
+    assert [stamp_ns(m) for m in rec.images["/image"]] == expected_rgb and 0 < len(expected_rgb) < 9
+    assert len(rec.images["/depth"]) == sum(t >= first + S // 10 for t in fr1_bag.depth_stamps_ns)
+    player.destroy_node()
+    rec.destroy_node()
+
+
+def test_a_slow_subscriber_loses_frames_at_full_speed_but_none_in_lossless_mode(ros_context, tmp_path, fr1_bag_writer):
+    bag = fr1_bag_writer(tmp_path / "small", n=10, scale=4)
+    topics = ["/camera/rgb/image_color"]
+
+    slow = Recorder(ros_context, depth=1, work_s=0.08)  # 80 ms per frame, queue of one
+    result = play(ros_context, make_player(ros_context, bag.path, rate=5.0, topics=topics), slow)
+    assert result.completed and len(slow.images[topics[0]]) < 9  # frames overwritten in its queue
+    slow.destroy_node()
+
+    slow = Recorder(ros_context, depth=1, work_s=0.08, ack_topic="/bag_player/ack")
+    player = make_player(
+        ros_context, bag.path, rate=5.0, topics=topics, lossless=True, ack_topics=topics,
+        wait_subscribers_timeout_s=5.0,
+    )  # fmt: skip
+    result = play(ros_context, player, slow)
+    assert result.completed and result.ack_timeouts == 0
+    assert [stamp_ns(m) for m in slow.images[topics[0]]] == bag.rgb_stamps_ns
+    slow.destroy_node()
+    player.destroy_node()
+
+
+def test_loop_plays_the_bag_again_until_stopped(ros_context, tmp_path, fr1_bag_writer):
+    bag = fr1_bag_writer(tmp_path / "small", n=3, scale=8)
+    rec = Recorder(ros_context)
+    topic = "/camera/rgb/image_color"
+
+    def stop_after_seven(msg=None):  # noqa: ANN001
+        if len(rec.images[topic]) >= 7 or msg is None:
+            ros_context.try_shutdown()
+
+    rec.create_subscription(Image, topic, stop_after_seven, 100)
+    rec.create_timer(20.0, stop_after_seven)  # bound the test if frames went missing
+    player = make_player(ros_context, bag.path, rate=4.0, loop=True, topics=[topic])
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(player)
+    executor.add_node(rec)
+    for _ in range(40):
+        executor.spin_once(timeout_sec=0.02)
+    result = player.play(executor)
+    assert not result.completed and result.passes >= 3
+    assert [stamp_ns(m) for m in rec.images[topic]][:7] == (bag.rgb_stamps_ns * 3)[:7]
+
+
+def test_lossless_mode_refuses_to_play_to_nobody(ros_context, fr1_bag):
+    player = make_player(ros_context, fr1_bag.path, lossless=True, wait_subscribers_timeout_s=0.3)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(player)
+    result = player.play(executor)
+    assert result.published == 0 and "no subscribers" in result.error
+    player.destroy_node()
+
+
+def test_bad_bags_and_topics_raise_errors_naming_them(ros_context, tmp_path, fr1_bag):
+    with pytest.raises(BagError, match="nope.mcap: no such file"):
+        make_player(ros_context, tmp_path / "nope.mcap")
+    with pytest.raises(BagError, match="no topic /missing; the bag has /camera/depth/image"):
+        make_player(ros_context, fr1_bag.path, topics=["/missing"])
+    with pytest.raises(ConfigError, match="rate must be > 0"):
+        make_player(ros_context, fr1_bag.path, rate=-1.0)
+
+
+def test_main_returns_1_with_one_line_for_a_missing_bag(monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "117")
+    assert main(["bag_player", str(tmp_path / "missing.bag")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {tmp_path / 'missing.bag'}: no such file or folder"]
