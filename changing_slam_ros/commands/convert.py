@@ -44,7 +44,7 @@ def main(args: argparse.Namespace) -> int:
     if not 1 <= args.jpeg_quality <= 100:
         raise BagError(f"--jpeg-quality {args.jpeg_quality}: expected 1..100")
     src = open_dataset(args.src, args.config)
-    print(f"reading {src.description}", file=sys.stderr)
+    print(f"reading {src.description}")
     gt = getattr(src, "groundtruth_stamped", None)
     with RgbdMcapWriter(out, compress=args.compress, jpeg_quality=args.jpeg_quality,
                         depth_encoding=args.depth_encoding) as writer:  # fmt: skip

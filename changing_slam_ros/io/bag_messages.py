@@ -221,11 +221,13 @@ class BagMessages:
 
     @property
     def start_ns(self) -> int:
+        """Log time of the first message, ns."""
         self._check_open()
         return int(self._reader.start_time)
 
     @property
     def end_ns(self) -> int:
+        """One past the log time of the last message, ns (rosbags' convention)."""
         self._check_open()
         return int(self._reader.end_time)
 
