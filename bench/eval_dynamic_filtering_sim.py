@@ -35,6 +35,7 @@ VARIANTS: dict[str, KeypointClassificationConfig] = {
     "no_repopulation": replace(BASE, repopulation=False),
     "centre_band_check": replace(BASE, check_centre_in_object_band=True),
     "no_depth_window": replace(BASE, keypoint_depth_window_px=0),
+    "depth_window_1px": replace(BASE, keypoint_depth_window_px=1),
     "no_occlusion_checks": replace(BASE, check_centre_in_object_band=False, centre_occlusion_margin_m=1e9, max_depth_std_m=1e9),
     "person_margin_0.5": replace(BASE, background_margin_m={**BASE.background_margin_m, 0: 0.5}),
     "person_margin_1.0": replace(BASE, background_margin_m={**BASE.background_margin_m, 0: 1.0}),

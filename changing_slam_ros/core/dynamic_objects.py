@@ -80,7 +80,8 @@ class DynamicObjectsConfig:
 class ObjectState:
     """One tracked object in one frame (mirrors the object-state message).
 
-    `position_world` (3,) m and `velocity_world` (3,) m/s are NaN before the object's first measurement.
+    `position_world` (3,) m, `velocity_world` (3,) m/s and `covariance` (6, 6) of [x y z vx vy vz] are NaN
+    before the object's first measurement.
     """
 
     object_id: int
@@ -92,6 +93,12 @@ class ObjectState:
     motion: ObjectMotion
     n_updates: int
     is_new: bool
+    covariance: F64 = field(default_factory=lambda: np.full((6, 6), np.nan))
+
+    @property
+    def is_dynamic(self) -> bool:
+        """The message's `is_dynamic`: moving, or of a class that is always dynamic."""
+        return self.motion == ObjectMotion.DYNAMIC
 
     @property
     def is_filtered(self) -> bool:
@@ -249,6 +256,7 @@ class DynamicObjectTracker:
                     motion=motion,
                     n_updates=ekf.n_updates if ekf is not None else 0,
                     is_new=bool(pending.is_new[b]),
+                    covariance=ekf.P if ekf is not None else np.full((6, 6), np.nan),
                 )
             )
         kp_object_ids = np.full(len(cls.kp_classes), -1, dtype=np.int64)

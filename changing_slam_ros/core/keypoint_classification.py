@@ -207,7 +207,7 @@ def nearest_depth_around(depth_m: npt.NDArray[np.float32], keypoints_px: F64, ra
     vv = np.clip(v[:, None, None] + offs[None, :, None], 0, h - 1)
     d = depth_m[vv, uu].reshape(n, -1).astype(np.float64)
     d[d <= 0.0] = np.inf
-    out = d.min(axis=1)
+    out: F64 = np.asarray(d.min(axis=1), dtype=np.float64)
     out[~np.isfinite(out)] = 0.0
     return out
 
