@@ -62,6 +62,7 @@ class LocalMapper:
         self.cfg = config or MappingConfig()
         self.scales = features.level_scales()
         self._recent: list[tuple[int, npt.NDArray[np.int64]]] = []  # (kf id that created, point ids)
+        self._recent_map_id = atlas.current.id
 
     @property
     def map(self) -> SlamMap:
@@ -70,8 +71,9 @@ class LocalMapper:
     def process(self, kf: Keyframe) -> MappingStats:
         m = self.map
         stats = MappingStats()
-        if kf.map_id != m.id:
+        if m.id != self._recent_map_id:  # a new map of the Atlas: recent points belong to the old one
             self._recent = []
+            self._recent_map_id = m.id
         # 1. Insert.
         m.add_keyframe(kf)
         # 2. New points from depth.
