@@ -139,3 +139,28 @@ def test_dataset_config_in_a_yaml_file_is_used(
     assert cli_main(["convert", str(ros1_tum_bag), str(out), "--config", str(cfg)]) == 1
     assert "message within 0.001 s" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_written_mcap_is_a_ros2_profile_file_other_readers_accept(tmp_path: Path) -> None:
+    """What Foxglove relies on: ros2 profile, cdr channels, ros2msg schemas with the MSG: blocks."""
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    out = tmp_path / "fr1.mcap"
+    assert cli_main(["convert", str(require(FR1_XYZ_10)), str(out), "--config", "tum_fr1", "--compress"]) == 0
+    with out.open("rb") as fh:
+        reader = make_reader(fh)
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics.message_count == 9 * 3 + 60
+        schemas = {s.name: s for s in summary.schemas.values()}
+        assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
+        assert schemas["sensor_msgs/msg/CompressedImage"].encoding == "ros2msg"
+        assert b"MSG: std_msgs/Header" in schemas["sensor_msgs/msg/CompressedImage"].data
+        log_times = [m.log_time for _, _, m in reader.iter_messages(log_time_order=False)]
+        assert log_times == sorted(log_times)  # written in time order
+    with AnyReader([out]) as any_reader:  # rosbags builds its types from the embedded schemas
+        conn = next(c for c in any_reader.connections if c.topic.endswith("image_color/compressed"))
+        _, stamp, raw = next(any_reader.messages(connections=[conn]))
+        msg = any_reader.deserialize(raw, conn.msgtype)
+        assert msg.format == "rgb8; jpeg compressed bgr8" and stamp == 1305031102_175304000
