@@ -249,7 +249,8 @@ def _inliers(
     cam_a, cam_b = a.camera, b.camera
     ea = (cam_a.fx * b_in_a[..., 0] / za + cam_a.cx - ka[:, 0]) ** 2 + (cam_a.fy * b_in_a[..., 1] / za + cam_a.cy - ka[:, 1]) ** 2
     eb = (cam_b.fx * a_in_b[..., 0] / zb + cam_b.cx - kb[:, 0]) ** 2 + (cam_b.fy * a_in_b[..., 1] / zb + cam_b.cy - kb[:, 1]) ** 2
-    return ok & (ea < th_a) & (eb < th_b)
+    flags: npt.NDArray[np.bool_] = ok & (ea < th_a) & (eb < th_b)
+    return flags
 
 
 def _ransac(

@@ -40,7 +40,7 @@ class PlaceCandidate:
 def loop_feature_mask(kf: Keyframe, inactive_object_ids: Iterable[int] = ()) -> npt.NDArray[np.bool_]:
     """Which keypoints of `kf` (N,) may describe the place: not DYNAMIC, not UNUSED, not on an inactive object."""
     classes = np.asarray(kf.kp_classes)
-    mask = (classes != KeypointClass.DYNAMIC) & (classes != KeypointClass.UNUSED)
+    mask: npt.NDArray[np.bool_] = (classes != KeypointClass.DYNAMIC) & (classes != KeypointClass.UNUSED)
     inactive = np.fromiter(inactive_object_ids, np.int64)
     if len(inactive):
         mask &= ~np.isin(kf.object_ids, inactive)

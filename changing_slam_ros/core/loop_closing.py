@@ -377,7 +377,8 @@ class _PointPositions(Mapping[int, F64]):
     def __getitem__(self, pid: int) -> F64:
         if not 0 <= pid < len(self._usable) or not self._usable[pid]:
             raise KeyError(pid)
-        return self._points.positions[pid]
+        position: F64 = self._points.positions[pid]
+        return position
 
     def __iter__(self) -> Iterator[int]:
         return iter(np.flatnonzero(self._usable).tolist())

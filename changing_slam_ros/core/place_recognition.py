@@ -154,7 +154,7 @@ def relocalise(
         inl = np.nonzero((err < config.reprojection_px) & (depth > 0))[0]
         if len(inl) < config.min_inliers:
             continue
-        T_cam_world = make_pose(r, tvec.ravel())
+        T_cam_world = make_pose(np.asarray(r, np.float64), np.asarray(tvec, np.float64).ravel())
         return Relocalisation(
             invert(T_cam_world), cand.keyframe_id, matches[inl, 0].astype(np.int64), pids[matches[inl, 1]].astype(np.int64)
         )

@@ -38,7 +38,8 @@ def hamming_distances(a: U8, b: U8) -> npt.NDArray[np.int32]:
     a64 = np.ascontiguousarray(a, dtype=np.uint8).view(np.uint64)
     b64 = np.ascontiguousarray(b, dtype=np.uint8).view(np.uint64)
     x = a64[:, None, :] ^ b64[None, :, :]
-    return np.bitwise_count(x).sum(axis=2, dtype=np.int32)
+    out: npt.NDArray[np.int32] = np.bitwise_count(x).sum(axis=2, dtype=np.int32)
+    return out
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,7 @@ class Vocabulary:
         self.node_word = np.asarray(node_word, dtype=np.int32)
         self.word_idf = np.asarray(word_idf, dtype=np.float32)
         self._node_desc64 = self.node_descriptors.view(np.uint64)  # (M, 4)
-        self._has_children = (self.children >= 0).any(axis=1)
+        self._has_children: npt.NDArray[np.bool_] = np.asarray((self.children >= 0).any(axis=1))
 
     # ------------------------------------------------------------------ properties
     @property
@@ -275,7 +276,7 @@ def train_vocabulary(
     children = np.full((m, branching), -1, np.int32)
     for i, ch in enumerate(node_children):
         children[i, : len(ch)] = ch
-    is_leaf = (children < 0).all(axis=1)
+    is_leaf: npt.NDArray[np.bool_] = np.asarray((children < 0).all(axis=1))
     is_leaf[0] = False
     node_word = np.full(m, -1, np.int32)
     leaves = np.nonzero(is_leaf)[0]
