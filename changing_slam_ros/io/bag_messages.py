@@ -77,6 +77,14 @@ class RawMessage:
     cdr: bytes
 
 
+_REPAIR_HINT = {
+    BagKind.ROS1: " (a truncated or unindexed recording can be repaired with 'rosbag reindex')",
+    BagKind.ROS2_SQLITE3: "",
+    BagKind.ROS2_MCAP: " (a truncated recording can be repaired with 'mcap recover')",
+    BagKind.MCAP: " (a truncated recording can be repaired with 'mcap recover')",
+}
+
+
 def detect_bag_kind(path: Path) -> BagKind:
     """Classify `path` by what it is on disk; BagError when it is none of the supported kinds."""
     if not path.exists():
@@ -172,7 +180,9 @@ class BagMessages:
         except FileNotFoundError as err:
             raise BagError(f"{self.path}: {err}") from err
         except errors as err:
-            raise BagError(f"{self.path}: cannot open {self.kind.value}: {_describe(err)}") from err
+            raise BagError(
+                f"{self.path}: cannot open {self.kind.value}: {_describe(err)}{_REPAIR_HINT[self.kind]}"
+            ) from err
         self._reader = reader
         try:
             self._prepare_types()

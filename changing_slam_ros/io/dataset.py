@@ -18,6 +18,7 @@ from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.errors import DatasetError
+from changing_slam_ros.io.groundtruth import GroundTruth
 from changing_slam_ros.io.dataset_config import (
     CameraConfig,
     DatasetConfig,
@@ -46,6 +47,11 @@ class RgbdSource(Protocol):
 
     @property
     def groundtruth(self) -> Trajectory | None: ...
+
+    @property
+    def groundtruth_stamped(self) -> GroundTruth | None:
+        """The same ground truth with exact integer-nanosecond stamps."""
+        ...
 
     def __len__(self) -> int: ...
 

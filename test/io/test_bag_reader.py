@@ -246,3 +246,16 @@ def test_mcap_writer_carries_extra_topics_and_omits_unused_ones(tmp_path: Path) 
         msg = next(bag.messages(topics={"/objects/centroid"}))
         assert bag.deserialize(msg).point.z == 3.0 and msg.header_stamp_ns == 1_000_000_005
     assert open_dataset(out, None).groundtruth is None
+
+
+def test_every_reader_is_an_rgbd_source(ros1_tum_bag: Path) -> None:
+    from helpers import FR1_XYZ_10, require
+
+    from changing_slam_ros.io.dataset import RgbdSource
+
+    for src in (open_dataset(ros1_tum_bag, "tum_fr1"), open_dataset(require(FR1_XYZ_10), "tum_fr1")):
+        assert isinstance(src, RgbdSource)
+        gt = src.groundtruth_stamped
+        assert gt is not None and src.groundtruth is not None and len(gt) == len(src.groundtruth)
+        stamps = [f.stamp_ns for f in src]
+        assert stamps == sorted(stamps) and len(stamps) == len(src)
