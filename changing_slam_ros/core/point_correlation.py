@@ -31,10 +31,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
-from scipy.sparse.linalg import LinearOperator, cg
-from scipy.spatial import ConvexHull, Delaunay, QhullError
+import scipy.sparse as sp  # type: ignore[import-untyped]
+from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
+from scipy.sparse.linalg import LinearOperator, cg  # type: ignore[import-untyped]
+from scipy.spatial import ConvexHull, Delaunay, QhullError  # type: ignore[import-untyped]
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.errors import ConfigError
@@ -187,13 +187,15 @@ class CorrelationWindow:
     def observed(self) -> BoolArr:
         """(K, M) True where point m is measured in frame k (finite, positive depth)."""
         z = self.points_cam[..., 2]
-        return np.isfinite(z) & (z > 0) & np.all(np.isfinite(self.points_cam), axis=2)
+        seen: BoolArr = np.isfinite(z) & (z > 0) & np.all(np.isfinite(self.points_cam), axis=2)
+        return seen
 
     def points_world(self) -> F64:
         """(K, M, 3) measured points in the world frame, NaN where unobserved."""
         rot = self.T_world_cam[:, :3, :3]
         trans = self.T_world_cam[:, :3, 3]
-        return np.einsum("kab,kmb->kma", rot, self.points_cam) + trans[:, None, :]
+        world: F64 = np.einsum("kab,kmb->kma", rot, self.points_cam) + trans[:, None, :]
+        return world
 
 
 @dataclass(frozen=True)
@@ -225,7 +227,7 @@ class SegmentationResult:
 
     @property
     def static_mask(self) -> BoolArr:
-        return self.labels == STATIC_LABEL
+        return np.asarray(self.labels == STATIC_LABEL, dtype=np.bool_)
 
     @property
     def dynamic_mask(self) -> BoolArr:
@@ -444,7 +446,7 @@ def _gauss_newton_step(
         hessian.shape, matvec=lambda v: np.matmul(inv_blocks, v.reshape(m, 3, 1)).ravel(), dtype=np.float64
     )
     delta, _ = cg(hessian, -gradient.ravel(), M=precond, rtol=1e-5, maxiter=500)
-    return points_world + delta.reshape(m, 3)
+    return np.asarray(points_world + delta.reshape(m, 3), dtype=np.float64)
 
 
 def _huber_weights(chi: F64, delta: float) -> F64:
@@ -483,7 +485,7 @@ def _anchor_information(window: CorrelationWindow, keep: I64, cfg: SegmentationC
     flat = np.where(obs[..., None], pts, 1.0).reshape(-1, 3)
     var = (_observation_sigma(flat, window.camera, cfg) ** 2).mean(axis=1).reshape(obs.shape)
     mean_var = np.where(obs, var, 0.0).sum(axis=0) / np.maximum(obs.sum(axis=0), 1)
-    return obs.sum(axis=0) / mean_var
+    return np.asarray(obs.sum(axis=0) / mean_var, dtype=np.float64)
 
 
 def _median_world(world: F64, observed: BoolArr) -> F64:
