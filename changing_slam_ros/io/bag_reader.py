@@ -26,7 +26,7 @@ from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.errors import BagError, SlamError
 from changing_slam_ros.io.bag_messages import BagConnection, BagMessages, RawMessage
 from changing_slam_ros.io.camera_info import intrinsics_from_camera_info
-from changing_slam_ros.io.dataset_config import TOPIC_PRESETS, CameraConfig, DatasetConfig, TopicSet
+from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig, TopicSet
 from changing_slam_ros.io.groundtruth import GroundTruth
 from changing_slam_ros.io.image_codec import decode_any_depth, decode_any_rgb
 from changing_slam_ros.io.tf_chain import TfBuffer, transform_matrix
@@ -49,11 +49,7 @@ class _Pair:
 def resolve_topics(bag: BagMessages, config: DatasetConfig) -> TopicSet:
     """The colour / depth / camera_info topics to read; BagError listing the bag's topics if absent."""
     topics = bag.topics
-    configured = config.configured_topics()
-    if configured is not None:
-        candidates = [configured]
-    else:
-        candidates = list(TOPIC_PRESETS.values())
+    candidates = config.candidate_topics()
     for cand in candidates:
         rgb = _present(topics, cand.rgb, ("/compressed",))
         depth = _present(topics, cand.depth, ("/compressedDepth", "/compressed"))

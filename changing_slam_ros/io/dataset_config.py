@@ -107,16 +107,31 @@ class DatasetConfig:
         if self.max_time_diff_s < 0 or self.gt_max_time_diff_s < 0:
             raise ConfigError("dataset: max_time_diff_s and gt_max_time_diff_s must be >= 0")
 
-    def configured_topics(self) -> TopicSet | None:
-        """The topic set when fixed by the config, None when it is to be detected from the bag."""
-        if self.topic_preset == "auto" and not (self.rgb_topic and self.depth_topic):
-            return None
-        base = TOPIC_PRESETS.get(self.topic_preset, TUM_TOPICS)
-        return TopicSet(
-            self.rgb_topic or base.rgb,
-            self.depth_topic or base.depth,
-            self.camera_info_topic or (base.camera_info if self.topic_preset != "auto" else ""),
-        )
+    def candidate_topics(self) -> list[TopicSet]:
+        """Topic sets to look for in a bag, in order: the preset's (or every preset's under `auto`),
+        with single names overridden by `rgb_topic` / `depth_topic` / `camera_info_topic`.
+
+        When the colour topic is overridden and `camera_info_topic` is not, CameraInfo is looked for
+        beside the colour topic (`/ns/image_raw` -> `/ns/camera_info`), as image_transport places it.
+        """
+        presets = list(TOPIC_PRESETS.values()) if self.topic_preset == "auto" else [TOPIC_PRESETS[self.topic_preset]]
+        out: list[TopicSet] = []
+        for base in presets:
+            info = self.camera_info_topic or (sibling_camera_info(self.rgb_topic) if self.rgb_topic else base.camera_info)
+            cand = TopicSet(self.rgb_topic or base.rgb, self.depth_topic or base.depth, info)
+            if cand not in out:
+                out.append(cand)
+        return out
+
+
+def sibling_camera_info(image_topic: str) -> str:
+    """`/camera/color/image_raw[/compressed]` -> `/camera/color/camera_info`."""
+    base = image_topic
+    for suffix in ("/compressed", "/compressedDepth"):
+        if base.endswith(suffix):
+            base = base[: -len(suffix)]
+    head, _, _ = base.rpartition("/")
+    return f"{head}/camera_info"
 
 
 @dataclass(frozen=True)

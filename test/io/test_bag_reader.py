@@ -259,3 +259,26 @@ def test_every_reader_is_an_rgbd_source(ros1_tum_bag: Path) -> None:
         assert gt is not None and src.groundtruth is not None and len(gt) == len(src.groundtruth)
         stamps = [f.stamp_ns for f in src]
         assert stamps == sorted(stamps) and len(stamps) == len(src)
+
+
+def test_custom_topics_find_the_camera_info_beside_the_colour_topic(tmp_path: Path) -> None:
+    from changing_slam_ros.core.camera import CameraIntrinsics
+    from changing_slam_ros.io.camera_info import camera_info_fields
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    t = store.types
+    cam = CameraIntrinsics(8, 6, 4.5, 4.6, 3.5, 2.5)
+    f = camera_info_fields(cam)
+    info = t["sensor_msgs/msg/CameraInfo"](
+        t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](1, 0), "cam"), f["height"], f["width"],
+        f["distortion_model"], f["d"], f["k"], f["r"], f["p"], 0, 0, t["sensor_msgs/msg/RegionOfInterest"](0, 0, 0, 0, False),
+    )  # fmt: skip
+    bag = _small_ros2_bag(tmp_path / "front", {
+        "/front/image": ("sensor_msgs/msg/Image", [_image(store, 8, 6, "rgb8")]),
+        "/front/depth": ("sensor_msgs/msg/Image", [_image(store, 8, 6, "16UC1")]),
+        "/front/camera_info": ("sensor_msgs/msg/CameraInfo", [info]),
+    })  # fmt: skip
+    src = open_dataset(bag, DatasetSettings(DatasetConfig(rgb_topic="/front/image", depth_topic="/front/depth"), None, "t"))
+    assert src.camera == cam
+    frames = list(src)
+    assert len(frames) == 1 and frames[0].depth_m.shape == (6, 8) and not frames[0].depth_m.any()

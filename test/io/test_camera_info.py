@@ -22,6 +22,7 @@ from changing_slam_ros.io.dataset_config import (
     REALSENSE_TOPICS,
     TUM_TOPICS,
     DatasetConfig,
+    TopicSet,
     load_dataset_settings,
     settings_from_mapping,
 )
@@ -128,11 +129,17 @@ def test_shipped_configs_hold_the_published_calibrations(
 
 
 def test_topic_presets_and_overrides() -> None:
-    assert load_dataset_settings("tum_fr1").dataset.configured_topics() == TUM_TOPICS
-    assert load_dataset_settings("realsense_d435").dataset.configured_topics() == REALSENSE_TOPICS
-    assert DatasetConfig().configured_topics() is None  # auto-detect
+    assert load_dataset_settings("tum_fr1").dataset.candidate_topics() == [TUM_TOPICS]
+    assert load_dataset_settings("realsense_d435").dataset.candidate_topics() == [REALSENSE_TOPICS]
+    assert DatasetConfig().candidate_topics() == [TUM_TOPICS, REALSENSE_TOPICS]  # auto-detect
     cfg = DatasetConfig(topic_preset="realsense", depth_topic="/d")
-    assert cfg.configured_topics() == type(REALSENSE_TOPICS)(REALSENSE_TOPICS.rgb, "/d", REALSENSE_TOPICS.camera_info)
+    assert cfg.candidate_topics() == [TopicSet(REALSENSE_TOPICS.rgb, "/d", REALSENSE_TOPICS.camera_info)]
+    # only the colour topic given: depth from each preset, CameraInfo beside the colour topic
+    cfg = DatasetConfig(rgb_topic="/kinect2/qhd/image_color_rect/compressed")
+    assert cfg.candidate_topics() == [
+        TopicSet("/kinect2/qhd/image_color_rect/compressed", TUM_TOPICS.depth, "/kinect2/qhd/camera_info"),
+        TopicSet("/kinect2/qhd/image_color_rect/compressed", REALSENSE_TOPICS.depth, "/kinect2/qhd/camera_info"),
+    ]
 
 
 def test_config_errors_name_file_and_key() -> None:
