@@ -81,3 +81,17 @@ def test_a_yolo_onnx_model_is_detected_by_layout_and_run_end_to_end(tmp_path: Pa
     np.testing.assert_allclose(res.detections[0].box_xyxy, [44.0, 32.0, 84.0, 64.0], atol=1e-4)
     np.testing.assert_allclose(res.detections[1].box_xyxy, [88.0, 56.0, 104.0, 72.0], atol=1e-4)
     assert res.detections[1].score == pytest.approx(0.5)
+
+
+def test_gpu_providers_are_used_only_when_onnxruntime_has_them(tmp_path: Path) -> None:
+    import onnxruntime as ort
+
+    path = _tiny_yolo_model(tmp_path / "tiny_yolo.onnx", _yolo_candidates([]), 64)
+    det = Detector(DetectorConfig(model_path=str(path), intra_op_threads=1))
+    available = set(ort.get_available_providers())
+    expected = [p for p in ("TensorrtExecutionProvider", "CUDAExecutionProvider") if p in available]
+    assert det.providers[: len(expected)] == tuple(expected)
+    assert det.providers[-1] == "CPUExecutionProvider"
+    cpu_only = Detector(DetectorConfig(model_path=str(path), providers=("CPUExecutionProvider",)))
+    assert cpu_only.providers == ("CPUExecutionProvider",)
+    assert len(cpu_only.detect(np.zeros((48, 64, 3), np.uint8))) == 0
