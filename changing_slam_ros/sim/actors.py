@@ -94,12 +94,18 @@ class Actor:
 # --- Catalogue of shapes. Each returns the parts; scenarios pick tracks. ---
 
 def person_parts(photo: str = "astronaut") -> tuple[Part, ...]:
-    """A standing person, 1.74 m: trousers, waist, and an upper body showing a photo of a person."""
+    """A standing person, 1.74 m: legs, hips, arms, and a torso whose front and back show a photo of a
+    person (head and shoulders); seen from the side it is a dark silhouette."""
+    suit = "suit_orange" if photo == "astronaut" else "fabric_dark"
     return (
         Part((0.08, 0.08, 0.42), (0.0, -0.09, 0.42), "fabric_dark", 0.25, Shape.CYLINDER),
         Part((0.08, 0.08, 0.42), (0.0, 0.09, 0.42), "fabric_dark", 0.25, Shape.CYLINDER),
-        Part((0.11, 0.21, 0.14), (0.0, 0.0, 0.98), "fabric_dark", 0.25),
-        Part((0.11, 0.26, 0.31), (0.0, 0.0, 1.43), photo, None),
+        Part((0.1, 0.19, 0.14), (0.0, 0.0, 0.98), "fabric_dark", 0.25),
+        Part((0.05, 0.05, 0.3), (0.0, -0.25, 1.1), suit, 0.25, Shape.CYLINDER),
+        Part((0.05, 0.05, 0.3), (0.0, 0.25, 1.1), suit, 0.25, Shape.CYLINDER),
+        Part((0.1, 0.2, 0.31), (0.0, 0.0, 1.43), suit, 0.25),
+        Part((0.004, 0.26, 0.31), (0.104, 0.0, 1.43), photo, None),
+        Part((0.004, 0.26, 0.31), (-0.104, 0.0, 1.43), photo, None),
     )
 
 

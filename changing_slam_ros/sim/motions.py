@@ -3,6 +3,8 @@ and the instantaneous moves / removals / additions of changing scenes. Each retu
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
@@ -12,11 +14,14 @@ F64 = npt.NDArray[np.float64]
 
 
 def walking(waypoints_xy: list[tuple[float, float]], duration_s: float, speed_m_s: float = 0.9,
-            turn_s: float = 0.6, pause_s: float = 0.5, start_s: float = 0.0) -> Track:
+            turn_s: float = 0.6, pause_s: float = 0.5, start_s: float = 0.0,
+            watch: Callable[[float], F64] | None = None) -> Track:
     """A person walking the closed polyline `waypoints_xy` over and over, facing the walking direction,
     turning in place at each waypoint, with a 2 cm vertical bob at the step frequency (about 2 Hz).
 
-    Before `start_s` the person stands at the first waypoint facing the first leg.
+    Before `start_s` the person stands at the first waypoint facing the first leg. With `watch`, a
+    function of time giving a world point (the camera), the person keeps facing that point (+-15 deg)
+    while walking, as people who look at the camera do; detectors see their front or back that way.
     """
     pts = [np.asarray(p, dtype=np.float64) for p in waypoints_xy]
     keys: list[tuple[float, float, float, float]] = []  # (t, x, y, yaw) at which the walker is "moving"
@@ -48,6 +53,10 @@ def walking(waypoints_xy: list[tuple[float, float]], duration_s: float, speed_m_
         pose = pose.copy()
         if any(t0 <= t_s <= t1 for t0, t1 in moving):
             pose[2, 3] += 0.02 * abs(np.sin(2 * np.pi * t_s))
+        if watch is not None:
+            d = watch(t_s)[:2] - pose[:2, 3]
+            yaw = float(np.arctan2(d[1], d[0])) + np.radians(15.0) * np.sin(2 * np.pi * t_s / 6.0)
+            pose[:3, :3] = pose_xyz_rpy(0.0, 0.0, 0.0, yaw=yaw)[:3, :3]
         return pose
 
     return function_track(fn, duration_s)

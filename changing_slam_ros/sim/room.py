@@ -47,7 +47,7 @@ def default_room() -> Room:
         _poster_on_wall("east", 1.2, 1.45, 1.1, 0.42, "text"),
         _poster_on_wall("south", 0.8, 1.5, 0.9, 0.45, "page"),
         _poster_on_wall("south", -1.4, 1.6, 0.8, 0.6, "clock"),
-        _poster_on_wall("west", 0.9, 1.5, 1.0, 0.75, "motorcycle"),
+        _poster_on_wall("west", 0.9, 1.5, 0.8, 0.8, "ihc"),
         _poster_on_wall("west", -1.2, 1.7, 0.7, 0.5, "page"),
         # shelves: a low cabinet on the west wall, a bookcase in the south-east corner
         Part((0.22, 0.7, 0.45), (-hx + 0.22, -0.6, 0.45), "wood", 0.5),

@@ -100,10 +100,17 @@ TUM_EYE = (0.0, -1.3, 1.35)
 TUM_TARGET = (0.0, 1.5, 0.85)
 
 
-def _walkers(rng: np.random.Generator, duration_s: float) -> list[Actor]:
+def _walkers(rng: np.random.Generator, duration_s: float, camera: Track) -> list[Actor]:
+    """Two people walking between the camera and the table; one of them keeps looking at the camera."""
     j = lambda s: _jit(rng, s)  # noqa: E731
+
+    def camera_xyz(t: float) -> F64:
+        pose = camera.pose_at(t)
+        assert pose is not None
+        return pose[:3, 3]
+
     a = walking([(-2.2 + j(0.2), 0.55 + j(0.15)), (2.2 + j(0.2), 0.7 + j(0.15))], duration_s,
-                speed_m_s=0.8 + j(0.1), start_s=abs(j(1.0)))
+                speed_m_s=0.8 + j(0.1), start_s=abs(j(1.0)), watch=camera_xyz)
     b = walking([(1.7 + j(0.2), 1.25), (-0.9 + j(0.2), 1.25), (-1.1 + j(0.2), 0.1 + j(0.1)),
                  (0.9 + j(0.2), -0.1 + j(0.1))], duration_s, speed_m_s=0.75 + j(0.1), start_s=1.0 + abs(j(1.0)))
     return [
@@ -117,6 +124,7 @@ def _tum_like(name: str, description: str, camera_fn: Callable[[HandHeld, float]
     rng = np.random.default_rng(seed)
     actors = _office(rng)
     hand = HandHeld(TUM_EYE, TUM_TARGET, phase=float(rng.uniform(0, 2 * np.pi)))
+    camera = camera_fn(hand, duration_s)
     if sitting:
         for k, (x, photo) in enumerate(((-0.55, "astronaut"), (0.55, "cameraman"))):
             chair = pose_xyz_rpy(x + _jit(rng, 0.05), 1.05, 0.0, yaw=-np.pi / 2 + _jit(rng, 0.15))
@@ -126,9 +134,8 @@ def _tum_like(name: str, description: str, camera_fn: Callable[[HandHeld, float]
                                 seated(chair[0, 3], chair[1, 3], yaw, duration_s, phase=float(rng.uniform(0, 6))),
                                 moving=True))
     else:
-        actors += _walkers(rng, duration_s)
-    return Scenario(name, description, default_room(), tuple(actors), camera_fn(hand, duration_s), (),
-                    duration_s, fps)
+        actors += _walkers(rng, duration_s, camera)
+    return Scenario(name, description, default_room(), tuple(actors), camera, (), duration_s, fps)
 
 
 # --- PUC-USP-like: the robot loop and object zones ---
@@ -155,7 +162,7 @@ def _puc_objects(rng: np.random.Generator) -> dict[str, tuple[int, tuple[cat.Par
         "monitor": (62, cat.tv_parts("rocket"), _on(table, 0.77, -0.05, -0.3, -np.pi / 2)),
         "cup": (41, cat.cup_parts(), _on(table, 0.77, -0.2, 0.35)),
         "suitcase": (28, cat.suitcase_parts(), west),
-        "monitor_2": (62, cat.tv_parts("motorcycle"), _on(west, 0.73, 0.0, -0.06)),
+        "monitor_2": (62, cat.tv_parts("hubble"), _on(west, 0.73, 0.0, -0.06)),
         "cup_2": (41, cat.cup_parts(), _on(west, 0.73, 0.0, 0.17)),
         "chair_2": (56, cat.chair_parts("wood"), south),
         "book": (73, cat.book_parts(), _on(south, 0.5, 0.0, 0.0, 0.4)),

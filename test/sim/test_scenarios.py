@@ -64,9 +64,9 @@ def test_tum_like_scenarios_have_people_and_a_hand_held_camera(name: str) -> Non
         assert lin.max() > 0.1
 
 
-def test_people_walk_at_walking_speed_facing_where_they_go() -> None:
+def test_people_walk_at_walking_speed_facing_where_they_go_or_at_the_camera() -> None:
     s = build_scenario("walking_static", 0)
-    person = s.actors[s.actor_index("person_astronaut")]
+    person = s.actors[s.actor_index("person_cameraman")]
     ts = np.arange(2.0, 20.0, 0.05)
     poses = [person.track.pose_at(t) for t in ts]
     v = np.array([(b[:3, 3] - a[:3, 3]) / 0.05 for a, b in zip(poses, poses[1:])])
@@ -76,6 +76,13 @@ def test_people_walk_at_walking_speed_facing_where_they_go() -> None:
     heading = np.array([p[:3, 0] for p in poses[:-1]])  # the actor's front is +x
     cos = np.sum(heading[walking, :2] * v[walking, :2], axis=1) / speed[walking]
     assert np.median(cos) > 0.99
+    # the other one faces the camera (within the +-15 deg glance) wherever they walk
+    watcher = s.actors[s.actor_index("person_astronaut")]
+    for t in ts[::10]:
+        pose, cam = watcher.track.pose_at(t), s.camera.pose_at(t)
+        to_cam = (cam[:3, 3] - pose[:3, 3])[:2]
+        cos = float(pose[:2, 0] @ to_cam / np.linalg.norm(to_cam) / np.linalg.norm(pose[:2, 0]))
+        assert cos > np.cos(np.radians(16.0))
 
 
 @pytest.mark.parametrize("name", PUC_LIKE)

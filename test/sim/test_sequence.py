@@ -76,7 +76,7 @@ def test_static_scene_depth_lands_on_the_same_3d_points_across_frames(walking: P
     assert moved > 0.1  # the camera really moved
     for i, j in ((0, 3), (2, 7), (5, 1)):
         err = _static_reprojection_errors(walking, poses, depths, masks, i, j)
-        assert err.size > 0.5 * W * H
+        assert err.size > 0.3 * W * H
         # surfaces are smooth away from depth edges: median sub-millimetre, 90 % within 1 cm
         assert np.median(err) < 1e-3
         assert np.quantile(err, 0.9) < 1e-2
