@@ -25,6 +25,7 @@ from changing_slam_ros.core.backend.object_ba import (
     motion_only_object_ba,
 )
 from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationResult
 from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad, transform_points
 from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.errors import ConfigError
@@ -207,3 +208,32 @@ class ObjectTracker:
         obj.points_obj = result.points_obj
         for kp, pose in zip(window, result.T_world_obj):
             obj.poses[kp.stamp_ns] = pose
+
+
+def objects_from_segmentation(
+    result: SegmentationResult,
+    window: CorrelationWindow,
+    stamp_ns: int,
+    first_id: int,
+    frame_index: int = -1,
+    min_points: int = 6,
+) -> list[MovingObject]:
+    """One new `MovingObject` per object target of a segmentation (Section 3.2.3).
+
+    Each is created in frame `frame_index` of the window (the newest by default; `stamp_ns` is its stamp)
+    from the target's points measured there, which also become its reference keypose. Ids count up from
+    `first_id`; targets with fewer than `min_points` points measured in that frame are skipped.
+    """
+    k = frame_index % len(window.T_world_cam)
+    T_world_cam = window.T_world_cam[k]
+    objects: list[MovingObject] = []
+    for target in result.target_indices():
+        idx = target[window.observed[k, target]]
+        if len(idx) < min_points:
+            continue
+        ids = window.point_ids[idx]
+        points_cam = window.points_cam[k, idx]
+        frame = FrameObjectMeasurements(stamp_ns, T_world_cam, ids, points_cam)
+        world = transform_points(T_world_cam, points_cam)
+        objects.append(MovingObject.create(first_id + len(objects), ids, world, stamp_ns, frame))
+    return objects

@@ -18,7 +18,9 @@ from changing_slam_ros.core.object_tracking import (
     MovingObject,
     ObjectTracker,
     ObjectTrackingConfig,
+    objects_from_segmentation,
 )
+from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationResult
 from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad, transform_points
 from changing_slam_ros.errors import ConfigError
 
@@ -170,3 +172,21 @@ def test_trajectory_and_point_lookup_of_a_moving_object() -> None:
 def test_tracking_config_rejects_a_window_without_room_for_the_reference() -> None:
     with pytest.raises(ConfigError, match="window_keyposes"):
         ObjectTrackingConfig(window_keyposes=1)
+
+
+def test_objects_from_segmentation_creates_one_object_per_target_in_the_newest_frame() -> None:
+    rng = np.random.default_rng(4)
+    points_cam = rng.uniform([-0.5, -0.5, 1.0], [0.5, 0.5, 2.0], (2, 14, 3))
+    points_cam[1, 12] = np.nan  # target 2 loses a point in the newest frame
+    T_world_cam = np.stack([np.eye(4), make_pose(np.eye(3), np.array([0.1, 0.0, 0.0]))])
+    window = CorrelationWindow(np.arange(100, 114), points_cam, T_world_cam, CAMERA)
+    labels = np.array([0] * 4 + [1] * 6 + [2] * 4)
+    result = SegmentationResult(window.point_ids, labels, np.zeros((14, 3)), np.empty((0, 2), np.int64), np.empty(0, bool), np.empty(0))
+    objects = objects_from_segmentation(result, window, 5_000, first_id=7, min_points=4)
+    assert [o.object_id for o in objects] == [7]  # target 2 has only 3 points measured in the newest frame
+    obj = objects[0]
+    np.testing.assert_array_equal(obj.point_ids, np.arange(104, 110))
+    world = transform_points(T_world_cam[1], points_cam[1, 4:10])
+    np.testing.assert_allclose(obj.poses[5_000][:3, 3], world.mean(axis=0))
+    np.testing.assert_allclose(obj.points_world(5_000), world)
+    assert len(obj.keyposes) == 1 and obj.keyposes[0].stamp_ns == 5_000

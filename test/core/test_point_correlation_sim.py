@@ -14,7 +14,12 @@ import cv2
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.object_tracking import FrameObjectMeasurements, MovingObject, ObjectTracker, ObjectTrackingConfig
+from changing_slam_ros.core.object_tracking import (
+    FrameObjectMeasurements,
+    ObjectTracker,
+    ObjectTrackingConfig,
+    objects_from_segmentation,
+)
 from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationConfig, segment
 from changing_slam_ros.core.se3 import invert, transform_points
 
@@ -153,11 +158,10 @@ def test_carried_box_is_segmented_then_tracked_within_3_cm(unknown_mover) -> Non
     assert result.num_targets == 1
     # 1. The object target, created in the last keyframe of the window from its measured points.
     last = len(times) - 1
-    target = result.target_indices()[0]
-    ids = target[sim.window.observed[last, target]]
-    T_world_cam = sim.window.T_world_cam[last]
-    created = FrameObjectMeasurements(int(times[last] * 1e9), T_world_cam, ids, sim.window.points_cam[last, ids])
-    obj = MovingObject.create(1, ids, transform_points(T_world_cam, created.points_cam), created.stamp_ns, created)
+    (obj,) = objects_from_segmentation(result, sim.window, int(times[last] * 1e9), first_id=1)
+    created = obj.keyposes[0]
+    ids = obj.point_ids
+    assert np.all(sim.on_box[ids])
     # 2. Track it: its points follow the box's true motion and are measured where visible.
     tracker = ObjectTracker(renderer.camera, ObjectTrackingConfig())
     mover = scenario.actor_index("parcel")
