@@ -9,6 +9,11 @@ its estimated speed and a per-class "DOC threshold" (§4.5):
 - an object whose speed exceeds its DOC threshold is dynamic and its keypoints are filtered;
 - a static object's (movable) keypoints are used for tracking.
 
+Issue 5's combination of cues: the class-agnostic segmentation (Dai et al., `core/point_correlation.py`)
+may pass a per-keypoint `moving_mask`; flagged keypoints are never used (an unknown mover is caught without
+a detection), and a detected object with at least `segmentation_object_fraction` of its keypoints flagged
+is dynamic in that frame even when its EKF has not (yet) seen it move.
+
 Tracking calls `classify()` before pose estimation (the verdicts then come from previous frames) and
 `update(T_world_cam)` with the estimated pose afterwards; `process()` does both for a known pose.
 """
@@ -54,6 +59,8 @@ class DynamicObjectsConfig:
     - `static_sigma_ratio`: STATIC also needs the velocity's standard deviation below this times the
       threshold (the filter must be confident, not just unexcited).
     - `min_object_keypoints`: fewer keypoints with depth on an object = no measurement this frame.
+    - `segmentation_object_fraction`: fraction of an object's keypoints flagged moving by the segmentation
+      that makes it dynamic in that frame (> 1 disables the promotion).
     """
 
     doc_threshold_mps: dict[int, float] = field(default_factory=lambda: {PERSON_CLASS_ID: 0.3, CHAIR_CLASS_ID: 0.15})
@@ -62,6 +69,7 @@ class DynamicObjectsConfig:
     min_updates: int = 3
     static_sigma_ratio: float = 1.0
     min_object_keypoints: int = 3
+    segmentation_object_fraction: float = 0.5
     classification: KeypointClassificationConfig = field(default_factory=KeypointClassificationConfig)
     association: ShortTermAssociationConfig = field(default_factory=ShortTermAssociationConfig)
     ekf: ObjectEkfConfig = field(default_factory=ObjectEkfConfig)
@@ -131,6 +139,7 @@ class _Pending:
     is_new: npt.NDArray[np.bool_]
     measurements: dict[int, F64]  # object id -> centroid (3,) in the camera frame
     classification: KeypointClassification
+    moving_mask: npt.NDArray[np.bool_] | None = None
 
 
 class DynamicObjectTracker:
@@ -164,11 +173,15 @@ class DynamicObjectTracker:
         depth_m: npt.NDArray[np.float32],
         detections: tuple[Detection, ...] | list[Detection],
         keypoint_depths_m: npt.NDArray[np.floating] | None = None,
+        moving_mask: npt.NDArray[np.bool_] | None = None,
     ) -> DynamicFrameResult:
         """Classify keypoints (N, 2) with depth image (H, W) metres and associate the detections; the
-        tracking mask uses the verdicts known before this frame's object update."""
+        tracking mask uses the verdicts known before this frame's object update. `moving_mask` (N,) bool:
+        keypoints the class-agnostic segmentation found moving."""
         dets = tuple(d for d in detections if d.score >= self.config.classification.min_detection_score)
         kps = np.asarray(keypoints_px, dtype=np.float64).reshape(-1, 2)
+        if moving_mask is not None and len(moving_mask) != len(kps):
+            raise ValueError(f"classify: {len(kps)} keypoints but a moving_mask of {len(moving_mask)}")
         cls = classify_keypoints(kps, depth_m, dets, self.config.classification, keypoint_depths_m)
         assoc = self._associator.associate(dets)
         for lost in assoc.lost_ids:
@@ -186,7 +199,8 @@ class DynamicObjectTracker:
             z = centroid_measurement(kps[sel], kp_depth[sel], self.camera)
             if z is not None:
                 measurements[int(assoc.object_ids[b])] = z
-        self._pending = _Pending(stamp_ns, dets, assoc.object_ids, assoc.is_new, measurements, cls)
+        mask = None if moving_mask is None else np.asarray(moving_mask, dtype=bool).reshape(-1)
+        self._pending = _Pending(stamp_ns, dets, assoc.object_ids, assoc.is_new, measurements, cls, mask)
         return self._result(self._pending)
 
     def update(self, T_world_cam: F64) -> DynamicFrameResult:
@@ -217,9 +231,10 @@ class DynamicObjectTracker:
         detections: tuple[Detection, ...] | list[Detection],
         T_world_cam: F64,
         keypoint_depths_m: npt.NDArray[np.floating] | None = None,
+        moving_mask: npt.NDArray[np.bool_] | None = None,
     ) -> DynamicFrameResult:
         """`classify()` then `update()` for a frame whose camera pose is already known."""
-        self.classify(stamp_ns, keypoints_px, depth_m, detections, keypoint_depths_m)
+        self.classify(stamp_ns, keypoints_px, depth_m, detections, keypoint_depths_m, moving_mask)
         return self.update(T_world_cam)
 
     def _verdict(self, class_id: int, ekf: ObjectEkf | None, previous: ObjectMotion | None) -> ObjectMotion:
@@ -238,12 +253,17 @@ class DynamicObjectTracker:
     def _result(self, pending: _Pending) -> DynamicFrameResult:
         cls = pending.classification
         objects = []
+        flagged = pending.moving_mask
         for b, det in enumerate(pending.detections):
             oid = int(pending.object_ids[b])
             ekf = self._filters.get(oid)
             motion = self._motion.get(oid, ObjectMotion.UNKNOWN)
             if det.class_id in self.config.always_dynamic_class_ids:
                 motion = ObjectMotion.DYNAMIC
+            elif flagged is not None:
+                own = (cls.kp_box_index == b) & (cls.kp_classes == KeypointClass.MOVABLE)
+                if own.any() and flagged[own].mean() >= self.config.segmentation_object_fraction:
+                    motion = ObjectMotion.DYNAMIC
             x = ekf.x if ekf is not None else np.full(6, np.nan)
             objects.append(
                 ObjectState(
@@ -266,6 +286,8 @@ class DynamicObjectTracker:
         static_objects = np.array([o.motion == ObjectMotion.STATIC for o in objects] + [False], dtype=bool)
         movable = cls.kp_classes == KeypointClass.MOVABLE
         use |= movable & static_objects[cls.kp_box_index]  # index -1 hits the trailing False
+        if flagged is not None:
+            use &= ~flagged
         return DynamicFrameResult(pending.stamp_ns, cls, kp_object_ids, np.asarray(use), tuple(objects))
 
 

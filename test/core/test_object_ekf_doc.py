@@ -153,3 +153,23 @@ def test_every_threshold_is_read_from_a_yaml_section_with_the_papers_defaults(tm
     assert dyn.always_dynamic_class_ids == (PERSON_CLASS_ID,)
     with pytest.raises(ConfigError, match="dynamic_objects.classification: unknown key"):
         section(DynamicObjectsConfig, {"classification": {"margin": 1.0}}, f"{path}: dynamic_objects")
+
+
+def test_segmentation_cues_filter_an_unknown_mover_and_make_a_static_chair_dynamic() -> None:
+    rng = np.random.default_rng(5)
+    tracker = DynamicObjectTracker(CAM)
+    for k in range(25):
+        depth, dets, kps, rects = render(k, rng)
+        on_chair = inside(kps, rects[0])
+        unknown = (kps[:, 0] < 60) & (kps[:, 1] < 120)  # an undetected mover the segmentation found
+        flagged = unknown.copy()
+        if k >= 20:
+            flagged |= on_chair & (rng.uniform(size=len(kps)) < 0.8)  # the chair starts to move
+        res = tracker.process(k * DT_NS, kps, depth, dets, camera_pose(k), moving_mask=flagged)
+        assert unknown.sum() > 5 and not res.use_for_tracking[unknown].any()
+        if 15 <= k < 20:
+            assert res.objects[0].motion == ObjectMotion.STATIC and res.use_for_tracking[on_chair].all()
+        if k >= 20:  # geometric evidence overrides the EKF that has not seen the motion yet
+            assert res.objects[0].motion == ObjectMotion.DYNAMIC and not res.use_for_tracking[on_chair].any()
+    with pytest.raises(ValueError, match="moving_mask"):
+        tracker.classify(0, kps, depth, dets, moving_mask=np.zeros(3, bool))
