@@ -85,7 +85,7 @@ class BagRgbdReader:
         gt_text = f"ground truth from {self._gt_source}" if self._gt is not None else "no ground truth"
         self.description = (
             f"{bag.kind.value} {self.path} ({len(self._pairs)} frames: {self.topics.rgb} + "
-            f"{self.topics.depth}, {gt_text})"
+            f"{self.topics.depth}, {gt_text}; intrinsics from {self._camera_source})"
         )
 
     # -- RgbdSource ----------------------------------------------------------------------------
@@ -114,7 +114,7 @@ class BagRgbdReader:
         with BagMessages(self.path) as bag:
             for msg in bag.messages(topics=topics):
                 if msg.topic == self.topics.camera_info:
-                    if self.config.bag_intrinsics_from == "camera_info":
+                    if self._track_camera_info:
                         if msg.cdr not in info_cache:
                             info_cache[msg.cdr] = intrinsics_from_camera_info(bag.deserialize(msg), msg.topic)
                         camera = info_cache[msg.cdr]
@@ -175,6 +175,8 @@ class BagRgbdReader:
         rgb_stamps: list[int] = []
         depth_stamps: list[int] = []
         self._first_info: CameraIntrinsics | None = None
+        self._info_error: BagError | None = None
+        read_info = cfg.bag_intrinsics_from == "camera_info"
         gt_stamps: list[int] = []
         gt_poses: list[np.ndarray] = []
         tf = TfBuffer(str(self.path))
@@ -186,8 +188,11 @@ class BagRgbdReader:
             elif msg.topic == self.topics.depth:
                 depth_stamps.append(_stamp(msg))
             elif msg.topic == self.topics.camera_info:
-                if self._first_info is None:
-                    self._first_info = intrinsics_from_camera_info(bag.deserialize(msg), msg.topic)
+                if read_info and self._first_info is None and self._info_error is None:
+                    try:
+                        self._first_info = intrinsics_from_camera_info(bag.deserialize(msg), msg.topic)
+                    except BagError as err:  # e.g. an uncalibrated driver: K all zero
+                        self._info_error = err
             elif msg.topic == gt_pose:
                 p = bag.deserialize(msg)
                 pos, q = p.pose.position, p.pose.orientation
@@ -227,9 +232,13 @@ class BagRgbdReader:
 
     def _initial_camera(self) -> CameraIntrinsics:
         cfg = self.config
+        self._track_camera_info = False
         if cfg.bag_intrinsics_from == "camera_info" and self._first_info is not None:
             self._camera_source = f"CameraInfo on {self.topics.camera_info}"
+            self._track_camera_info = True
             return self._first_info
+        if self._info_error is not None and self._config_camera is None:
+            raise BagError(f"{self.path}: {self._info_error} and the config has no camera: section to use instead")
         if self._config_camera is None:
             if cfg.bag_intrinsics_from == "config":
                 raise BagError(f"{self.path}: dataset.bag_intrinsics_from is 'config' but the config has no camera:")
@@ -238,6 +247,8 @@ class BagRgbdReader:
                 f"{'' if self.topics.camera_info else self.topics.rgb}) and no camera: section in the config"
             )
         self._camera_source = "config camera section"
+        if self._info_error is not None:
+            self._camera_source += f" (CameraInfo unusable: {self._info_error})"
         try:
             return self._config_camera.intrinsics()
         except SlamError as err:

@@ -282,3 +282,22 @@ def test_custom_topics_find_the_camera_info_beside_the_colour_topic(tmp_path: Pa
     assert src.camera == cam
     frames = list(src)
     assert len(frames) == 1 and frames[0].depth_m.shape == (6, 8) and not frames[0].depth_m.any()
+
+
+def test_uncalibrated_camera_info_falls_back_to_the_config_camera(tmp_path: Path) -> None:
+    store = get_typestore(Stores.ROS2_JAZZY)
+    t = store.types
+    zero_k = t["sensor_msgs/msg/CameraInfo"](
+        t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](1, 0), "cam"), 6, 8, "", np.zeros(0),
+        np.zeros(9), np.zeros(9), np.zeros(12), 0, 0, t["sensor_msgs/msg/RegionOfInterest"](0, 0, 0, 0, False),
+    )  # fmt: skip
+    bag = _small_ros2_bag(tmp_path / "uncal", {
+        "/camera/rgb/image_color": ("sensor_msgs/msg/Image", [_image(store, 640, 480, "rgb8")]),
+        "/camera/depth/image": ("sensor_msgs/msg/Image", [_image(store, 640, 480, "32FC1")]),
+        "/camera/rgb/camera_info": ("sensor_msgs/msg/CameraInfo", [zero_k]),
+    })  # fmt: skip
+    with pytest.raises(BagError, match=r"camera matrix has fx=0\.0.* and the config has no camera: section"):
+        open_dataset(bag, None)
+    src = open_dataset(bag, DatasetSettings(DatasetConfig(), load_dataset_settings("sim").camera, "t"))
+    assert src.camera.fx == 525.0 and "CameraInfo unusable" in src.description
+    assert next(iter(src)).camera.fx == 525.0
