@@ -93,6 +93,19 @@ class LoopCorrection:
     pose_corrections: dict[int, F64]
 
 
+@dataclass
+class LoopStats:
+    """Counters over `process` calls, for benchmarks and logs: keyframes offered, queries made, keyframes
+    with candidates, consistent candidates verified, verifications rejected, loops closed."""
+
+    keyframes: int = 0
+    queries: int = 0
+    with_candidates: int = 0
+    verified: int = 0
+    rejected: int = 0
+    loops: int = 0
+
+
 class LoopCloser:
     """Owns the keyframe database and the loop edges; see the module docstring for the steps."""
 
@@ -104,6 +117,7 @@ class LoopCloser:
         self._consistency = ConsistencyChecker(config.consistency_threshold)
         self._loop_edges: list[tuple[int, int]] = []  # (match, query) pairs of accepted loops
         self._last_loop_kf_id = -(10**9)
+        self.stats = LoopStats()
 
     # ------------------------------------------------------------------ bookkeeping
     @property
@@ -156,12 +170,14 @@ class LoopCloser:
         if stored is None or not np.array_equal(stored, mask):  # not indexed yet (or its mask changed)
             self.add(keyframe, mask)
         cfg = self.config
+        self.stats.keyframes += 1
         if not cfg.enabled:
             return None
         in_map = sum(1 for k in self._keyframes.values() if k.map_id == keyframe.map_id)
         if in_map <= cfg.min_keyframes_in_map or keyframe.id < self._last_loop_kf_id + cfg.min_keyframes_between_loops:
             return None
         # 2. candidates scoring at least as well as the worst covisible neighbour
+        self.stats.queries += 1
         connected = [k for k in neighbours(covisibility, keyframe.id) if k in self.database]
         bow = self.database.bow(keyframe.id)
         scores = [l1_score(bow, self.database.bow(k)) for k in connected]
@@ -171,6 +187,7 @@ class LoopCloser:
             self._consistency.reset()
             return None
         # 3. temporal consistency of candidate groups
+        self.stats.with_candidates += 1
         consistent = self._consistency.update(candidates, covisibility)
         consistent = sorted(consistent, key=lambda c: (-c.accumulated_score, c.keyframe_id))
         # 4. geometric verification
@@ -179,7 +196,10 @@ class LoopCloser:
             if match is None:
                 continue
             v = verify(match, keyframe, cfg.verification, self._masks[match.id], self._masks[keyframe.id])
+            self.stats.verified += 1
+            self.stats.rejected += int(v is None)
             if v is not None:
+                self.stats.loops += 1
                 correction = self._correct(keyframe, match, v, covisibility, spanning_parent, point_positions,
                                            point_reference_kf)
                 self._loop_edges.append((match.id, keyframe.id))  # as ORB-SLAM, only the pair is kept

@@ -179,6 +179,7 @@ def test_a_synthetic_loop_is_closed_and_the_final_ate_is_far_below_the_online_at
     print(f"synthetic: loops {[(c.query_kf_id, c.match_kf_id, c.num_inliers) for c in corrections]}, "
           f"ATE online {100 * ate_online:.1f} cm -> final {100 * ate_final:.1f} cm")
     assert corrections, "the loop was not closed"
+    assert closer.stats.keyframes == n_kf and closer.stats.loops == len(corrections)
     first = corrections[0]
     assert first.query_kf_id >= n_per_turn and (first.query_kf_id - first.match_kf_id) % n_per_turn <= 3
     rel_truth = invert(truth[first.match_kf_id]) @ truth[first.query_kf_id]
