@@ -226,3 +226,32 @@ def test_payload_can_be_kept_for_some_topics_only(bags: dict[str, Path]) -> None
         msgs = list(bag.messages(payload={"/camera/color/camera_info"}))
     assert [len(m.cdr) > 0 for m in msgs] == [True, False, False, False]
     assert msgs[1].header_stamp_ns == STAMPS[0][0] * 10**9 + STAMPS[0][1]
+
+
+@pytest.mark.ros
+def test_ros1_payloads_deserialize_with_rclpy_as_bag_player_publishes_them(ros1_tum_bag: Path) -> None:
+    serialization = pytest.importorskip("rclpy.serialization")
+    sensor_msgs = pytest.importorskip("sensor_msgs.msg")
+    tf2_msgs = pytest.importorskip("tf2_msgs.msg")
+    classes = {
+        "sensor_msgs/msg/Image": sensor_msgs.Image,
+        "sensor_msgs/msg/CameraInfo": sensor_msgs.CameraInfo,
+        "tf2_msgs/msg/TFMessage": tf2_msgs.TFMessage,
+    }
+    seen: dict[str, object] = {}
+    with BagMessages(ros1_tum_bag) as bag:
+        for msg in bag.messages():
+            if msg.msgtype not in seen:
+                seen[msg.msgtype] = serialization.deserialize_message(msg.cdr, classes[msg.msgtype])
+                if msg.msgtype == IMAGE:
+                    ref = bag.deserialize(msg)
+    assert set(seen) == set(classes)
+    img = seen[IMAGE]
+    assert (img.height, img.width, img.encoding, img.step) == (480, 640, "rgb8", 1920)
+    assert bytes(img.data) == bytes(ref.data) and img.header.stamp.sec == 1305031102
+    assert img.header.stamp.nanosec == 175304000
+    info = seen[INFO]
+    assert list(info.k) == [525.0, 0.0, 319.5, 0.0, 525.0, 239.5, 0.0, 0.0, 1.0]
+    tf = seen["tf2_msgs/msg/TFMessage"]
+    # the first /tf message is the motion-capture pose, 0.1 s before the first image
+    assert [(t.header.frame_id, t.child_frame_id) for t in tf.transforms] == [("/world", "/kinect")]
