@@ -95,17 +95,22 @@ def _purity(result_labels: np.ndarray, truth: np.ndarray, g: int) -> float:
     return float(counts.max() / counts.sum())
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", range(8))
 def test_two_frame_segmentation_splits_two_rigid_movers_from_the_static_background(seed: int) -> None:
     rng = np.random.default_rng(seed)
     steps = [np.array([0.06, 0.0, 0.0]), np.array([0.0, 0.05, -0.04])]
-    window, truth, _ = make_scene(rng, 2, steps, np.array([0.03, 0.0, 0.01]), outlier_rate=0.05)
+    window, truth, truth_world = make_scene(rng, 2, steps, np.array([0.03, 0.0, 0.01]), outlier_rate=0.05)
     result = segment(window, SegmentationConfig.two_frame())
+    # A point with a gross error in one of its two measurements cannot be judged (it moved, or the
+    # measurement is wrong): it is left unassigned, so raw recall is capped near 1 - 8 % here.
+    corrupted = np.any(np.linalg.norm(window.points_world() - truth_world, axis=2) > 0.05, axis=0)
     precision, recall = precision_recall(result.dynamic_mask, truth > 0)
-    assert precision >= 0.9 and recall >= 0.9, (precision, recall)
+    _, recall_clean = precision_recall(result.dynamic_mask & ~corrupted, (truth > 0) & ~corrupted)
+    assert precision >= 0.95 and recall_clean >= 0.98, (precision, recall_clean)
+    assert recall >= 0.85, recall  # measured 0.86-0.93 over seeds 0-7
     assert result.num_targets == 2
     assert all(_purity(result.labels, truth, g) >= 0.98 for g in (1, 2))
-    # Every moving point that is not a target is unassigned, never used as static.
+    # No moving point, corrupted or not, is ever used as static.
     assert not np.any(result.static_mask & (truth > 0))
 
 
