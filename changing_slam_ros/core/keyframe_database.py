@@ -126,6 +126,10 @@ class KeyframeDatabase:
         """Keyframes that look like a frame (BoW vector), best first; `map_id` None searches every map."""
         return self._query(frame_bow, set(), 0.0, covisibility, map_id)
 
+    def merge_candidates(self, kf_id: int, covisibility: Covisibility, min_score: float = 0.0) -> list[PlaceCandidate]:
+        """Keyframes of *other* maps that look like indexed keyframe `kf_id` (ORB-SLAM3 map merging)."""
+        return self._query(self._bow[kf_id], {kf_id}, min_score, covisibility, None, exclude_map=self._map_of[kf_id])
+
     def _query(
         self,
         bow: BowVector,
@@ -133,13 +137,16 @@ class KeyframeDatabase:
         min_score: float,
         covisibility: Covisibility,
         map_id: int | None,
+        exclude_map: int | None = None,
     ) -> list[PlaceCandidate]:
         # 1. shared-word counts over the inverted index
         postings = self._postings
         counts = Counter(chain.from_iterable(postings.get(w, ()) for w in bow.word_ids.tolist()))
         common = {
             k: n for k, n in counts.items()
-            if k not in excluded and (map_id is None or self._map_of[k] == map_id)
+            if k not in excluded
+            and (map_id is None or self._map_of[k] == map_id)
+            and (exclude_map is None or self._map_of[k] != exclude_map)
         }
         if not common:
             return []

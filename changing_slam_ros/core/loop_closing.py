@@ -106,6 +106,26 @@ class LoopStats:
     loops: int = 0
 
 
+@dataclass(frozen=True)
+class MapMerge:
+    """A place seen in two maps of the Atlas (ORB-SLAM3 merge detection): keyframe `query_kf_id` of map
+    `query_map_id` re-observes keyframe `match_kf_id` of map `match_map_id`.
+
+    `T_match_query` (4, 4) is the verified relative pose of the two cameras; `T_matchworld_queryworld` (4, 4)
+    maps the query map's world frame into the match map's (apply it to every pose and point of the query map
+    to express it in the match map). `keypoint_matches` (M, 2) int64 pairs (match, query) as in LoopCorrection.
+    """
+
+    query_kf_id: int
+    match_kf_id: int
+    query_map_id: int
+    match_map_id: int
+    T_match_query: F64
+    T_matchworld_queryworld: F64
+    num_inliers: int
+    keypoint_matches: npt.NDArray[np.int64]
+
+
 class LoopCloser:
     """Owns the keyframe database and the loop edges; see the module docstring for the steps."""
 
@@ -115,6 +135,7 @@ class LoopCloser:
         self._keyframes: dict[int, Keyframe] = {}
         self._masks: dict[int, npt.NDArray[np.bool_]] = {}
         self._consistency = ConsistencyChecker(config.consistency_threshold)
+        self._merge_consistency = ConsistencyChecker(config.consistency_threshold)
         self._loop_edges: list[tuple[int, int]] = []  # (match, query) pairs of accepted loops
         self._last_loop_kf_id = -(10**9)
         self.stats = LoopStats()
@@ -279,6 +300,47 @@ class LoopCloser:
             if pm >= 0 and pq >= 0 and pm != pq:
                 out.append((pq, pm))
         return out
+
+    # ------------------------------------------------------------------ map merging
+    def detect_merge(self, keyframe: Keyframe, covisibility: Covisibility) -> MapMerge | None:
+        """Does an (already added) keyframe show a place of another map? Same steps as a loop: database
+        candidates from other maps, consistency over `consistency_threshold` keyframes, verification.
+        The caller (the Atlas owner) merges the maps with `T_matchworld_queryworld`."""
+        if keyframe.id not in self._keyframes:
+            self.add(keyframe)
+        candidates = self.database.merge_candidates(keyframe.id, covisibility)
+        if not candidates:
+            self._merge_consistency.reset()
+            return None
+        consistent = self._merge_consistency.update(candidates, covisibility)
+        for cand in sorted(consistent, key=lambda c: (-c.accumulated_score, c.keyframe_id))[
+            : self.config.max_verified_candidates
+        ]:
+            match = self._keyframes.get(cand.keyframe_id)
+            if match is None:
+                continue
+            v = verify(match, keyframe, self.config.verification, self._masks[match.id], self._masks[keyframe.id])
+            if v is None:
+                continue
+            self._merge_consistency.reset()
+            return MapMerge(
+                query_kf_id=keyframe.id,
+                match_kf_id=match.id,
+                query_map_id=keyframe.map_id,
+                match_map_id=match.map_id,
+                T_match_query=v.T_a_b,
+                T_matchworld_queryworld=match.T_world_cam @ v.T_a_b @ invert(keyframe.T_world_cam),
+                num_inliers=v.num_inliers,
+                keypoint_matches=v.matches,
+            )
+        return None
+
+    def set_map(self, kf_id: int, map_id: int) -> None:
+        """Record that a keyframe now belongs to another map (after a merge)."""
+        kf = self._keyframes.get(kf_id)
+        if kf is not None:
+            kf.map_id = map_id
+        self.database.set_map(kf_id, map_id)
 
     # ------------------------------------------------------------------ relocalisation
     def relocalise(
