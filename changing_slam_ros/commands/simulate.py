@@ -21,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shadows", action="store_true", help="cast shadows (about 4x slower)")
     parser.add_argument("--mcap", type=Path, default=None,
                         help="also write an mcap (Image, CameraInfo, ground-truth PoseStamped) to this file")
+    parser.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality of the mcap's colour (default 90)")
+    parser.add_argument("--raw-mcap", action="store_true",
+                        help="mcap with raw rgb8 / 32FC1 images instead of JPEG / 16-bit PNG")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -53,6 +56,8 @@ def main(args: argparse.Namespace) -> int:
     if args.mcap is not None:
         from changing_slam_ros.sim.bag import write_sim_mcap
 
-        write_sim_mcap(args.out, args.mcap)
+        if not 1 <= args.jpeg_quality <= 100:
+            raise SimError(f"--jpeg-quality {args.jpeg_quality}: expected 1..100")
+        write_sim_mcap(args.out, args.mcap, compress=not args.raw_mcap, jpeg_quality=args.jpeg_quality)
         print(f"mcap: {args.mcap}")
     return 0

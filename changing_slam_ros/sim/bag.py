@@ -41,10 +41,15 @@ def sim_frames(folder: Path, max_frames: int | None = None) -> Iterator[RgbdFram
                         (depth.astype(np.float32) / np.float32(DEPTH_SCALE)), camera, poses[i], i)
 
 
-def write_sim_mcap(folder: Path, mcap_path: Path, compress: bool = True, max_frames: int | None = None) -> int:
-    """Write the scenario in `folder` to `mcap_path`; JPEG colour and PNG depth when `compress`."""
+def write_sim_mcap(folder: Path, mcap_path: Path, compress: bool = True, max_frames: int | None = None,
+                   jpeg_quality: int = 90) -> int:
+    """Write the scenario in `folder` to `mcap_path`; JPEG colour and 16-bit PNG depth (millimetres) when
+    `compress`, raw rgb8 and 32FC1 otherwise. Returns the number of frames written."""
     try:
-        from changing_slam_ros.io.mcap_writer import write_rgbd_mcap
+        from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
     except ImportError as err:  # pragma: no cover - the IO layer ships it
         raise SimError("mcap output needs changing_slam_ros.io.mcap_writer") from err
-    return write_rgbd_mcap(mcap_path, sim_frames(folder, max_frames), compress=compress)
+    with RgbdMcapWriter(mcap_path, compress=compress, jpeg_quality=jpeg_quality) as writer:
+        for frame in sim_frames(folder, max_frames):
+            writer.write_frame(frame)
+        return int(writer.frames_written)
