@@ -19,9 +19,8 @@ leaves a truncated file where a good one stood.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections import deque
+from contextlib import ExitStack
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import TracebackType
@@ -31,6 +30,7 @@ import numpy as np
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.io.atomic import atomic_open
 from changing_slam_ros.io.camera_info import camera_info_fields
 from changing_slam_ros.io.dataset_config import TUM_TOPICS, TopicSet
 from changing_slam_ros.io.groundtruth import GroundTruth
@@ -81,7 +81,7 @@ class RgbdMcapWriter:
         self._store = get_typestore(Stores.ROS2_JAZZY)
         self._writer: Any = None
         self._fh: Any = None
-        self._tmp: str | None = None
+        self._stack: ExitStack | None = None
         self._channels: dict[str, int] = {}
         self._channel_types: dict[str, str] = {}
         self._schemas: dict[str, int] = {}
@@ -95,9 +95,8 @@ class RgbdMcapWriter:
     def __enter__(self) -> "RgbdMcapWriter":
         from mcap.writer import CompressionType, Writer
 
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, self._tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-        self._fh = os.fdopen(fd, "wb")
+        self._stack = ExitStack()
+        self._fh = self._stack.enter_context(atomic_open(self.path, "wb"))
         # Raw images: lz4 chunks (half the size, reads at about half the speed of uncompressed; zstd is
         # smaller still but reads 4x slower). JPEG/PNG payloads do not compress further: no chunk codec.
         codec = CompressionType.NONE if self.compress else CompressionType.LZ4
@@ -109,31 +108,12 @@ class RgbdMcapWriter:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         if exc_type is None:
-            self.close()
-        else:
-            self.abort()
-
-    def close(self) -> None:
-        """Flush the remaining ground truth, write the summary, fsync and rename into place."""
-        assert self._writer is not None and self._tmp is not None
-        self._flush_gt(None)
-        self._writer.finish()
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
-        self._fh.close()
-        os.replace(self._tmp, self.path)
-        self._writer = self._tmp = None
-
-    def abort(self) -> None:
-        """Drop the temporary file; the target path is left as it was."""
-        if self._fh is not None and not self._fh.closed:
-            self._fh.close()
-        if self._tmp is not None:
-            try:
-                os.unlink(self._tmp)
-            except FileNotFoundError:
-                pass
-        self._writer = self._tmp = None
+            self._flush_gt(None)
+            self._writer.finish()
+        # io.atomic renames the temporary file into place on success and deletes it on an exception
+        stack, self._stack, self._writer = self._stack, None, None
+        assert stack is not None
+        stack.__exit__(exc_type, exc, tb)
 
     # -- content -------------------------------------------------------------------------------
     def add_groundtruth(self, gt: GroundTruth) -> None:
