@@ -47,6 +47,7 @@ STATIC_LABEL = 0
 UNASSIGNED_LABEL = -1
 
 OBSERVATION_MODELS = ("pixel_depth", "point_3d")
+STATIC_VOLUMES = ("hull", "view_cone")
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,10 @@ class SegmentationConfig:
       moving object to the static scene in the graph search, so an edge is kept only when it is a side
       of at least this many Delaunay triangles whose three sides are all consistent (rigid triangles).
       0 gives the paper's plain rule.
+    - `static_volume`: how "the component with the largest volume" is measured. "hull" (the paper): the
+      convex hull of the component's points. A flat background (a wall) has almost no hull volume, so a
+      box in front of it can win; "view_cone" adds the window's camera centres to each hull, i.e. the
+      volume of the viewing cone the component fills, which favours what is far and wide.
     """
 
     observation_model: str = "pixel_depth"
@@ -95,12 +100,17 @@ class SegmentationConfig:
     min_common_frames: int = 2
     min_target_points: int = 5
     min_supporting_triangles: int = 2
+    static_volume: str = "hull"
 
     def __post_init__(self) -> None:
         if self.observation_model not in OBSERVATION_MODELS:
             raise ConfigError(
                 f"segmentation.observation_model: expected one of {OBSERVATION_MODELS}, "
                 f"got {self.observation_model!r}"
+            )
+        if self.static_volume not in STATIC_VOLUMES:
+            raise ConfigError(
+                f"segmentation.static_volume: expected one of {STATIC_VOLUMES}, got {self.static_volume!r}"
             )
         positive = ("sigma_px", "depth_sigma_min_m", "huber_delta", "outlier_chi2", "anchor_weight")
         for name in positive:
@@ -211,7 +221,8 @@ class SegmentationResult:
     - `edge_consistent`: (E,) False for removed edges (inconsistent, never co-observed often enough, or
       without triangle support).
     - `inlier_fraction`: (E,) fraction of an edge's measurements that are inliers.
-    - `component_volumes_m3`: convex-hull volume of the static scene followed by targets 1..G.
+    - `component_volumes_m3`: convex-hull volume of the static scene followed by targets 1..G (points
+      only, whichever `static_volume` chose the static scene).
     """
 
     point_ids: I64
@@ -572,13 +583,14 @@ def segment(window: CorrelationWindow, cfg: SegmentationConfig) -> SegmentationR
     candidates = np.flatnonzero(sizes >= 4)
     if len(candidates) == 0:
         candidates = np.array([int(np.argmax(sizes))])
-    volumes = np.array([hull_volume_m3(points[comp == c]) for c in candidates])
+    apex = window.T_world_cam[:, :3, 3] if cfg.static_volume == "view_cone" else np.empty((0, 3))
+    volumes = np.array([hull_volume_m3(np.vstack([points[comp == c], apex])) for c in candidates])
     # Ties (degenerate hulls) go to the component with more points.
     static_comp = int(candidates[np.lexsort((sizes[candidates], volumes))[-1]])
     klabels = np.full(mk, UNASSIGNED_LABEL, dtype=np.int64)
     klabels[comp == static_comp] = STATIC_LABEL
     targets = [c for c in np.argsort(-sizes, kind="stable") if c != static_comp and sizes[c] >= cfg.min_target_points]
-    vols = [float(volumes[candidates == static_comp][0])]
+    vols = [hull_volume_m3(points[comp == static_comp])]
     for g, c in enumerate(targets, start=1):
         klabels[comp == c] = g
         vols.append(hull_volume_m3(points[comp == c]))

@@ -225,3 +225,23 @@ def test_camera_pose_errors_do_not_change_the_segmentation() -> None:
     precision, recall = precision_recall(result.dynamic_mask, truth > 0)
     assert result.num_targets == 2
     assert precision >= 0.9 and recall >= 0.85, (precision, recall)
+
+
+def test_view_cone_volume_keeps_a_flat_wall_static_where_the_hull_volume_does_not() -> None:
+    """A wall 1.8 m away and a 0.4 m box moving 6 cm in front of it: the wall's hull is a thin slab."""
+    rng = np.random.default_rng(0)
+    wall = np.column_stack([rng.uniform(-1.1, 1.1, 600), rng.uniform(-0.8, 0.8, 600), np.full(600, 1.8)])
+    cube = _box_surface(rng, 120, np.array([0.0, 0.0, 1.0]), 0.4)
+    pixels, depths = np.empty((2, 720, 2)), np.empty((2, 720))
+    for k in range(2):
+        world = np.vstack([wall, cube + [0.06 * k, 0.0, 0.0]])
+        pixels[k] = CAMERA.project(world) + rng.normal(0.0, 0.7, (720, 2))
+        depths[k] = world[:, 2] + rng.normal(0.0, 1.425e-3 * world[:, 2] ** 2)
+    window = CorrelationWindow.from_pixels(np.arange(720), pixels, depths, np.stack([np.eye(4)] * 2), CAMERA)
+    on_box = np.arange(720) >= 600
+    paper = segment(window, SegmentationConfig.two_frame())
+    assert np.all(on_box[paper.static_mask])  # the paper's rule takes the box for the static scene
+    cone = segment(window, SegmentationConfig(rounds=1, static_volume="view_cone"))
+    assert not np.any(on_box[cone.static_mask])
+    precision, recall = precision_recall(cone.dynamic_mask, on_box)
+    assert precision >= 0.95 and recall >= 0.95, (precision, recall)
