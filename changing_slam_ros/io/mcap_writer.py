@@ -19,6 +19,7 @@ leaves a truncated file where a good one stood.
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from contextlib import ExitStack
 from collections.abc import Callable, Iterable
@@ -97,6 +98,7 @@ class RgbdMcapWriter:
 
         self._stack = ExitStack()
         self._fh = self._stack.enter_context(atomic_open(self.path, "wb"))
+        os.fchmod(self._fh.fileno(), _default_file_mode())  # mkstemp's 0600 -> what open() would give
         # Raw images: lz4 chunks (half the size, reads at about half the speed of uncompressed; zstd is
         # smaller still but reads 4x slower). JPEG/PNG payloads do not compress further: no chunk codec.
         codec = CompressionType.NONE if self.compress else CompressionType.LZ4
@@ -217,6 +219,20 @@ class RgbdMcapWriter:
         seq = self._seq.get(channel, 0)
         self._seq[channel] = seq + 1
         self._writer.add_message(channel, log_time=stamp_ns, data=data, publish_time=stamp_ns, sequence=seq)
+
+
+def _default_file_mode() -> int:
+    """0o666 minus the process umask (read without changing it: /proc, else a set-and-restore)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
 
 
 def write_rgbd_mcap(

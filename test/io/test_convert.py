@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -30,6 +31,9 @@ def test_convert_tum_folder_round_trip(tmp_path: Path, capsys: pytest.CaptureFix
             "/camera/rgb/camera_info": "sensor_msgs/msg/CameraInfo",
             "/ground_truth/pose": "geometry_msgs/msg/PoseStamped",
         }
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~mask  # as open() would create it, not mkstemp's 0600
     folder = open_dataset(root, "tum_fr1")
     back = open_dataset(out, None)  # no config: intrinsics come from the written CameraInfo
     assert back.camera == folder.camera
