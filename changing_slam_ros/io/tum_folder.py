@@ -256,6 +256,12 @@ class TumFolder:
                 )
         if not pairs:
             raise DatasetError(f"{source}: lists no frames")
+        missing = [p for pair in pairs for p in (pair.rgb_path, pair.depth_path) if not p.is_file()]
+        if missing:
+            raise DatasetError(
+                f"{missing[0]}: image file missing ({len(missing)} of the {2 * len(pairs)} files "
+                f"listed in {source.name} are missing)"
+            )
         pairs.sort(key=lambda p: p.rgb_stamp_ns)
         return pairs
 

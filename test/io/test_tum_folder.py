@@ -226,10 +226,13 @@ def _copy(tmp_path: Path) -> Path:
 def test_missing_and_truncated_images_name_the_file(tmp_path: Path) -> None:
     copy = _copy(tmp_path)
     s = _settings("tum_fr1")
-    (copy / "rgb/1305031102.211214.png").unlink()
     src = TumFolder(copy, s.dataset, s.camera)
+    (copy / "rgb/1305031102.211214.png").unlink()  # removed after opening: found when read
     with pytest.raises(DatasetError, match=r"rgb/1305031102\.211214\.png: colour image file missing"):
         list(src)
+    # missing when opening: reported at once, before any frame is read
+    with pytest.raises(DatasetError, match=r"rgb/1305031102\.211214\.png: image file missing \(1 of the 18 files"):
+        TumFolder(copy, s.dataset, s.camera)
     d = copy / "depth/1305031102.194330.png"
     d.write_bytes(d.read_bytes()[:5000])
     with pytest.raises(DatasetError, match=r"depth/1305031102\.194330\.png: depth image is truncated"):
