@@ -20,9 +20,14 @@ correlations"):
 
 Two modes: two frames (tracking, fast movers) and a window of K > 2 frames (local mapping, slow movers);
 see `SegmentationConfig.two_frame` and `SegmentationConfig.multi_frame` for why they differ in one
-threshold.
+threshold. Where we go beyond the paper, `SegmentationConfig` says so and how to switch it off: a weak
+anchor of each point on its measured position (eq. 5 alone has flat directions), the triangle support
+of kept edges (one surviving edge would join an object to the static scene), and an optional
+viewing-cone volume for picking the static component.
 
-Everything is vectorised over measurements; the Gauss-Newton steps solve one sparse (3M x 3M) system.
+Everything is vectorised over measurements; each Gauss-Newton step solves one block-sparse (3M x 3M)
+system by preconditioned conjugate gradients. Camera pose errors do not change the result: an error in
+one frame's pose moves all of that frame's points by the same rigid transform, like a common motion.
 """
 
 from __future__ import annotations
@@ -544,7 +549,7 @@ def segment(window: CorrelationWindow, cfg: SegmentationConfig) -> SegmentationR
 
     Steps of Section 3.2: (1) Delaunay graph of the points seen at least twice, at their median measured
     world position; (2) eq. 5 with outlier rounds, inconsistent edges removed; (3) connected components,
-    the one with the largest convex-hull volume is static.
+    the one with the largest volume (`cfg.static_volume`) is static.
     """
     m = len(window.point_ids)
     labels = np.full(m, UNASSIGNED_LABEL, dtype=np.int64)
