@@ -190,3 +190,19 @@ def test_objects_from_segmentation_creates_one_object_per_target_in_the_newest_f
     np.testing.assert_allclose(obj.poses[5_000][:3, 3], world.mean(axis=0))
     np.testing.assert_allclose(obj.points_world(5_000), world)
     assert len(obj.keyposes) == 1 and obj.keyposes[0].stamp_ns == 5_000
+
+
+def test_configs_load_from_yaml_sections() -> None:
+    from changing_slam_ros.config import section
+    from changing_slam_ros.core.object_merging import MergeConfig
+    from changing_slam_ros.core.point_correlation import SegmentationConfig
+
+    seg = section(SegmentationConfig, {"inconsistent_inlier_fraction": 0.5, "static_volume": "view_cone"}, "t.yaml: seg")
+    assert seg.inconsistent_inlier_fraction == 0.5 and seg.static_volume == "view_cone"
+    tracking = section(ObjectTrackingConfig, {"window_keyposes": 5, "ba": {"sigma_px": 2}}, "t.yaml: objects")
+    assert tracking.window_keyposes == 5 and tracking.ba.sigma_px == 2.0
+    assert section(MergeConfig, {"overlap_tolerance": 0.2}, "t.yaml: merge").overlap_tolerance == 0.2
+    with pytest.raises(ConfigError, match="huber"):
+        section(SegmentationConfig, {"huber": 1.0}, "t.yaml: seg")
+    with pytest.raises(ConfigError, match="static_volume"):
+        section(SegmentationConfig, {"static_volume": "sphere"}, "t.yaml: seg")
