@@ -24,6 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality of the mcap's colour (default 90)")
     parser.add_argument("--raw-mcap", action="store_true",
                         help="mcap with raw rgb8 / 32FC1 images instead of JPEG / 16-bit PNG")
+    parser.add_argument("--contact-sheet", type=Path, default=None, metavar="PNG",
+                        help="write one labelled frame of every scenario to this PNG and exit")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -34,6 +36,12 @@ def main(args: argparse.Namespace) -> int:
         width = max(len(n) for n in SCENARIOS)
         for name, info in SCENARIOS.items():
             print(f"{name:<{width}}  {info.description}")
+        return 0
+    if args.contact_sheet is not None:
+        from changing_slam_ros.sim.contact_sheet import write_contact_sheet
+
+        write_contact_sheet(args.contact_sheet, args.seed)
+        print(f"contact sheet: {args.contact_sheet}")
         return 0
     if not args.scenario:
         raise SimError("no scenario given; run `changing-slam simulate --list` to see them")

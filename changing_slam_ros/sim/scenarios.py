@@ -53,6 +53,7 @@ class Scenario:
     duration_s: float
     fps: float
     fovy_deg: float = fovy_for_focal(DEFAULT_HEIGHT, DEFAULT_FY_PX)
+    preview_t_s: float = 5.0  # a representative moment, for contact sheets
 
     def n_frames(self) -> int:
         return int(np.floor(self.duration_s * self.fps + 1e-9))
@@ -197,7 +198,8 @@ def _puc_like(name: str, description: str, seed: int, keep: list[str],
     for k, (class_id, parts) in (extra or {}).items():
         actors.append(Actor(k, class_id, parts, changed(None, per_actor.get(k, []))))
     scenario = Scenario(name, description, default_room(), tuple(actors), camera,
-                        tuple(sorted(change_records, key=lambda c: c.t_s)), duration_s, fps)
+                        tuple(sorted(change_records, key=lambda c: c.t_s)), duration_s, fps,
+                        preview_t_s=T_FACING_E2 - 1.0)
     check_changes_out_of_view(scenario)
     return scenario
 
@@ -313,7 +315,8 @@ def _unknown_mover(seed: int) -> Scenario:
     hand = HandHeld(tuple(eye), (0.0, 1.9, 0.85), phase=float(rng.uniform(0, 2 * np.pi)))
     return Scenario("unknown_mover", "a box of no COCO class picked up from the table, carried and turned "
                     "in front of a nearly still camera, and put down elsewhere (Dai et al.)", default_room(),
-                    tuple(actors), nearly_static(hand, duration_s), (), duration_s, 30.0)
+                    tuple(actors), nearly_static(hand, duration_s), (), duration_s, 30.0,
+                    preview_t_s=8.0)
 
 
 def _walking_changing(seed: int) -> Scenario:
@@ -353,7 +356,7 @@ def _walking_changing(seed: int) -> Scenario:
     s = Scenario("walking_changing", "a person walks past a table while the camera pans away and back; "
                  "the chair and the cup are moved while out of view (sample bag)", default_room(), tuple(actors),
                  function_track(cam, duration_s), (Change(t_change, "chair_left", M), Change(t_change, "cup", M)),
-                 duration_s, 15.0)
+                 duration_s, 15.0, preview_t_s=12.0)
     check_changes_out_of_view(s)
     return s
 
