@@ -106,23 +106,39 @@ def residuals(T_cam_world: F64, obs: PoseObservations, cam: PinholeStereo) -> tu
 
 
 def _jacobian(pc: F64, cam: PinholeStereo) -> F64:
-    """d(error)/d(delta) (N, 3, 6) for the left perturbation delta = (omega, rho)."""
+    """d(error)/d(delta) (N, 3, 6) for the left perturbation delta = (omega, rho).
+
+    Rows u, v, u_r; written out from d(projection)/d(pc) @ [-[pc]x | I], negated (error = obs - proj).
+    """
     x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
     z = np.where(np.abs(z) < 1e-6, 1e-6, z)
-    iz, iz2 = 1.0 / z, 1.0 / (z * z)
-    jp = np.zeros((len(pc), 3, 3))  # d(projection)/d(pc)
-    jp[:, 0, 0] = cam.fx * iz
-    jp[:, 0, 2] = -cam.fx * x * iz2
-    jp[:, 1, 1] = cam.fy * iz
-    jp[:, 1, 2] = -cam.fy * y * iz2
-    jp[:, 2, 0] = cam.fx * iz
-    jp[:, 2, 2] = -cam.fx * x * iz2 + cam.bf * iz2
-    dp = np.zeros((len(pc), 3, 6))  # d(pc)/d(delta) = [-[pc]x | I]
-    dp[:, 0, 1], dp[:, 0, 2] = pc[:, 2], -pc[:, 1]
-    dp[:, 1, 0], dp[:, 1, 2] = -pc[:, 2], pc[:, 0]
-    dp[:, 2, 0], dp[:, 2, 1] = pc[:, 1], -pc[:, 0]
-    dp[:, 0, 3] = dp[:, 1, 4] = dp[:, 2, 5] = 1.0
-    return -np.einsum("nij,njk->nik", jp, dp)
+    iz = 1.0 / z
+    iz2 = iz * iz
+    fx, fy, bf = cam.fx, cam.fy, cam.bf
+    j = np.empty((len(pc), 3, 6))
+    # u = fx x / z + cx
+    j[:, 0, 0] = fx * x * y * iz2
+    j[:, 0, 1] = -fx * (1.0 + x * x * iz2)
+    j[:, 0, 2] = fx * y * iz
+    j[:, 0, 3] = -fx * iz
+    j[:, 0, 4] = 0.0
+    j[:, 0, 5] = fx * x * iz2
+    # v = fy y / z + cy
+    j[:, 1, 0] = fy * (1.0 + y * y * iz2)
+    j[:, 1, 1] = -fy * x * y * iz2
+    j[:, 1, 2] = -fy * x * iz
+    j[:, 1, 3] = 0.0
+    j[:, 1, 4] = -fy * iz
+    j[:, 1, 5] = fy * y * iz2
+    # u_r = u - bf / z
+    c = (bf - fx * x) * iz2
+    j[:, 2, 0] = -c * y
+    j[:, 2, 1] = -(fx - c * x)
+    j[:, 2, 2] = fx * y * iz
+    j[:, 2, 3] = -fx * iz
+    j[:, 2, 4] = 0.0
+    j[:, 2, 5] = -c
+    return j
 
 
 def optimize_pose(
@@ -153,16 +169,18 @@ def optimize_pose(
                 r = np.sqrt(chi2)
                 delta = np.sqrt(th)
                 w = w * np.where(r <= delta, 1.0, delta / np.maximum(r, 1e-12))
-            J = _jacobian(pc, cam) * row_mask[:, :, None]
-            Jw = J * w[:, None, None]
-            H = np.einsum("nki,nkj->ij", Jw, J)
-            b = np.einsum("nki,nk->i", Jw, e * row_mask)
+            # Normal equations with the 3 rows of every match stacked: (3N, 6) Jacobian, BLAS products.
+            J = _jacobian(pc, cam).reshape(-1, 6)
+            wr = (w[:, None] * row_mask).reshape(-1)
+            Jw = J * wr[:, None]
+            H = Jw.T @ J
+            b = Jw.T @ e.reshape(-1)
             try:
                 step = np.linalg.solve(H + 1e-9 * np.eye(6), -b)
             except np.linalg.LinAlgError:
                 break
             T = se3_exp_left(step) @ T
-            if np.linalg.norm(step) < 1e-7:
+            if step @ step < 1e-12:
                 break
         _, _, chi2 = residuals(T, obs, cam)
         inliers = chi2 <= th
