@@ -30,7 +30,7 @@ def _row_id(row: dict) -> str:
 def test_fixture_was_made_by_evo_1_31_0_and_covers_every_pair_at_two_max_diffs() -> None:
     assert FIXTURE["evo_version"] == "1.31.0"
     pairs = {(r["gt"], r["est"]) for r in FIXTURE["ape"]
-             if r["max_diff_s"] == 0.02 and not r.get("swapped")}
+             if r["max_diff_s"] == 0.02 and not r.get("swapped") and not r.get("self_comparison")}
     assert len(pairs) == 6
     for gt, est in pairs:
         diffs = {r["max_diff_s"] for r in FIXTURE["ape"] if (r["gt"], r["est"]) == (gt, est)}
@@ -59,3 +59,12 @@ def test_rpe_in_frames_equals_evo_rpe(row: dict) -> None:
     ours = stats.to_dict()
     for key, value in row["stats"].items():
         assert ours[key] == pytest.approx(value, abs=TOL), key
+
+
+def test_a_duplicated_ground_truth_stamp_pairs_like_evo_so_self_comparison_is_not_zero() -> None:
+    gt = _read("fr2_desk_groundtruth.txt")
+    assert len(gt) - len(set(gt.stamps_s.tolist())) == 1
+    row = next(r for r in FIXTURE["ape"] if r.get("self_comparison"))
+    res = ate(gt, gt)
+    assert res.stats.max == pytest.approx(row["stats"]["max"], abs=TOL)
+    assert res.stats.max > 1e-3  # the second pose of the duplicated stamp meets the first one
