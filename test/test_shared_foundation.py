@@ -131,3 +131,13 @@ def test_cli_lists_every_subcommand_and_rejects_unknown_ones() -> None:
         assert name in out.stdout
     bad = subprocess.run([sys.executable, "-m", "changing_slam_ros.cli", "fly"], capture_output=True, text=True, cwd=REPO)
     assert bad.returncode == 2 and "invalid choice" in bad.stderr
+
+
+def test_atomic_write_gives_the_file_ordinary_permissions(tmp_path: Path) -> None:
+    import os
+
+    target = tmp_path / "trajectory.txt"
+    atomic_write_text(target, "x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (target.stat().st_mode & 0o777) == (0o666 & ~umask)
