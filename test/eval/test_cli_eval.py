@@ -144,3 +144,17 @@ def test_a_failed_plot_keeps_an_existing_file(tmp_path: Path, capsys: pytest.Cap
     assert main(["eval", "ate", gt, str(bad), "--plot", str(png)]) == 1
     assert png.read_bytes() == b"old"
     assert "expected 8 columns" in capsys.readouterr().err
+
+
+def test_a_missing_or_empty_ground_truth_exits_1_naming_it(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    _, est = _paths()
+    missing = tmp_path / "nope.txt"
+    assert main(["eval", "ate", str(missing), est]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(missing) in err and "cannot read" in err
+    comments = tmp_path / "only_comments.txt"
+    comments.write_text("# timestamp tx ty tz qx qy qz qw\n\n")
+    assert main(["eval", "rpe", str(comments), est]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(comments) in err and "empty" in err
