@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.sim.actors import Actor, Part, Shape
-from changing_slam_ros.sim.textures import load_texture, png_bytes
+from changing_slam_ros.sim.textures import texture_png
 
 F64 = npt.NDArray[np.float64]
 
@@ -142,7 +142,7 @@ CAMERA_NAME = "camera"
 def build_mjcf(spec: SceneSpec) -> Mjcf:
     """Generate the MJCF text and its texture assets for `spec`."""
     textures = sorted({p.texture for p in spec.room.parts} | {p.texture for a in spec.actors for p in a.parts})
-    assets = {f"{t}.png": png_bytes(load_texture(t)) for t in textures}
+    assets = {f"{t}.png": texture_png(t) for t in textures}
     meshes: list[str] = []
     world_geoms: list[str] = []
     for i, part in enumerate(spec.room.parts):

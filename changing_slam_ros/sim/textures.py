@@ -8,6 +8,7 @@ scikit-image's `skimage/data/_fetchers.py`. `bags/README.md` lists the same tabl
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -89,6 +90,12 @@ def load_texture(name: str) -> U8:
         image = np.ascontiguousarray(np.rot90(image))
     image *= np.asarray(source.tint_rgb, dtype=np.float32)
     return np.clip(image + 0.5, 0, 255).astype(np.uint8)
+
+
+@functools.lru_cache(maxsize=64)
+def texture_png(name: str) -> bytes:
+    """The texture `name` as PNG bytes, ready for MuJoCo; cached per process (textures never change)."""
+    return png_bytes(load_texture(name))
 
 
 def png_bytes(image_rgb: U8) -> bytes:
