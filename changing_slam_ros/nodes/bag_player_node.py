@@ -13,9 +13,12 @@ Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
    an error rather than play to nobody);
 2. publishers are reliable with KEEP_ALL history, and after each message the player waits until every
    matched reliable subscription has acknowledged it at the DDS level (`Publisher.wait_for_all_acked`);
-3. after each message on an `ack_topics` topic (e.g. the colour image), wait until `ack_count` distinct nodes
-   have published a `std_msgs/Header` on `ack_topic` whose stamp equals the message's header stamp (the
-   node has *processed* the frame), at most `ack_timeout_s` (then a throttled warning, counted).
+3. one frame in flight: before publishing a message on an `ack_topics` topic (e.g. the colour image), wait
+   until `ack_count` distinct nodes have published a `std_msgs/Header` on `ack_topic` whose stamp equals the
+   *previous* such message's header stamp (the node has processed that frame), at most `ack_timeout_s` (then
+   a throttled warning, counted). Messages in between (depth, camera_info) still go out, so a node that pairs
+   a colour frame with the depth frame recorded just after it can finish the frame; at the end of the bag the
+   last frame's ack is awaited too.
 Time spent waiting does not count against the schedule: playback resumes at the recorded spacing.
 The timing logic is ROS-free, in `changing_slam_ros.io.playback`.
 """
@@ -34,7 +37,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from rcl_interfaces.msg import ParameterDescriptor
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 
@@ -49,7 +51,7 @@ from changing_slam_ros.io.playback import (
     parse_remaps,
     plan,
 )
-from changing_slam_ros.nodes.node_runner import message_class, run_node
+from changing_slam_ros.nodes.node_runner import declare_parameters, message_class, run_node
 
 STRING_ARRAY = Parameter.Type.STRING_ARRAY
 
@@ -133,13 +135,7 @@ class BagPlayerNode(Node):
             ("ack_count", 1, "lossless: distinct acknowledging nodes awaited per message on ack_topics"),
             ("ack_timeout_s", 2.0, "lossless: longest wait per message for acks (DDS and processing)"),
         ]
-        values: dict[str, Any] = {}
-        for name, default, description in specs:
-            param = self.declare_parameter(name, default, ParameterDescriptor(description=description))
-            value = param.value
-            values[name] = list(value) if default is STRING_ARRAY and value is not None else value
-            if default is STRING_ARRAY and value is None:
-                values[name] = []
+        values = declare_parameters(self, specs)
         for name in ("clock_hz", "progress_period_s"):
             if not values[name] > 0:
                 raise ConfigError(f"bag_player: {name} must be > 0, got {values[name]}")
@@ -196,6 +192,7 @@ class BagPlayerNode(Node):
         clock = PlaybackClock(self.options.rate, start_bag_ns, _now_ns())
         progress = PlaybackProgress(self._pass_message_count(), span_ns, self._progress_period_ns)
         current_pass = 0
+        pending: Any = None  # lossless: last message on an ack topic, not yet acknowledged
         for item in plan(self.bag, self.options):
             if not self.context.ok():
                 break
@@ -209,6 +206,14 @@ class BagPlayerNode(Node):
                 progress = PlaybackProgress(progress.total_messages, span_ns, self._progress_period_ns)
             if not self._sleep_until(clock, item.msg.log_stamp_ns, executor):
                 break
+            if pending is not None and item.msg.topic in self._ack_topics:
+                # One frame in flight: the previous frame must be processed before the next one goes out.
+                # (Waiting right after publishing would deadlock a node that pairs a colour frame with the
+                # depth frame recorded after it.)
+                waited_from = _now_ns()
+                self._wait_processed(pending, executor, result)
+                pending = None
+                clock.pause(_now_ns() - waited_from)
             self._publish_clock(item.msg.log_stamp_ns)
             pub.publish(item.msg.cdr)
             clock.mark_published(item.msg.log_stamp_ns)
@@ -217,14 +222,19 @@ class BagPlayerNode(Node):
             progress.record(item.topic)
             if self.lossless:
                 waited_from = _now_ns()
-                self._wait_delivered(pub, item.msg, executor, result)
+                if not pub.wait_for_all_acked(Duration(nanoseconds=round(self._ack_timeout_s * NS_PER_S))):
+                    result.dds_ack_timeouts += 1
                 clock.pause(_now_ns() - waited_from)
+                if self._ack_count > 0 and item.msg.topic in self._ack_topics:
+                    pending = item.msg
             if progress.due(_now_ns()):
                 self.get_logger().info(
                     "bag_player: " + progress.line(current_pass, item.msg.log_stamp_ns - start_bag_ns)
                 )
         else:
             result.completed = True
+            if pending is not None:
+                self._wait_processed(pending, executor, result)
         result.passes = current_pass + 1
         result.wall_s = time.monotonic() - t_start
         self.get_logger().info(
@@ -286,11 +296,8 @@ class BagPlayerNode(Node):
             executor.spin_once(timeout_sec=0.05)
         return False
 
-    def _wait_delivered(self, pub: Any, msg: Any, executor: Executor, result: PlaybackResult) -> None:
-        if not pub.wait_for_all_acked(Duration(nanoseconds=round(self._ack_timeout_s * NS_PER_S))):
-            result.dds_ack_timeouts += 1
-        if self._ack_count <= 0 or msg.topic not in self._ack_topics:
-            return
+    def _wait_processed(self, msg: Any, executor: Executor, result: PlaybackResult) -> None:
+        """Spin until `ack_count` nodes acknowledged `msg`'s stamp on `ack_topic`, at most `ack_timeout_s`."""
         stamp = msg.header_stamp_ns if msg.header_stamp_ns is not None else msg.log_stamp_ns
         deadline = time.monotonic() + self._ack_timeout_s
         while self.context.ok() and len(self._acks.get(stamp, ())) < self._ack_count:

@@ -22,6 +22,26 @@ from rclpy.node import Node
 from changing_slam_ros.errors import SlamError
 
 
+# A parameter spec: (name, default, description). Use Parameter.Type.STRING_ARRAY (etc.) as the default of
+# an array parameter that starts empty: rclpy cannot infer a type from [].
+ParamSpec = tuple[str, Any, str]
+
+
+def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+    """Declare every parameter with its description and default; returns name -> value (arrays as lists)."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.parameter import Parameter
+
+    values: dict[str, Any] = {}
+    for name, default, description in specs:
+        param = node.declare_parameter(name, default, ParameterDescriptor(description=description))
+        value = param.value
+        if isinstance(default, Parameter.Type):
+            value = [] if value is None else list(value)
+        values[name] = value
+    return values
+
+
 def message_class(msgtype: str) -> Any:
     """The Python class of ROS 2 type `pkg/msg/Name` (also `pkg/srv/Name`); ImportError when not installed."""
     try:

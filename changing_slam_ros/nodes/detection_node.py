@@ -1,0 +1,157 @@
+"""`detection`: colour image -> `~/detections` (changing_slam_msgs/DetectionArray, stamped with the image's stamp).
+
+A lifecycle node: the ONNX session (core.detector.Detector) is created in `on_activate` and released in
+`on_deactivate`, as yolo_ros does; `main()` configures and activates it at start (`autostart`).
+Images arrive with sensor-data QoS (best effort, shallow queue): when inference is slower than the camera,
+old frames are dropped rather than queued (tracking then propagates the last detections, issue 7).
+Every 100 frames the median time per frame is logged.
+
+    detection --ros-args -r image:=/camera/rgb/image_color -p intra_op_threads:=2
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import rclpy
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CompressedImage, Image
+
+from changing_slam_msgs.msg import DetectionArray
+from changing_slam_ros.config import find_config, load_yaml, section
+from changing_slam_ros.core.detector import Detector, DetectorConfig
+from changing_slam_ros.errors import SlamError
+from changing_slam_ros.nodes.conversions import detections_to_msg, image_to_rgb, stamp_to_ns
+from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+
+
+class DetectionNode(LifecycleNode):
+    """Subscribes `image` (or `image/compressed`), publishes `~/detections`."""
+
+    def __init__(
+        self,
+        image_qos: QoSProfile = qos_profile_sensor_data,
+        detections_qos: QoSProfile | int = 10,
+        **node_kwargs: Any,
+    ) -> None:
+        super().__init__("detection", **node_kwargs)
+        self.params = declare_parameters(self, [
+            ("config", "", "config name (tum_fr3, realsense_d435, ...) or YAML path; its `detector` section"),
+            ("model_path", "", "ONNX detector; empty = from the config, else the shipped SSD-MobileNetV2"),
+            ("score_threshold", -1.0, "drop detections below this score; < 0 = from the config (0.3)"),
+            ("intra_op_threads", -1, "onnxruntime threads; < 0 = from the config (2)"),
+            ("compressed", False, "subscribe sensor_msgs/CompressedImage on image/compressed instead"),
+            ("autostart", True, "configure and activate at start (main() only)"),
+        ])  # fmt: skip
+        self._image_qos = image_qos
+        self._detections_qos = detections_qos
+        self.detector: Detector | None = None
+        self.detector_config = self._detector_config()
+        self._pub: Any = None
+        self._sub: Any = None
+        self.frames = 0
+        self.latency_ms: list[float] = []
+
+    def _detector_config(self) -> DetectorConfig:
+        p = self.params
+        base: dict[str, Any] = {}
+        if p["config"]:
+            path = find_config(p["config"])
+            base = dict(load_yaml(path).get("detector") or {})
+            where = f"{path}: detector"
+        else:
+            where = "detection node parameters"
+        if p["model_path"]:
+            base["model_path"] = p["model_path"]
+        if p["score_threshold"] >= 0:
+            base["score_threshold"] = float(p["score_threshold"])
+        if p["intra_op_threads"] >= 0:
+            base["intra_op_threads"] = int(p["intra_op_threads"])
+        return section(DetectorConfig, base, where)
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._pub = self.create_lifecycle_publisher(
+            DetectionArray, "~/detections", self._detections_qos,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )  # fmt: skip
+        if self.params["compressed"]:
+            self._sub = self.create_subscription(CompressedImage, "image/compressed", self.on_image, self._image_qos)
+        else:
+            self._sub = self.create_subscription(Image, "image", self.on_image, self._image_qos)
+        self.get_logger().info(f"detection: configured, images on {self._sub.topic_name}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self.detector = Detector(self.detector_config)
+        except SlamError as err:
+            self.get_logger().error(f"detection: {err}")
+            return TransitionCallbackReturn.FAILURE
+        self.get_logger().info(
+            f"detection: active, model {self.detector.model_path.name} ({self.detector.layout}) on "
+            f"{', '.join(self.detector.providers)}, publishing {self._pub.topic_name}"
+        )
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self.detector is not None:
+            self.detector.close()
+            self.detector = None
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self._sub is not None:
+            self.destroy_subscription(self._sub)
+            self._sub = None
+        if self._pub is not None:
+            self.destroy_lifecycle_publisher(self._pub)
+            self._pub = None
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self.detector is not None:
+            self.detector.close()
+            self.detector = None
+        return TransitionCallbackReturn.SUCCESS
+
+    # -- work -----------------------------------------------------------------------------------
+    def on_image(self, msg: Any) -> None:
+        if self.detector is None:
+            return
+        t0 = time.perf_counter()
+        topic = self._sub.topic_name if self._sub is not None else "image"
+        try:
+            rgb = image_to_rgb(msg, topic)
+        except SlamError as err:
+            self.get_logger().warning(f"detection: image rejected: {err}", throttle_duration_sec=5.0)
+            return
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        detections = self.detector.detect(rgb, stamp_ns)
+        self._pub.publish(detections_to_msg(detections, msg.header.frame_id))
+        self.frames += 1
+        self.latency_ms.append(1000.0 * (time.perf_counter() - t0))
+        if self.frames % 100 == 0:
+            recent = sorted(self.latency_ms[-100:])
+            self.get_logger().info(
+                f"detection: {self.frames} frames, median {recent[len(recent) // 2]:.1f} ms per frame"
+            )
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    def make(argv: list[str]) -> DetectionNode:
+        node = DetectionNode()
+        if node.params["autostart"]:
+            node.trigger_configure()
+            node.trigger_activate()
+        return node
+
+    return run_node(make, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,67 @@
+"""detection node in-process: a real TUM fr3 walking frame in, people out, stamped with the image's stamp."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from helpers import FR3_WALKING_FRAMES, require
+
+pytestmark = pytest.mark.ros
+
+pytest.importorskip("rclpy")
+pytest.importorskip("changing_slam_msgs.msg", reason="interfaces not built (tools/build_interfaces.sh)")
+
+import cv2  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
+
+from changing_slam_msgs.msg import DetectionArray  # noqa: E402
+from changing_slam_ros.nodes.conversions import rgb_to_image, stamp_to_ns  # noqa: E402
+from changing_slam_ros.nodes.detection_node import DetectionNode  # noqa: E402
+
+STAMP_NS = 1341846313_553992000
+
+
+def test_detection_publishes_the_people_of_a_walking_frame_with_the_image_stamp(ros_context):
+    frame = require(FR3_WALKING_FRAMES) / "1341846313.553992.png"
+    rgb = np.ascontiguousarray(cv2.imread(str(frame))[:, :, ::-1])
+    node = DetectionNode(
+        context=ros_context,
+        parameter_overrides=[Parameter("intra_op_threads", value=1)],
+        cli_args=["--ros-args", "-r", "image:=/camera/rgb/image_color"],
+    )
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = Node("camera", context=ros_context)
+    pub = peer.create_publisher(Image, "/camera/rgb/image_color", qos_profile_sensor_data)
+    got: list[DetectionArray] = []
+    peer.create_subscription(DetectionArray, "/detection/detections", got.append, 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(peer)
+
+    deadline = time.monotonic() + 30.0
+    while not got and time.monotonic() < deadline:
+        if pub.get_subscription_count() > 0:
+            pub.publish(rgb_to_image(rgb, STAMP_NS, "openni_rgb_optical_frame"))
+        for _ in range(5):
+            executor.spin_once(timeout_sec=0.1)
+    assert got, "no DetectionArray within 30 s"
+    msg = got[0]
+    assert stamp_to_ns(msg.header.stamp) == STAMP_NS and msg.header.frame_id == "openni_rgb_optical_frame"
+    assert (msg.width, msg.height) == (640, 480)
+    people = [d for d in msg.detections if d.class_id == 0]
+    assert len(people) >= 1 and max(d.score for d in people) > 0.5  # the frame shows two walking people
+    for d in msg.detections:
+        assert 0 <= d.x and d.x + d.w <= 640.5 and 0 <= d.y and d.y + d.h <= 480.5 and d.w > 0 and d.h > 0
+
+    assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS and node.detector is None
+    executor.shutdown()
+    node.destroy_node()
+    peer.destroy_node()
