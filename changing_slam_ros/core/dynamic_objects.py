@@ -140,6 +140,7 @@ class _Pending:
     measurements: dict[int, F64]  # object id -> centroid (3,) in the camera frame
     classification: KeypointClassification
     moving_mask: npt.NDArray[np.bool_] | None = None
+    updated: bool = False
 
 
 class DynamicObjectTracker:
@@ -205,10 +206,14 @@ class DynamicObjectTracker:
 
     def update(self, T_world_cam: F64) -> DynamicFrameResult:
         """Feed the last classified frame's object centroids to the EKFs with the camera pose (4, 4) of that
-        frame (camera-to-world), refresh the verdicts and return the frame's result with them."""
+        frame (camera-to-world), refresh the verdicts and return the frame's result with them. A second
+        call for the same frame changes nothing (each measurement is used once)."""
         if self._pending is None:
             raise RuntimeError("DynamicObjectTracker.update() called before classify()")
         pending = self._pending
+        if pending.updated:
+            return self._result(pending)
+        pending.updated = True
         for b, det in enumerate(pending.detections):
             oid = int(pending.object_ids[b])
             z = pending.measurements.get(oid)

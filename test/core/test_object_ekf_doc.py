@@ -123,9 +123,14 @@ def test_without_repopulation_the_background_behind_the_person_is_lost() -> None
     assert with_repop.use_for_tracking.sum() > without.use_for_tracking.sum()
 
 
-def test_update_before_classify_is_an_error() -> None:
+def test_update_before_classify_is_an_error_and_a_second_update_uses_nothing_twice() -> None:
     with pytest.raises(RuntimeError, match="before classify"):
         DynamicObjectTracker(CAM).update(np.eye(4))
+    tracker = DynamicObjectTracker(CAM)
+    depth, dets, kps, _ = render(0, np.random.default_rng(1))
+    first = tracker.process(0, kps, depth, dets, camera_pose(0))
+    again = tracker.update(camera_pose(0))
+    assert [o.n_updates for o in first.objects] == [o.n_updates for o in again.objects] == [1, 1, 1]
 
 
 def test_every_threshold_is_read_from_a_yaml_section_with_the_papers_defaults(tmp_path) -> None:
