@@ -396,6 +396,10 @@ class SlamMapLoopClosing:
 
     # loop closer seam
     def process(self, kf: Keyframe, slam_map: SlamMap) -> bool:
+        # keyframes culled from the map without `erase` (when this object is not also the keyframe index)
+        gone = [k for k, held in self.closer.keyframes.items() if held.map_id == slam_map.id and k not in slam_map.keyframes]
+        for k in gone:
+            self.closer.erase(k)
         points = slam_map.points
         mask = loop_feature_mask(kf)
         seen = kf.point_ids >= 0
