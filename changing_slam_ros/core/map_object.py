@@ -1,0 +1,181 @@
+"""MapObject (Changing-SLAM §4.2) and the configuration of the object layer (§4.6-4.8).
+
+A MapObject groups the map points created inside the boxes of one detected object. It stores the
+first and current image box, the COCO class (0-based), its map point ids, the centroid (mean of its
+points), the 3D box dimensions, a global id, the persistence belief (§4.6), the keyframe where it was
+last seen and whether its points are active (belief >= `belief_threshold`, §4.7).
+
+3D box (§4.2: "the median of the 5 % maximum and minimum x, y and z coordinates"): per axis, the
+median of the 5 % largest coordinates minus the median of the 5 % smallest, which trims stray points
+the way a plain max - min would not. The box is axis-aligned in the world (map) frame and centred
+half-way between those two medians (`box_center_w`), which for a surface-sampled object differs
+from the centroid (the centroid leans toward the side the camera saw).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.config import section
+from changing_slam_ros.errors import ConfigError
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class ObjectMapConfig:
+    """YAML section `objects:`. The paper names these thresholds but gives no values; ours are chosen
+    for the simulated PUC-USP-like scenes and documented beside each field.
+
+    Long-term data association (§4.7, Algorithm 1):
+    - `ltda_threshold_m`: a candidate closer than this (centroid to centroid, same class) is the mapped object.
+    - `n_keyframes_unseen`: N of Algorithm 1, an object is belief-updated only if not seen in the last N keyframes.
+    - `belief_threshold`: BeliefThreshold; below it an object's points are inactive. Above 0.5 so that new
+      objects (belief 0.5) start inactive, as §4.7 says ("initially all MapPoints that belong to MapObjects
+      are inactive").
+    Persistence filter (§4.6, see `persistence_filter.py` for the model):
+    - `p_detect`: probability that a present object in view is detected and associated.
+    - `p_false`: probability that a same-class candidate appears at an absent object's place.
+    - `sigma_point_m`, `sigma_floor_m`: centroid covariance (sigma_point^2 / n_points + sigma_floor^2) I3.
+    - `belief_min`, `belief_max`: the belief is clamped to [belief_min, belief_max] inside (0, 1).
+    Visibility ("should have been seen", `object_visibility.py`):
+    - `margin_px`: the centroid must project this far inside the image border.
+    - `min_range_m`, `max_range_m`: distance of the centroid along the optical axis.
+    - `occlusion_tolerance_m`: measured depth may be this much (plus half the object's largest box side)
+      in front of the centroid before the object counts as occluded.
+    - `depth_window_px`: half-size of the window whose median depth is read at the projected centroid.
+    Semantic map (§4.8):
+    - `min_points`: objects with fewer points are left out of the semantic map and never merged into.
+    """
+
+    ltda_threshold_m: float = 0.5
+    n_keyframes_unseen: int = 5
+    belief_threshold: float = 0.6
+    p_detect: float = 0.8
+    p_false: float = 0.1
+    sigma_point_m: float = 1.0
+    sigma_floor_m: float = 0.1
+    belief_min: float = 0.01
+    belief_max: float = 0.99
+    margin_px: float = 20.0
+    min_range_m: float = 0.3
+    max_range_m: float = 4.0
+    occlusion_tolerance_m: float = 0.2
+    depth_window_px: int = 2
+    min_points: int = 5
+
+    def __post_init__(self) -> None:
+        where = "objects"
+        if self.ltda_threshold_m <= 0.0:
+            raise ConfigError(f"{where}.ltda_threshold_m: expected > 0, got {self.ltda_threshold_m}")
+        if self.n_keyframes_unseen < 0:
+            raise ConfigError(f"{where}.n_keyframes_unseen: expected >= 0, got {self.n_keyframes_unseen}")
+        if not 0.0 < self.belief_min < self.belief_max < 1.0:
+            raise ConfigError(f"{where}.belief_min / belief_max: expected 0 < min < max < 1, got "
+                              f"{self.belief_min} / {self.belief_max}")
+        if not self.belief_min <= self.belief_threshold <= self.belief_max:
+            raise ConfigError(f"{where}.belief_threshold: expected within [belief_min, belief_max], got "
+                              f"{self.belief_threshold}")
+        for name in ("p_detect", "p_false"):
+            v = getattr(self, name)
+            if not 0.0 < v < 1.0:
+                raise ConfigError(f"{where}.{name}: expected a probability in (0, 1), got {v}")
+        if self.p_detect <= self.p_false:
+            raise ConfigError(f"{where}.p_detect ({self.p_detect}) must exceed p_false ({self.p_false}): "
+                              "otherwise seeing an object would lower its belief")
+        if self.sigma_point_m <= 0.0 or self.sigma_floor_m < 0.0:
+            raise ConfigError(f"{where}.sigma_point_m / sigma_floor_m: expected > 0 / >= 0")
+        if not 0.0 <= self.min_range_m < self.max_range_m:
+            raise ConfigError(f"{where}.min_range_m / max_range_m: expected 0 <= min < max")
+        if self.margin_px < 0.0 or self.occlusion_tolerance_m < 0.0 or self.depth_window_px < 0:
+            raise ConfigError(f"{where}.margin_px, occlusion_tolerance_m, depth_window_px: expected >= 0")
+        if self.min_points < 1:
+            raise ConfigError(f"{where}.min_points: expected >= 1, got {self.min_points}")
+
+
+def object_map_config(data: dict[str, Any] | None, where: str = "objects") -> ObjectMapConfig:
+    """Build the config from the `objects:` mapping of a YAML file (None gives the defaults)."""
+    return section(ObjectMapConfig, data, where)
+
+
+def box_extent(points_w: F64, fraction: float = 0.05) -> tuple[F64, F64]:
+    """Robust axis-aligned box of points (N, 3): (centre (3,), dimensions (3,)) in metres.
+
+    Per axis: median of the `fraction` largest minus median of the `fraction` smallest coordinates
+    (at least one point each side). Empty input gives zeros.
+    """
+    pts = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0:
+        return np.zeros(3), np.zeros(3)
+    k = max(1, int(round(fraction * len(pts))))
+    srt = np.sort(pts, axis=0)
+    lo = np.median(srt[:k], axis=0)
+    hi = np.median(srt[-k:], axis=0)
+    return (lo + hi) / 2.0, hi - lo
+
+
+BoxXyxy = tuple[float, float, float, float]
+
+
+@dataclass
+class MapObject:
+    """One object of the map. `point_ids` (N,) and `points_w` (N, 3) are kept row-aligned.
+
+    `centroid_w` (3,) is the mean of `points_w`; `box_center_w` (3,) and `box_size_m` (3,) the robust
+    world-axis-aligned box (see `box_extent`). Boxes are pixel (x_min, y_min, x_max, y_max).
+    """
+
+    id: int
+    class_id: int
+    first_box_xyxy: BoxXyxy
+    current_box_xyxy: BoxXyxy
+    first_keyframe: int
+    last_seen_keyframe: int
+    belief: float = 0.5
+    active: bool = False
+    point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
+    points_w: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    centroid_w: F64 = field(default_factory=lambda: np.zeros(3))
+    box_center_w: F64 = field(default_factory=lambda: np.zeros(3))
+    box_size_m: F64 = field(default_factory=lambda: np.zeros(3))
+    last_belief_update_keyframe: int = -1
+    n_observations: int = 1
+
+    def __post_init__(self) -> None:
+        self.set_points(self.point_ids, self.points_w)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.point_ids)
+
+    def set_points(self, point_ids: I64, points_w: F64) -> None:
+        """Replace the points (ids (N,), positions (N, 3)) and recompute centroid and box."""
+        ids = np.asarray(point_ids, dtype=np.int64).reshape(-1)
+        pts = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+        if len(ids) != len(pts):
+            raise ValueError(f"MapObject {self.id}: {len(ids)} point ids for {len(pts)} positions")
+        self.point_ids, self.points_w = ids, pts
+        if len(pts):
+            self.centroid_w = pts.mean(axis=0)
+            self.box_center_w, self.box_size_m = box_extent(pts)
+
+    def add_points(self, point_ids: I64, points_w: F64) -> None:
+        """Union with more points (ids already held keep their stored row, new ones are appended)."""
+        ids = np.asarray(point_ids, dtype=np.int64).reshape(-1)
+        pts = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+        new = ~np.isin(ids, self.point_ids)
+        self.set_points(np.concatenate([self.point_ids, ids[new]]), np.vstack([self.points_w, pts[new]]))
+
+    def refresh_points(self, positions_w: F64, keep: npt.NDArray[np.bool_] | None = None) -> None:
+        """Move the points to `positions_w` (N, 3), row-aligned with `point_ids` (after bundle
+        adjustment or loop correction); `keep` (N,) drops culled points."""
+        pts = np.asarray(positions_w, dtype=np.float64).reshape(-1, 3)
+        if keep is None:
+            self.set_points(self.point_ids, pts)
+        else:
+            self.set_points(self.point_ids[keep], pts[keep])
