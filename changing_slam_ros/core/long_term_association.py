@@ -1,0 +1,209 @@
+"""Long-term data association (Changing-SLAM §4.7, Algorithm 1) and the object map it maintains.
+
+At each new keyframe the object candidates of that keyframe (map points created or matched inside one
+detection box, with the box's class) are compared with the mapped objects:
+
+1. the candidate's centroid is the mean of its points (line 2);
+2. among mapped objects of the same class (line 4) the nearest centroid is taken; closer than
+   `ltda_threshold_m` (line 6) the candidate is merged into it, points combined (line 7);
+   the paper loops over every mapped object and could merge one candidate into several; we merge into
+   the nearest only, so two neighbouring objects of one class (two cups on a desk) stay apart;
+3. if the mapped object was not seen in the last N keyframes (`kf - last_seen > n_keyframes_unseen`,
+   line 8), its belief is updated with the "seen" likelihood (line 9, `persistence_filter.py`) and its
+   points switch active / inactive with `belief_threshold` (lines 11-15); otherwise only the keyframe
+   where it was last seen is updated (line 17): objects seen continuously are not re-updated;
+4. otherwise a new MapObject is created with belief 0.5 (lines 20-21), hence inactive by default;
+5. vicinity search (§4.7, last paragraph): every mapped object that no candidate matched, that should
+   have been visible from this keyframe (`object_visibility.py`) and that was neither seen nor
+   belief-updated in the last N keyframes gets the "missed" update (belief down). The same N keeps a
+   detector miss during continuous viewing from counting, and spaces repeated misses N keyframes apart.
+
+Objects created in this keyframe are not candidates for merging within the same keyframe, so two
+same-class detections of one image never fuse. The result lists the point ids whose active flag the
+map must set (`activated_point_ids`, `deactivated_point_ids`), the new and merged objects and every
+belief change with its reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.map_object import BoxXyxy, MapObject, ObjectMapConfig
+from changing_slam_ros.core.object_visibility import Visibility, check_visibility
+from changing_slam_ros.core.persistence_filter import BeliefUpdate, update_missed, update_seen
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+# positions_of(point_ids (N,)) -> (positions_w (N, 3), usable (N,) bool: False for culled / bad points)
+PointLookup = Callable[[I64], tuple[F64, npt.NDArray[np.bool_]]]
+
+
+@dataclass(frozen=True)
+class ObjectCandidate:
+    """Map points (ids (N,), world positions (N, 3)) from one detection box of one keyframe."""
+
+    class_id: int
+    box_xyxy: BoxXyxy
+    point_ids: I64
+    points_w: F64
+
+    @property
+    def centroid_w(self) -> F64:
+        return np.asarray(self.points_w, float).reshape(-1, 3).mean(axis=0)
+
+
+@dataclass(frozen=True)
+class BeliefChange:
+    """A persistence-filter step applied to `object_id`: reason "seen" or "missed"."""
+
+    object_id: int
+    reason: str
+    update: BeliefUpdate
+
+
+@dataclass(frozen=True)
+class AssociationResult:
+    """What one keyframe changed. `assignments[i]` is the map object id candidate i went to (new or
+    merged), -1 if it had fewer than `min_points` points and was skipped."""
+
+    keyframe_id: int
+    assignments: tuple[int, ...]
+    new_object_ids: tuple[int, ...]
+    merged_object_ids: tuple[int, ...]
+    belief_changes: tuple[BeliefChange, ...]
+    activated_point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
+    deactivated_point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
+    visibility: dict[int, Visibility] = field(default_factory=dict)
+
+
+class LongTermAssociation:
+    """Owns the MapObjects of one map and runs Algorithm 1 on each keyframe's candidates."""
+
+    def __init__(self, config: ObjectMapConfig, first_object_id: int = 0) -> None:
+        self.config = config
+        self.objects: dict[int, MapObject] = {}
+        self._next_id = first_object_id
+
+    # --- bookkeeping ---
+    def add_object(self, obj: MapObject) -> None:
+        """Insert an existing object (a loaded map, an Atlas merge); later ids continue after it."""
+        self.objects[obj.id] = obj
+        self._next_id = max(self._next_id, obj.id + 1)
+
+    def refresh_points(self, positions_of: PointLookup) -> None:
+        """Re-read every object's point positions from the map (after local BA / loop correction) and drop
+        culled points; the centroids and boxes follow."""
+        for obj in self.objects.values():
+            if obj.n_points:
+                pos, usable = positions_of(obj.point_ids)
+                obj.refresh_points(pos, np.asarray(usable, bool))
+
+    def object_of_point(self) -> dict[int, int]:
+        """Map point id -> object id, for labelling map points."""
+        return {int(p): oid for oid, obj in self.objects.items() for p in obj.point_ids}
+
+    # --- Algorithm 1 ---
+    def process_keyframe(self, keyframe_id: int, candidates: Sequence[ObjectCandidate], T_world_cam: F64,
+                         camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None) -> AssociationResult:
+        """Associate this keyframe's candidates, update beliefs, run the vicinity search.
+
+        T_world_cam (4, 4) optical-frame pose of the keyframe; depth_m (H, W) its depth image in metres
+        (0 = invalid) for the occlusion test, or None to skip that test.
+        """
+        cfg = self.config
+        before = {oid: (obj.active, set(obj.point_ids.tolist())) for oid, obj in self.objects.items()}
+        existing = list(self.objects.values())
+        assignments: list[int] = []
+        new_ids: list[int] = []
+        merged_ids: list[int] = []
+        changes: list[BeliefChange] = []
+        seen: set[int] = set()
+        for cand in candidates:
+            pts = np.asarray(cand.points_w, float).reshape(-1, 3)
+            if len(pts) < cfg.min_points:
+                assignments.append(-1)
+                continue
+            centroid = pts.mean(axis=0)  # line 2
+            target = self._nearest_same_class(existing, cand.class_id, centroid)  # lines 3-6
+            if target is None:  # lines 19-21
+                obj = MapObject(self._next_id, cand.class_id, cand.box_xyxy, cand.box_xyxy, keyframe_id,
+                                keyframe_id, belief=0.5, active=0.5 >= cfg.belief_threshold,
+                                point_ids=np.asarray(cand.point_ids, np.int64), points_w=pts)
+                obj.last_belief_update_keyframe = keyframe_id
+                self.objects[obj.id] = obj
+                self._next_id += 1
+                new_ids.append(obj.id)
+                assignments.append(obj.id)
+                seen.add(obj.id)
+                continue
+            if keyframe_id - target.last_seen_keyframe > cfg.n_keyframes_unseen and target.id not in seen:
+                upd = update_seen(target.belief, centroid, target.centroid_w, target.n_points, cfg)  # line 9
+                target.belief = upd.posterior
+                target.last_belief_update_keyframe = keyframe_id
+                target.active = target.belief >= cfg.belief_threshold  # lines 11-15
+                changes.append(BeliefChange(target.id, "seen", upd))
+            target.add_points(np.asarray(cand.point_ids, np.int64), pts)  # line 7
+            target.current_box_xyxy = cand.box_xyxy
+            target.last_seen_keyframe = keyframe_id  # lines 10 and 17
+            target.n_observations += 1
+            if target.id not in merged_ids:
+                merged_ids.append(target.id)
+            seen.add(target.id)
+            assignments.append(target.id)
+        visibility = self._vicinity_search(keyframe_id, existing, seen, T_world_cam, camera, depth_m, changes)
+        activated, deactivated = self._point_flag_changes(before)
+        return AssociationResult(keyframe_id, tuple(assignments), tuple(new_ids), tuple(merged_ids), tuple(changes),
+                                 activated, deactivated, visibility)
+
+    def _nearest_same_class(self, pool: list[MapObject], class_id: int, centroid_w: F64) -> MapObject | None:
+        best, best_d = None, self.config.ltda_threshold_m
+        for obj in pool:
+            if obj.class_id != class_id or obj.n_points < self.config.min_points:
+                continue
+            d = float(np.linalg.norm(obj.centroid_w - centroid_w))  # line 5
+            if d < best_d:
+                best, best_d = obj, d
+        return best
+
+    def _vicinity_search(self, keyframe_id: int, pool: list[MapObject], seen: set[int], T_world_cam: F64,
+                         camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None,
+                         changes: list[BeliefChange]) -> dict[int, Visibility]:
+        cfg = self.config
+        out: dict[int, Visibility] = {}
+        for obj in pool:
+            if obj.id in seen or obj.n_points < cfg.min_points:
+                continue
+            check = check_visibility(obj.centroid_w, T_world_cam, camera, depth_m, cfg,
+                                     half_extent_m=0.5 * float(np.max(obj.box_size_m)))
+            out[obj.id] = check.visibility
+            if not check.expected:
+                continue
+            last = max(obj.last_seen_keyframe, obj.last_belief_update_keyframe)
+            if keyframe_id - last <= cfg.n_keyframes_unseen:
+                continue
+            upd = update_missed(obj.belief, cfg)
+            obj.belief = upd.posterior
+            obj.last_belief_update_keyframe = keyframe_id
+            obj.active = obj.belief >= cfg.belief_threshold
+            changes.append(BeliefChange(obj.id, "missed", upd))
+        return out
+
+    def _point_flag_changes(self, before: dict[int, tuple[bool, set[int]]]) -> tuple[I64, I64]:
+        """Point ids whose flag must be set: all points of objects whose state flipped, plus the points
+        that joined an object (set to the object's state)."""
+        on: list[int] = []
+        off: list[int] = []
+        for oid, obj in self.objects.items():
+            was_active, old_points = before.get(oid, (None, set()))
+            if was_active is None or was_active != obj.active:
+                changed = obj.point_ids.tolist()
+            else:
+                changed = [p for p in obj.point_ids.tolist() if p not in old_points]
+            (on if obj.active else off).extend(changed)
+        return np.array(sorted(set(on)), np.int64), np.array(sorted(set(off)), np.int64)

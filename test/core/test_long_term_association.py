@@ -1,0 +1,137 @@
+"""Long-term data association (Changing-SLAM §4.7, Algorithm 1) on hand-built candidates."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.long_term_association import LongTermAssociation, ObjectCandidate
+from changing_slam_ros.core.map_object import ObjectMapConfig
+from changing_slam_ros.core.object_visibility import Visibility
+from changing_slam_ros.core.persistence_filter import update_missed, update_seen
+
+CAM = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
+CFG = ObjectMapConfig(ltda_threshold_m=0.5, n_keyframes_unseen=5, belief_threshold=0.6, p_detect=0.8,
+                      p_false=0.1, min_points=5)
+LOOK_Z = np.eye(4)  # camera at the origin looking down world +z
+LOOK_AWAY = np.diag([-1.0, 1.0, -1.0, 1.0])  # looking down -z
+WALL = np.full((CAM.height, CAM.width), 5.0, np.float32)
+CHAIR, CUP = 56, 41
+
+
+def _cand(centre: list[float], first_id: int, n: int = 20, class_id: int = CHAIR, seed: int = 0) -> ObjectCandidate:
+    rng = np.random.default_rng(seed + first_id)
+    pts = np.asarray(centre) + rng.normal(0.0, 0.05, (n, 3))
+    pts -= pts.mean(axis=0) - np.asarray(centre)  # centroid exactly at `centre`
+    return ObjectCandidate(class_id, (10, 10, 50, 50), np.arange(first_id, first_id + n, dtype=np.int64), pts)
+
+
+def test_first_candidate_creates_an_inactive_object_at_belief_one_half() -> None:
+    lta = LongTermAssociation(CFG)
+    res = lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    assert res.new_object_ids == (0,) and res.assignments == (0,) and res.merged_object_ids == ()
+    obj = lta.objects[0]
+    assert obj.belief == 0.5 and not obj.active and obj.class_id == CHAIR
+    np.testing.assert_allclose(obj.centroid_w, [0.0, 0.0, 2.5], atol=1e-12)
+    assert res.deactivated_point_ids.tolist() == list(range(100, 120))  # §4.7: object points start inactive
+    assert res.activated_point_ids.size == 0 and res.belief_changes == ()
+
+
+def test_close_same_class_candidate_is_merged_without_belief_update_when_seen_recently() -> None:
+    lta = LongTermAssociation(CFG)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    res = lta.process_keyframe(3, [_cand([0.1, 0.0, 2.5], 200)], LOOK_Z, CAM, WALL)
+    assert res.merged_object_ids == (0,) and res.new_object_ids == () and res.belief_changes == ()
+    obj = lta.objects[0]
+    assert obj.n_points == 40 and obj.last_seen_keyframe == 3 and obj.belief == 0.5
+    np.testing.assert_allclose(obj.centroid_w, [0.05, 0.0, 2.5], atol=1e-12)  # points combined
+    assert res.deactivated_point_ids.tolist() == list(range(200, 220))  # joined an inactive object
+
+
+def test_other_class_or_farther_than_ltda_threshold_makes_a_new_object() -> None:
+    lta = LongTermAssociation(CFG)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    res = lta.process_keyframe(1, [_cand([0.0, 0.1, 2.5], 200, class_id=CUP),
+                                   _cand([0.55, 0.0, 2.5], 300)], LOOK_Z, CAM, WALL)
+    assert res.new_object_ids == (1, 2) and res.assignments == (1, 2) and len(lta.objects) == 3
+    assert lta.objects[1].class_id == CUP and lta.objects[2].class_id == CHAIR
+
+
+def test_two_same_class_detections_of_one_keyframe_never_fuse_and_small_candidates_are_skipped() -> None:
+    lta = LongTermAssociation(CFG)
+    res = lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100, class_id=CUP), _cand([0.2, 0.0, 2.5], 200, class_id=CUP),
+                                   _cand([1.0, 0.0, 2.5], 300, n=4)], LOOK_Z, CAM, WALL)
+    assert res.new_object_ids == (0, 1) and res.assignments == (0, 1, -1)
+
+
+def test_belief_is_updated_only_after_n_keyframes_unseen_and_points_switch_at_the_threshold() -> None:
+    lta = LongTermAssociation(CFG)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    # kf 5: 5 - 0 = 5 is not more than N = 5 -> only last-seen updated
+    res = lta.process_keyframe(5, [_cand([0.0, 0.0, 2.5], 200)], LOOK_Z, CAM, WALL)
+    assert res.belief_changes == () and lta.objects[0].belief == 0.5
+    # kf 6..10 look away (out of view, no miss), kf 11: 11 - 5 = 6 > 5 -> "seen" update
+    for kf in range(6, 11):
+        res = lta.process_keyframe(kf, [], LOOK_AWAY, CAM, WALL)
+        assert res.belief_changes == () and res.visibility[0] is Visibility.BEHIND_CAMERA
+    n_before = lta.objects[0].n_points
+    centroid_before = lta.objects[0].centroid_w.copy()
+    res = lta.process_keyframe(11, [_cand([0.05, 0.0, 2.5], 300)], LOOK_Z, CAM, WALL)
+    expected = update_seen(0.5, np.array([0.05, 0.0, 2.5]), centroid_before, n_before, CFG).posterior
+    assert [c.reason for c in res.belief_changes] == ["seen"]
+    assert lta.objects[0].belief == pytest.approx(expected) and expected > 0.6
+    assert lta.objects[0].active
+    assert res.activated_point_ids.tolist() == list(range(100, 120)) + list(range(200, 220)) + list(range(300, 320))
+    assert res.deactivated_point_ids.size == 0
+
+
+def test_expected_but_missed_object_loses_belief_once_per_n_keyframes_and_turns_inactive() -> None:
+    cfg = ObjectMapConfig(n_keyframes_unseen=2, belief_threshold=0.6)
+    lta = LongTermAssociation(cfg)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    lta.process_keyframe(3, [], LOOK_AWAY, CAM, WALL)
+    lta.process_keyframe(4, [_cand([0.0, 0.0, 2.5], 200)], LOOK_Z, CAM, WALL)  # 4 - 0 > 2: seen update
+    obj = lta.objects[0]
+    assert obj.belief == pytest.approx(0.4 / 0.45) and obj.active
+    # kf 5, 6: in view and missed, but seen at kf 4 (within N = 2): a detector miss, no update
+    for kf in (5, 6):
+        assert lta.process_keyframe(kf, [], LOOK_Z, CAM, WALL).belief_changes == ()
+    # kf 7: 7 - 4 > 2 -> "missed" update; the object goes inactive and all its points are reported
+    res = lta.process_keyframe(7, [], LOOK_Z, CAM, WALL)
+    assert [c.reason for c in res.belief_changes] == ["missed"]
+    assert obj.belief == pytest.approx(update_missed(0.4 / 0.45, cfg).posterior)  # 0.64: still active
+    assert obj.active and res.deactivated_point_ids.size == 0
+    assert lta.process_keyframe(8, [], LOOK_Z, CAM, WALL).belief_changes == ()  # next miss waits N keyframes
+    assert lta.process_keyframe(9, [], LOOK_Z, CAM, WALL).belief_changes == ()
+    res = lta.process_keyframe(10, [], LOOK_Z, CAM, WALL)
+    assert obj.belief < 0.6 and not obj.active
+    assert res.deactivated_point_ids.tolist() == list(range(100, 120)) + list(range(200, 220))
+
+
+def test_occluded_or_out_of_range_objects_keep_their_belief() -> None:
+    lta = LongTermAssociation(CFG)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    near_wall = np.full_like(WALL, 1.0)  # something stands 1 m in front of the camera
+    res = lta.process_keyframe(20, [], LOOK_Z, CAM, near_wall)
+    assert res.visibility[0] is Visibility.OCCLUDED and res.belief_changes == ()
+    far = np.eye(4)
+    far[2, 3] = -3.0  # camera 5.5 m from the object
+    res = lta.process_keyframe(21, [], far, CAM, WALL)
+    assert res.visibility[0] is Visibility.OUT_OF_RANGE and lta.objects[0].belief == 0.5
+
+
+def test_refresh_points_follows_the_map_and_drops_culled_points() -> None:
+    lta = LongTermAssociation(CFG)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+
+    def lookup(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pos = np.zeros((len(ids), 3))
+        pos[:, 0] = 1.0  # bundle adjustment moved every point to x = 1
+        return pos, ids % 2 == 0  # odd ids were culled
+
+    lta.refresh_points(lookup)
+    obj = lta.objects[0]
+    assert obj.point_ids.tolist() == list(range(100, 120, 2))
+    np.testing.assert_allclose(obj.centroid_w, [1.0, 0.0, 0.0])
+    assert lta.object_of_point()[104] == 0
