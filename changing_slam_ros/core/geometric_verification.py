@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 
@@ -241,8 +242,8 @@ def _inliers(
     th_b = (config.inlier_px * config.scale_factor ** np.asarray(b.octaves, np.float64)[matches[:, 1]]) ** 2
     r = Ts[:, :3, :3]
     t = Ts[:, :3, 3]
-    b_in_a = np.einsum("hij,mj->hmi", r, qb) + t[:, None, :]  # (H, M, 3)
-    a_in_b = np.einsum("hji,hmj->hmi", r, qa[None] - t[:, None, :])  # R^T (p - t)
+    b_in_a = np.matmul(qb[None], np.transpose(r, (0, 2, 1))) + t[:, None, :]  # (H, M, 3): R p + t
+    a_in_b = np.matmul(qa[None] - t[:, None, :], r)  # R^T (p - t), row-vector form
     ok = (b_in_a[..., 2] > 1e-3) & (a_in_b[..., 2] > 1e-3)
     za = np.where(ok, b_in_a[..., 2], 1.0)
     zb = np.where(ok, a_in_b[..., 2], 1.0)
@@ -299,18 +300,24 @@ def _search_by_projection(
         return np.zeros((0, 2), np.int64)
     uv = a.camera.project(q)
     ka = np.asarray(a.keypoints_px, np.float64)[ia]
-    d2 = ((uv[:, None, :] - ka[None, :, :]) ** 2).sum(axis=2)  # (Jb, Ia)
-    near = d2 < config.projection_radius_px**2
-    rows = np.nonzero(near.any(axis=1))[0]
+    # candidate pairs (projected b, keypoint of a) within the radius, from a k-d tree over a's keypoints
+    neighbours = cKDTree(ka).query_ball_point(uv, config.projection_radius_px)
+    counts = np.fromiter((len(n) for n in neighbours), np.int64, len(neighbours))
+    if counts.sum() == 0:
+        return np.zeros((0, 2), np.int64)
+    rows = np.repeat(np.arange(len(uv)), counts)
+    cols = np.fromiter((c for n in neighbours for c in n), np.int64, int(counts.sum()))
+    da = a.descriptors[ia[cols]].view(np.uint64)
+    db = b.descriptors[jb[rows]].view(np.uint64)
+    ham = np.bitwise_count(da ^ db).sum(axis=1, dtype=np.int32)
+    keep = ham <= config.projection_max_hamming
+    rows, cols, ham = rows[keep], cols[keep], ham[keep]
     if len(rows) == 0:
         return np.zeros((0, 2), np.int64)
-    da = a.descriptors[ia].view(np.uint64)
-    db = b.descriptors[jb[rows]].view(np.uint64)
-    ham = np.bitwise_count(db[:, None, :] ^ da[None, :, :]).sum(axis=2, dtype=np.int32)
-    ham = np.where(near[rows], ham, 1 << 20)
-    best = ham.argmin(axis=1)
-    ok = ham[np.arange(len(rows)), best] <= config.projection_max_hamming
-    pairs = np.stack([ia[best[ok]], jb[rows[ok]]], axis=1).astype(np.int64)
+    order = np.lexsort((ham, rows))  # per projected point, the closest descriptor first
+    rows, cols = rows[order], cols[order]
+    first = np.r_[True, rows[1:] != rows[:-1]]
+    pairs = np.stack([ia[cols[first]], jb[rows[first]]], axis=1).astype(np.int64)
     # one-to-one on a: keep the first (any) pair per keypoint of a
     _, first = np.unique(pairs[:, 0], return_index=True)
     return pairs[np.sort(first)]
