@@ -1,0 +1,93 @@
+"""The object-level semantic map (Changing-SLAM §4.8): the MapObjects with a high belief.
+
+"The semantic map is composed of MapObjects with their respective centroids and 3D bounding boxes ...
+Only objects with a high belief are active in the map." `build_semantic_map` keeps the objects whose
+belief is at least `belief_threshold` and that hold at least `min_points` points, and turns each into a
+plain record (no point ids), ordered by id. `include_inactive=True` keeps every object (for debugging
+and for the plot, which draws low-belief objects dashed).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.detector import COCO80_NAMES
+from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
+
+F64 = npt.NDArray[np.float64]
+
+
+def class_name(class_id: int) -> str:
+    """Name of a 0-based COCO class id, "unknown" outside the 80 classes."""
+    return COCO80_NAMES[class_id] if 0 <= class_id < len(COCO80_NAMES) else "unknown"
+
+
+@dataclass(frozen=True)
+class SemanticObject:
+    """One object of the semantic map, world (map) frame, metres.
+
+    centroid_w (3,) mean of the points; box_center_w (3,) and box_size_m (3,) the world-axis-aligned box.
+    """
+
+    id: int
+    class_id: int
+    class_name: str
+    centroid_w: tuple[float, float, float]
+    box_center_w: tuple[float, float, float]
+    box_size_m: tuple[float, float, float]
+    belief: float
+    active: bool
+    n_points: int
+    first_seen_keyframe: int
+    last_seen_keyframe: int
+
+    @property
+    def box_min_w(self) -> F64:
+        return np.asarray(self.box_center_w) - 0.5 * np.asarray(self.box_size_m)
+
+    @property
+    def box_max_w(self) -> F64:
+        return np.asarray(self.box_center_w) + 0.5 * np.asarray(self.box_size_m)
+
+
+@dataclass(frozen=True)
+class SemanticMap:
+    """The semantic map: objects (ordered by id) and the threshold they were selected with."""
+
+    objects: tuple[SemanticObject, ...]
+    belief_threshold: float
+    frame_id: str = "map"
+
+    def by_id(self, object_id: int) -> SemanticObject | None:
+        for o in self.objects:
+            if o.id == object_id:
+                return o
+        return None
+
+
+def _triple(a: F64) -> tuple[float, float, float]:
+    v = np.asarray(a, float).reshape(3)
+    return float(v[0]), float(v[1]), float(v[2])
+
+
+def semantic_object(obj: MapObject) -> SemanticObject:
+    """The semantic-map record of one MapObject."""
+    return SemanticObject(
+        obj.id, obj.class_id, class_name(obj.class_id), _triple(obj.centroid_w), _triple(obj.box_center_w),
+        _triple(obj.box_size_m), float(obj.belief), bool(obj.active), obj.n_points, obj.first_keyframe,
+        obj.last_seen_keyframe,
+    )
+
+
+def build_semantic_map(objects: Iterable[MapObject], config: ObjectMapConfig, include_inactive: bool = False,
+                       frame_id: str = "map") -> SemanticMap:
+    """The high-belief objects (belief >= config.belief_threshold, >= config.min_points points)."""
+    kept = [
+        semantic_object(o) for o in sorted(objects, key=lambda o: o.id)
+        if o.n_points >= config.min_points and (include_inactive or o.belief >= config.belief_threshold)
+    ]
+    return SemanticMap(tuple(kept), config.belief_threshold, frame_id)

@@ -1,0 +1,146 @@
+"""Semantic map files (Changing-SLAM §4.8): versioned JSON, or YAML for a `.yaml` / `.yml` name.
+
+Layout (version 1):
+    format: "changing_slam_ros semantic map"
+    version: 1
+    frame_id: "map"
+    belief_threshold: 0.6
+    objects:                      # ordered by id
+      - {id, class_id, class_name, centroid_m: [x, y, z], box_center_m: [x, y, z], box_size_m: [dx, dy, dz],
+         belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
+Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`).
+Load errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
+from changing_slam_ros.errors import MapFileError
+from changing_slam_ros.io.atomic import atomic_write_text
+
+FORMAT = "changing_slam_ros semantic map"
+VERSION = 1
+
+
+def _is_yaml(path: Path) -> bool:
+    return path.suffix.lower() in (".yaml", ".yml")
+
+
+def semantic_map_to_dict(smap: SemanticMap) -> dict[str, Any]:
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "frame_id": smap.frame_id,
+        "belief_threshold": smap.belief_threshold,
+        "objects": [
+            {
+                "id": o.id, "class_id": o.class_id, "class_name": o.class_name,
+                "centroid_m": list(o.centroid_w), "box_center_m": list(o.box_center_w),
+                "box_size_m": list(o.box_size_m), "belief": o.belief, "active": o.active,
+                "n_points": o.n_points, "first_seen_keyframe": o.first_seen_keyframe,
+                "last_seen_keyframe": o.last_seen_keyframe,
+            }
+            for o in smap.objects
+        ],
+    }
+
+
+def write_semantic_map(path: str | Path, smap: SemanticMap) -> None:
+    """Write `smap` to `path` atomically, YAML for .yaml / .yml, JSON otherwise."""
+    p = Path(path)
+    doc = semantic_map_to_dict(smap)
+    if _is_yaml(p):
+        text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+    else:
+        text = json.dumps(doc, indent=1) + "\n"
+    atomic_write_text(p, text)
+
+
+def read_semantic_map(path: str | Path) -> SemanticMap:
+    """Read a file written by `write_semantic_map`; MapFileError names the file and the bad field."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as err:
+        raise MapFileError(f"{p}: cannot read semantic map ({err.strerror})") from err
+    try:
+        doc = yaml.safe_load(text) if _is_yaml(p) else json.loads(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as err:
+        kind = "YAML" if _is_yaml(p) else "JSON"
+        raise MapFileError(f"{p}: not valid {kind} ({err})") from err
+    return semantic_map_from_dict(doc, str(p))
+
+
+def semantic_map_from_dict(doc: Any, where: str) -> SemanticMap:
+    """Validate and convert a parsed document; `where` (the file name) starts every error message."""
+    if not isinstance(doc, dict):
+        raise MapFileError(f"{where}: expected a mapping at top level, got {type(doc).__name__}")
+    if doc.get("format") != FORMAT:
+        raise MapFileError(f"{where}: format: expected {FORMAT!r}, got {doc.get('format')!r}")
+    version = doc.get("version")
+    if version != VERSION:
+        raise MapFileError(f"{where}: version: expected {VERSION}, got {version!r} (file from a newer release?)")
+    frame_id = _field(doc, "frame_id", str, where)
+    threshold = _number(doc, "belief_threshold", where)
+    raw = doc.get("objects")
+    if not isinstance(raw, list):
+        raise MapFileError(f"{where}: objects: expected a list, got {type(raw).__name__}")
+    objects = []
+    for i, item in enumerate(raw):
+        w = f"{where}: objects[{i}]"
+        if not isinstance(item, dict):
+            raise MapFileError(f"{w}: expected a mapping, got {type(item).__name__}")
+        objects.append(SemanticObject(
+            id=_field(item, "id", int, w), class_id=_field(item, "class_id", int, w),
+            class_name=_field(item, "class_name", str, w), centroid_w=_vec3(item, "centroid_m", w),
+            box_center_w=_vec3(item, "box_center_m", w), box_size_m=_vec3(item, "box_size_m", w),
+            belief=_number(item, "belief", w), active=_field(item, "active", bool, w),
+            n_points=_field(item, "n_points", int, w),
+            first_seen_keyframe=_field(item, "first_seen_keyframe", int, w),
+            last_seen_keyframe=_field(item, "last_seen_keyframe", int, w),
+        ))
+        if not 0.0 <= objects[-1].belief <= 1.0:
+            raise MapFileError(f"{w}.belief: expected within [0, 1], got {objects[-1].belief}")
+        if any(s < 0.0 for s in objects[-1].box_size_m):
+            raise MapFileError(f"{w}.box_size_m: expected sizes >= 0, got {list(objects[-1].box_size_m)}")
+    ids = [o.id for o in objects]
+    if len(set(ids)) != len(ids):
+        raise MapFileError(f"{where}: objects: duplicated ids {sorted({i for i in ids if ids.count(i) > 1})}")
+    return SemanticMap(tuple(objects), threshold, frame_id)
+
+
+def _field(d: dict[str, Any], key: str, kind: type, where: str) -> Any:
+    if key not in d:
+        raise MapFileError(f"{where}.{key}: missing")
+    v = d[key]
+    if kind is int and (isinstance(v, bool) or not isinstance(v, int)):
+        raise MapFileError(f"{where}.{key}: expected an integer, got {v!r}")
+    if kind is not int and not isinstance(v, kind):
+        raise MapFileError(f"{where}.{key}: expected {kind.__name__}, got {v!r}")
+    return v
+
+
+def _number(d: dict[str, Any], key: str, where: str) -> float:
+    if key not in d:
+        raise MapFileError(f"{where}.{key}: missing")
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise MapFileError(f"{where}.{key}: expected a finite number, got {v!r}")
+    return float(v)
+
+
+def _vec3(d: dict[str, Any], key: str, where: str) -> tuple[float, float, float]:
+    if key not in d:
+        raise MapFileError(f"{where}.{key}: missing")
+    v = d[key]
+    if (not isinstance(v, list) or len(v) != 3
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in v)):
+        raise MapFileError(f"{where}.{key}: expected 3 finite numbers, got {v!r}")
+    return float(v[0]), float(v[1]), float(v[2])
