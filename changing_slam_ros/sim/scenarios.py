@@ -121,12 +121,14 @@ def _walkers(rng: np.random.Generator, duration_s: float, camera: Track) -> list
 
 
 def _tum_like(name: str, description: str, camera_fn: Callable[[HandHeld, float], Track], sitting: bool,
-              seed: int, duration_s: float = 30.0, fps: float = 30.0) -> Scenario:
+              seed: int, duration_s: float = 30.0, fps: float = 30.0, people: bool = True) -> Scenario:
     rng = np.random.default_rng(seed)
     actors = _office(rng)
     hand = HandHeld(TUM_EYE, TUM_TARGET, phase=float(rng.uniform(0, 2 * np.pi)))
     camera = camera_fn(hand, duration_s)
-    if sitting:
+    if not people:
+        pass
+    elif sitting:
         for k, (x, photo) in enumerate(((-0.55, "astronaut"), (0.55, "cameraman"))):
             chair = pose_xyz_rpy(x + _jit(rng, 0.05), 1.05, 0.0, yaw=-np.pi / 2 + _jit(rng, 0.15))
             actors.append(_static(f"chair_seat{k}", 56, cat.chair_parts(), chair))
@@ -373,8 +375,9 @@ def _puc(name: str, description: str, keep: list[str], plan: Callable[..., list]
 
 
 def _tum(name: str, description: str, camera_fn: Callable[[HandHeld, float], Track],
-         sitting: bool = False) -> ScenarioInfo:
-    return ScenarioInfo(description, lambda seed: _tum_like(name, description, camera_fn, sitting, seed))
+         sitting: bool = False, people: bool = True) -> ScenarioInfo:
+    return ScenarioInfo(description,
+                        lambda seed: _tum_like(name, description, camera_fn, sitting, seed, people=people))
 
 
 SCENARIOS: dict[str, ScenarioInfo] = {
@@ -385,6 +388,8 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                                half_sphere),
     "sitting_xyz": _tum("sitting_xyz", "two people sit and fidget; the camera translates along x, y, z",
                         sway_xyz, sitting=True),
+    "office_xyz": _tum("office_xyz", "nobody in the office; the camera translates along x, y, z (the control "
+                       "for walking_xyz)", sway_xyz, people=False),
     "static": _puc("static", "robot loop in a furnished room, nothing changes (baseline)", ALL_PUC, _static_plan),
     "one_chair": _puc("one_chair", "robot loop; a chair with a teddy bear is moved while out of view",
                       ["chair", "teddy_bear", "table"], _one_chair_plan),
