@@ -320,7 +320,8 @@ def _search_by_projection(
     pairs = np.stack([ia[cols[first]], jb[rows[first]]], axis=1).astype(np.int64)
     # one-to-one on a: keep the first (any) pair per keypoint of a
     _, first = np.unique(pairs[:, 0], return_index=True)
-    return pairs[np.sort(first)]
+    out: I64 = pairs[np.sort(first)]
+    return out
 
 
 def _merge(m1: I64, m2: I64) -> I64:
