@@ -1,0 +1,203 @@
+"""Object-map accuracy against the simulator's ground truth (`objects.json`, see `sim/writer.py`).
+
+Ground truth at a chosen frame (the last one by default): every object with a COCO class that is
+present there, its world-axis-aligned box (the 8 corners of its own box moved by T_world_object) and the
+box centre as its position. Estimated objects (a semantic map) are matched one to one, greedily by
+increasing distance, to present ground-truth objects of the same class whose box centre is within
+`max_distance_m` (0.3 m) of the estimated centroid. Per match: centroid error (estimated centroid to
+ground-truth box centre), box-centre error, and the 3D IoU of the two axis-aligned boxes.
+
+Unmatched estimates are split into `stale` (within `max_distance_m` of a place a same-class object
+occupied earlier in the sequence and has since left: a removed or moved object wrongly kept) and
+`spurious` (anything else). Present ground-truth objects left unmatched are `missed` (this includes
+objects the camera never saw; pass `only_names` to restrict the ground truth).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.se3 import quat_to_rot
+from changing_slam_ros.core.semantic_map import SemanticObject
+from changing_slam_ros.errors import EvalError
+
+F64 = npt.NDArray[np.float64]
+DEFAULT_MAX_DISTANCE_M = 0.3
+
+
+@dataclass(frozen=True)
+class GroundTruthObject:
+    """One simulated object: per-frame world boxes (min (3,), max (3,)) or None while absent."""
+
+    id: int
+    name: str
+    class_id: int
+    class_name: str
+    moving: bool
+    boxes_w: tuple[tuple[F64, F64] | None, ...]
+
+    def box_at(self, frame: int) -> tuple[F64, F64] | None:
+        return self.boxes_w[frame]
+
+
+@dataclass(frozen=True)
+class GroundTruthObjects:
+    scenario: str
+    stamps_ns: tuple[int, ...]
+    objects: tuple[GroundTruthObject, ...]
+
+
+def world_box(box_min_m: Sequence[float], box_max_m: Sequence[float], pose_row: Sequence[float]) -> tuple[F64, F64]:
+    """World-axis-aligned bounds of an object box given [tx, ty, tz, qx, qy, qz, qw] of T_world_object."""
+    lo, hi = np.asarray(box_min_m, float), np.asarray(box_max_m, float)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    r = quat_to_rot(np.asarray(pose_row[3:7], float))
+    pts = corners @ r.T + np.asarray(pose_row[:3], float)
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def load_ground_truth_objects(path: str | Path) -> GroundTruthObjects:
+    """Read a simulator `objects.json`; EvalError names the file and field on malformed input."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except OSError as err:
+        raise EvalError(f"{p}: cannot read objects ground truth ({err.strerror})") from err
+    except json.JSONDecodeError as err:
+        raise EvalError(f"{p}: not valid JSON ({err})") from err
+    try:
+        if not str(doc["format"]).startswith("changing_slam_ros sim objects"):
+            raise EvalError(f"{p}: format: expected 'changing_slam_ros sim objects v1', got {doc['format']!r}")
+        stamps = tuple(int(s) for s in doc["stamps_ns"])
+        objects = []
+        for i, o in enumerate(doc["objects"]):
+            if len(o["poses"]) != len(stamps):
+                raise EvalError(f"{p}: objects[{i}].poses: {len(o['poses'])} poses for {len(stamps)} stamps")
+            boxes = tuple(None if row is None else world_box(o["box_min_m"], o["box_max_m"], row) for row in o["poses"])
+            objects.append(GroundTruthObject(int(o["id"]), str(o["name"]), int(o["class_id"]), str(o["class_name"]),
+                                             bool(o.get("moving", False)), boxes))
+    except (KeyError, TypeError, ValueError) as err:
+        raise EvalError(f"{p}: malformed objects ground truth ({type(err).__name__}: {err})") from err
+    return GroundTruthObjects(str(doc.get("scenario", "")), stamps, tuple(objects))
+
+
+def box_iou_3d(min_a: F64, max_a: F64, min_b: F64, max_b: F64) -> float:
+    """Intersection over union of two axis-aligned boxes given by corners (3,)."""
+    inter = np.clip(np.minimum(max_a, max_b) - np.maximum(min_a, min_b), 0.0, None)
+    vi = float(np.prod(inter))
+    va = float(np.prod(np.clip(np.asarray(max_a) - min_a, 0.0, None)))
+    vb = float(np.prod(np.clip(np.asarray(max_b) - min_b, 0.0, None)))
+    union = va + vb - vi
+    return vi / union if union > 0.0 else 0.0
+
+
+@dataclass(frozen=True)
+class ObjectMatch:
+    estimate_id: int
+    gt_name: str
+    class_id: int
+    centroid_error_m: float
+    box_center_error_m: float
+    iou: float
+
+
+@dataclass(frozen=True)
+class ObjectMetrics:
+    """Matches, missed ground truth (names), stale estimates (estimate id, name of the object that left)
+    and spurious estimates (ids)."""
+
+    matches: tuple[ObjectMatch, ...]
+    missed: tuple[str, ...]
+    stale: tuple[tuple[int, str], ...]
+    spurious: tuple[int, ...]
+    frame: int
+
+    @property
+    def mean_centroid_error_m(self) -> float:
+        return float(np.mean([m.centroid_error_m for m in self.matches])) if self.matches else float("nan")
+
+    @property
+    def mean_iou(self) -> float:
+        return float(np.mean([m.iou for m in self.matches])) if self.matches else float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "frame": self.frame, "matched": len(self.matches), "missed": list(self.missed),
+            "stale": [{"estimate_id": e, "gt_name": n} for e, n in self.stale], "spurious": list(self.spurious),
+            "mean_centroid_error_m": self.mean_centroid_error_m, "mean_iou": self.mean_iou,
+            "matches": [m.__dict__ for m in self.matches],
+        }
+
+
+def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects, frame: int = -1,
+                     max_distance_m: float = DEFAULT_MAX_DISTANCE_M,
+                     only_names: Iterable[str] | None = None) -> ObjectMetrics:
+    """Match `estimates` to the ground truth present at `frame` (negative counts from the end)."""
+    n = len(gt.stamps_ns)
+    if n == 0:
+        raise EvalError(f"objects ground truth of {gt.scenario!r} has no frames")
+    f = frame if frame >= 0 else n + frame
+    if not 0 <= f < n:
+        raise EvalError(f"frame {frame}: ground truth has {n} frames")
+    names = None if only_names is None else set(only_names)
+    pool = [o for o in gt.objects if o.class_id >= 0 and not o.moving and (names is None or o.name in names)]
+    present = [(o, o.box_at(f)) for o in pool if o.box_at(f) is not None]
+    est = list(estimates)
+    pairs = []
+    for i, e in enumerate(est):
+        c = np.asarray(e.centroid_w)
+        for j, (o, box) in enumerate(present):
+            assert box is not None
+            d = float(np.linalg.norm(c - (box[0] + box[1]) / 2.0))
+            if o.class_id == e.class_id and d <= max_distance_m:
+                pairs.append((d, i, j))
+    used_e: set[int] = set()
+    used_g: set[int] = set()
+    matches = []
+    for d, i, j in sorted(pairs):
+        if i in used_e or j in used_g:
+            continue
+        used_e.add(i)
+        used_g.add(j)
+        o, box = present[j]
+        assert box is not None
+        e = est[i]
+        centre = (box[0] + box[1]) / 2.0
+        matches.append(ObjectMatch(
+            e.id, o.name, o.class_id, d, float(np.linalg.norm(np.asarray(e.box_center_w) - centre)),
+            box_iou_3d(e.box_min_w, e.box_max_w, box[0], box[1]),
+        ))
+    missed = tuple(present[j][0].name for j in range(len(present)) if j not in used_g)
+    stale, spurious = [], []
+    for i, e in enumerate(est):
+        if i in used_e:
+            continue
+        left = _left_place(e, pool, f, max_distance_m)
+        if left is not None:
+            stale.append((e.id, left))
+        else:
+            spurious.append(e.id)
+    return ObjectMetrics(tuple(sorted(matches, key=lambda m: m.estimate_id)), missed, tuple(stale), tuple(spurious), f)
+
+
+def _left_place(e: SemanticObject, pool: list[GroundTruthObject], frame: int, max_distance_m: float) -> str | None:
+    """Name of a same-class object that stood within reach of `e` at some earlier frame and not at `frame`."""
+    c = np.asarray(e.centroid_w)
+    for o in pool:
+        if o.class_id != e.class_id:
+            continue
+        now = o.box_at(frame)
+        if now is not None and np.linalg.norm(c - (now[0] + now[1]) / 2.0) <= max_distance_m:
+            continue
+        for k in range(frame):
+            box = o.box_at(k)
+            if box is not None and np.linalg.norm(c - (box[0] + box[1]) / 2.0) <= max_distance_m:
+                return o.name
+    return None
