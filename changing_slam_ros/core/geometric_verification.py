@@ -315,12 +315,13 @@ def _search_by_projection(
     if len(rows) == 0:
         return np.zeros((0, 2), np.int64)
     order = np.lexsort((ham, rows))  # per projected point, the closest descriptor first
-    rows, cols = rows[order], cols[order]
+    rows, cols, ham = rows[order], cols[order], ham[order]
     first = np.r_[True, rows[1:] != rows[:-1]]
     pairs = np.stack([ia[cols[first]], jb[rows[first]]], axis=1).astype(np.int64)
-    # one-to-one on a: keep the first (any) pair per keypoint of a
-    _, first = np.unique(pairs[:, 0], return_index=True)
-    out: I64 = pairs[np.sort(first)]
+    # one-to-one on a: where two projected points chose the same keypoint, the closer descriptor keeps it
+    by_distance = np.argsort(ham[first], kind="stable")
+    _, best = np.unique(pairs[by_distance, 0], return_index=True)
+    out: I64 = pairs[np.sort(by_distance[best])]
     return out
 
 
