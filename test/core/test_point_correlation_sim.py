@@ -95,6 +95,58 @@ def oracle_window(renderer, scenario, times_s: list[float], rng: np.random.Gener
     return SimWindow(window, on_box, disp, world0, instance, poses0)
 
 
+@dataclass(frozen=True)
+class TrackedWindow:
+    window: CorrelationWindow
+    on_box: np.ndarray  # (M,) bool, from the instance mask of the first frame
+    corrupted: np.ndarray  # (M,) bool: some measurement is > 3 cm from the truth (mismatch, silhouette depth)
+
+
+def tracked_window(renderer, scenario, times_s: list[float], rng: np.random.Generator, n_features: int = 1500) -> TrackedWindow:  # type: ignore[no-untyped-def]
+    """A window over ORB feature tracks: each track's latest descriptor is matched into the next frame
+    (brute force, Hamming, Lowe ratio 0.8); depth is read from the rendered depth at the matched keypoint."""
+    mover = scenario.actor_index("parcel")
+    cam = renderer.camera
+    rendered = [render_at(renderer, scenario, t) for t in times_s]
+    orb = cv2.ORB_create(n_features)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    T_world_cam0, poses0, first = rendered[0]
+    kps, desc = orb.detectAndCompute(cv2.cvtColor(first.rgb, cv2.COLOR_RGB2GRAY), None)
+    uv = np.array([kp.pt for kp in kps])
+    col, row = np.round(uv).astype(int).T
+    depth = first.depth_m[row, col].astype(np.float64)
+    instance = first.instance_ids[row, col].astype(int)
+    ok = depth > 0
+    uv, depth, instance, desc = uv[ok], depth[ok], instance[ok], desc[ok].copy()
+    n, k_frames = len(uv), len(times_s)
+    pixels, depths = np.full((k_frames, n, 2), np.nan), np.full((k_frames, n), np.nan)
+    pixels[0], depths[0] = uv, depth + rng.normal(0.0, 1.425e-3 * depth**2)
+    alive = np.ones(n, dtype=bool)
+    for k in range(1, k_frames):
+        frame = rendered[k][2]
+        kps_k, desc_k = orb.detectAndCompute(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), None)
+        uv_k = np.array([kp.pt for kp in kps_k])
+        tracks = np.flatnonzero(alive)
+        alive = np.zeros(n, dtype=bool)
+        for pair in matcher.knnMatch(desc[tracks], desc_k, k=2):
+            if len(pair) < 2 or pair[0].distance >= 0.8 * pair[1].distance:
+                continue
+            i, j = tracks[pair[0].queryIdx], pair[0].trainIdx
+            c, r = np.round(uv_k[j]).astype(int)
+            z = float(frame.depth_m[r, c])
+            if z > 0:
+                pixels[k, i], depths[k, i] = uv_k[j], z + rng.normal(0.0, 1.425e-3 * z * z)
+                desc[i], alive[i] = desc_k[j], True
+    window = CorrelationWindow.from_pixels(np.arange(n), pixels, depths, np.stack([r[0] for r in rendered]), cam)
+    world0 = transform_points(T_world_cam0, cam.backproject(uv, depth))
+    measured = window.points_world()
+    corrupted = np.zeros(n, dtype=bool)
+    for k, (_, poses, _) in enumerate(rendered):
+        err = np.linalg.norm(measured[k] - moved_points(world0, instance, poses0, poses), axis=1)
+        corrupted |= np.isfinite(err) & (err > 0.03)
+    return TrackedWindow(window, instance == mover + 1, corrupted)
+
+
 @pytest.fixture(scope="module")
 def unknown_mover():  # type: ignore[no-untyped-def]
     sim = pytest.importorskip("changing_slam_ros.sim.renderer")
@@ -186,3 +238,31 @@ def test_carried_box_is_segmented_then_tracked_within_3_cm(unknown_mover) -> Non
     travel = np.linalg.norm(truth[max(truth)][:3, 3] - truth[created.stamp_ns][:3, 3])
     assert len(truth) >= 55 and travel > 0.2
     assert float(np.sqrt(np.mean(np.square(err)))) < 0.03  # issue 5's bound (Dai et al.: 3.3 cm)
+
+
+def test_keyframe_window_on_orb_feature_tracks_finds_the_box_without_false_positives(unknown_mover) -> None:  # type: ignore[no-untyped-def]
+    """Real matching: ~6 % of matches are wrong and corners on the box's outline read background depth.
+
+    Windows of 5 frames 0.1 s apart; where the box moved at least 5 cm over the window it must be found
+    (at 11 s it turns around and moves 2.7 cm: not required, but nothing may be flagged wrongly)."""
+    scenario, renderer = unknown_mover
+    rng = np.random.default_rng(4)
+    box_track = scenario.actors[scenario.actor_index("parcel")].track
+    tp = fp = n_box = n_clean = tp_clean = 0
+    for t in (6.0, 9.0, 11.0, 13.0, 15.0, 17.0):
+        times = [t + 0.1 * i for i in range(5)]
+        sim = tracked_window(renderer, scenario, times, rng)
+        result = segment(sim.window, SegmentationConfig.multi_frame())
+        fp += int(np.sum(result.dynamic_mask & ~sim.on_box))
+        moved_m = np.linalg.norm(box_track.pose_at(times[-1])[:3, 3] - box_track.pose_at(times[0])[:3, 3])
+        if moved_m < 0.05:
+            continue
+        box = sim.on_box & (sim.window.observed.sum(axis=0) >= 2)
+        assert result.num_targets >= 1, t
+        tp += int(np.sum(result.dynamic_mask & box))
+        n_box += int(box.sum())
+        n_clean += int(np.sum(box & ~sim.corrupted))
+        tp_clean += int(np.sum(result.dynamic_mask & box & ~sim.corrupted))
+    assert tp / (tp + fp) >= 0.95
+    assert tp_clean / n_clean >= 0.9, tp_clean / n_clean  # points whose measurements are all right
+    assert tp / n_box >= 0.8, tp / n_box  # all tracked box points, corrupted ones included
