@@ -72,8 +72,7 @@ def play(context, player, *others):  # noqa: ANN001, ANN201
     try:
         return player.play(executor)
     finally:
-        for _ in range(20):  # drain what is still queued
-            executor.spin_once(timeout_sec=0.01)
+        drain(executor)
         executor.shutdown()
 
 
@@ -200,3 +199,85 @@ def test_main_returns_1_with_one_line_for_a_missing_bag(monkeypatch, capsys, tmp
     assert main(["bag_player", str(tmp_path / "missing.bag")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"error: {tmp_path / 'missing.bag'}: no such file or folder"]
+
+
+def _spin_player(context, player, *others):  # noqa: ANN001, ANN202
+    executor = SingleThreadedExecutor(context=context)
+    for node in (player, *others):
+        executor.add_node(node)
+    for _ in range(40):  # discovery
+        executor.spin_once(timeout_sec=0.025)
+    result = player.play(executor)
+    drain(executor)
+    executor.shutdown()
+    return result
+
+
+def drain(executor, quiet_s: float = 0.3, limit_s: float = 5.0) -> None:  # noqa: ANN001
+    """Spin until no callback ran for `quiet_s` (spin_once returns early when it did work)."""
+    start = last_work = time.monotonic()
+    while time.monotonic() - last_work < quiet_s and time.monotonic() - start < limit_s:
+        t0 = time.monotonic()
+        executor.spin_once(timeout_sec=quiet_s)
+        if time.monotonic() - t0 < quiet_s * 0.9:
+            last_work = time.monotonic()
+
+
+def test_a_tum_style_ros1_bag_replays_images_and_tf_as_ros2_messages(ros_context, tmp_path):
+    """ROS 1 payloads go out as ROS 2 CDR; tf/tfMessage is published as tf2_msgs/msg/TFMessage."""
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from tf2_msgs.msg import TFMessage
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf/msg/tfMessage"))
+    t = store.types
+    stamps = [1305031102 * S + k * 33_000_000 for k in range(5)]
+    path = tmp_path / "tum.bag"
+    with Writer1(path) as w:
+        c_img = w.add_connection("/camera/rgb/image_color", "sensor_msgs/msg/Image", typestore=store)
+        c_tf = w.add_connection("/tf", "tf/msg/tfMessage", typestore=store)
+        for k, ns in enumerate(stamps):
+            time_ = t["builtin_interfaces/msg/Time"](sec=ns // S, nanosec=ns % S)
+            hdr = t["std_msgs/msg/Header"](seq=k, stamp=time_, frame_id="/openni_rgb_optical_frame")
+            data = np.full(4 * 6 * 3, k, dtype=np.uint8)
+            img = t["sensor_msgs/msg/Image"](hdr, 4, 6, "rgb8", 0, 18, data)
+            w.write(c_img, ns, store.serialize_ros1(img, "sensor_msgs/msg/Image"))
+            tr = t["geometry_msgs/msg/TransformStamped"](
+                t["std_msgs/msg/Header"](seq=k, stamp=time_, frame_id="/world"), "/kinect",
+                t["geometry_msgs/msg/Transform"](t["geometry_msgs/msg/Vector3"](x=0.1 * k, y=0.0, z=1.0),
+                                                 t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)),
+            )  # fmt: skip
+            w.write(c_tf, ns + 1, store.serialize_ros1(t["tf/msg/tfMessage"]([tr]), "tf/msg/tfMessage"))
+
+    rec = Recorder(ros_context)
+    tfs: list[TFMessage] = []
+    rec.create_subscription(TFMessage, "/tf", tfs.append, 100)
+    result = _spin_player(ros_context, make_player(ros_context, path, rate=4.0), rec)
+    assert result.completed and result.per_topic == {"/camera/rgb/image_color": 5, "/tf": 5}
+    images = rec.images["/camera/rgb/image_color"]
+    assert [stamp_ns(m) for m in images] == stamps
+    assert [decode_rgb(m)[0, 0, 0] for m in images] == [0, 1, 2, 3, 4]
+    assert [m.transforms[0].transform.translation.x for m in tfs] == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.4])
+    assert tfs[0].transforms[0].child_frame_id == "/kinect"
+
+
+def test_the_bundled_fr1_sample_replays_every_frame_and_ground_truth_pose(ros_context):
+    from geometry_msgs.msg import PoseStamped
+    from helpers import REPO, require
+
+    from changing_slam_ros.io.bag_messages import BagMessages
+
+    path = require(REPO / "bags" / "tum_fr1_xyz_first10.mcap")
+    with BagMessages(path) as bag:
+        counts = {t: c.msgcount for t, c in bag.topics.items()}
+    rec = Recorder(ros_context, topics=("/camera/rgb/image_color", "/camera/depth/image"))
+    gt: list[PoseStamped] = []
+    rec.create_subscription(PoseStamped, "/ground_truth/pose", gt.append, 100)
+    result = _spin_player(ros_context, make_player(ros_context, path, rate=2.0), rec)
+    assert result.completed and result.per_topic == counts
+    assert len(rec.images["/camera/rgb/image_color"]) == counts["/camera/rgb/image_color"] >= 9
+    assert len(rec.images["/camera/depth/image"]) == counts["/camera/depth/image"]
+    assert len(gt) == counts["/ground_truth/pose"]
+    depth = decode_depth(rec.images["/camera/depth/image"][0])
+    assert 0.3 < float(np.median(depth[depth > 0])) < 3.0
