@@ -5,7 +5,8 @@ Training images are ONLY ones we may redistribute a model derived from:
 - the 10 colour frames of TUM RGB-D freiburg1_xyz in ../shared/data/tum_fr1_xyz_first10 (CC BY 4.0, TUM CVG);
 - scikit-image's bundled sample photographs listed in SKIMAGE_IMAGES with the licence their docstrings state.
 Each image is augmented (rotations, scales, crops, a brightness change) to get enough descriptors. ORB
-descriptors come from OpenCV's ORB with ORB-SLAM's pyramid (1000 features, scale 1.2, 8 levels).
+descriptors come from the project's extractor (`core.orb_features.OrbExtractor`, default `FeatureConfig`), so
+the words match what SLAM quantises; `--extractor opencv` uses plain cv2.ORB instead.
 Deterministic: same inputs and seed give the same file.
 
     .venv/bin/python tools/train_vocabulary.py --out changing_slam_ros/models/orb_vocabulary.npz
@@ -88,6 +89,17 @@ def augmentations(grey: np.ndarray, rng: np.random.Generator) -> list[np.ndarray
     return out
 
 
+def describe(grey: np.ndarray, n_features: int) -> np.ndarray:
+    """Descriptors as SLAM computes them: the project's grid-bucketed ORB extractor (no distortion, no depth)."""
+    from changing_slam_ros.core.camera import CameraIntrinsics
+    from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
+
+    h, w = grey.shape
+    camera = CameraIntrinsics(w, h, 500.0, 500.0, w / 2, h / 2)
+    features = OrbExtractor(FeatureConfig(n_features=n_features), camera).extract(grey, np.zeros((h, w), np.float32))
+    return features.descriptors
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=REPO / "changing_slam_ros" / "models" / "orb_vocabulary.npz")
@@ -96,6 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--depth", type=int, default=5)
     ap.add_argument("--features", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--extractor", choices=("project", "opencv"), default="project",
+                    help="project: core.orb_features.OrbExtractor with default FeatureConfig (what SLAM uses); "
+                         "opencv: plain cv2.ORB with FAST threshold 20")
     args = ap.parse_args(argv)
 
     cv2.setRNGSeed(args.seed)
@@ -106,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for name, grey in load_images(args.fr1):
         for aug in augmentations(grey, rng):
-            _, desc = orb.detectAndCompute(aug, None)
+            desc = describe(aug, args.features) if args.extractor == "project" else orb.detectAndCompute(aug, None)[1]
             if desc is not None and len(desc):
                 per_image.append(desc.astype(np.uint8))
         print(f"{name}: {grey.shape[1]}x{grey.shape[0]}", file=sys.stderr)

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, FR3_WALKING_FRAMES, REDKITCHEN, require
 
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.core.vocabulary import (
     DEFAULT_VOCABULARY_PATH,
     Vocabulary,
@@ -18,7 +20,6 @@ from changing_slam_ros.core.vocabulary import (
 )
 from changing_slam_ros.errors import MapFileError
 
-ORB = dict(nfeatures=1000, scaleFactor=1.2, nlevels=8, edgeThreshold=19, fastThreshold=20, patchSize=31)
 
 
 @pytest.fixture(scope="module")
@@ -27,8 +28,10 @@ def vocab() -> Vocabulary:
 
 
 def orb_descriptors(grey: np.ndarray) -> np.ndarray:
-    _, desc = cv2.ORB_create(**ORB).detectAndCompute(grey, None)
-    return desc
+    """Descriptors as SLAM computes them (the project's grid-bucketed ORB, default FeatureConfig)."""
+    h, w = grey.shape
+    camera = CameraIntrinsics(w, h, 500.0, 500.0, w / 2, h / 2)
+    return OrbExtractor(FeatureConfig(), camera).extract(grey, np.zeros((h, w), np.float32)).descriptors
 
 
 def clustered_descriptors(n_clusters: int, per_cluster: int, flip_bits: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
