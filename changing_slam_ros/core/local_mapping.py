@@ -1,7 +1,8 @@
 """Local mapping (ORB-SLAM `LocalMapping` for RGB-D): what happens when tracking makes a keyframe.
 
 1. insert the keyframe (its tracked points gain an observation) and update the covisibility graph;
-2. create map points from its unmatched keypoints with valid depth (back-projected, RGB-D);
+2. create map points from its unmatched keypoints with valid depth (back-projected, RGB-D), then fuse
+   duplicates with the covisible keyframes (`map_fusion`);
 3. cull recently created points that tracking rarely finds (found / visible < 0.25) or that fewer than
    `min_observations` keyframes see after two more keyframes;
 4. local bundle adjustment with gtsam (`backend.local_ba`);
@@ -17,6 +18,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.backend.local_ba import LocalBAConfig, LocalBAResult, local_bundle_adjust
 from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.map_fusion import fuse_into, refresh_points
 from changing_slam_ros.core.orb_features import FeatureConfig
 from changing_slam_ros.core.se3 import transform_points
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
@@ -32,6 +34,7 @@ class MappingConfig:
     - `cull_found_ratio`, `min_observations`: recent point culling (ORB-SLAM 0.25, 3 with stereo observations counted twice).
     - `local_ba`: enable local BA; `ba_window`, `ba_max_fixed`, `ba_iterations`: its size and effort.
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
+    - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
     """
 
     max_new_point_depth_m: float = 6.0
@@ -43,11 +46,14 @@ class MappingConfig:
     ba_iterations: int = 5
     keyframe_culling: bool = True
     redundancy: float = 0.9
+    fuse_neighbours: int = 10
+    fuse_radius_px: float = 3.0
 
 
 @dataclass
 class MappingStats:
     new_points: int = 0
+    fused: int = 0
     culled_points: int = 0
     culled_keyframes: list[int] = field(default_factory=list)
     ba: LocalBAResult | None = None
@@ -79,6 +85,10 @@ class LocalMapper:
         # 2. New points from depth.
         stats.new_points = self._create_points(kf)
         m.update_connections(kf.id)
+        # 2b. Fuse duplicates with the neighbours, refresh descriptors and viewing directions.
+        if self.cfg.fuse_neighbours > 0:
+            stats.fused = self._fuse(kf)
+            m.update_connections(kf.id)
         # 3. Recent point culling.
         stats.culled_points = self._cull_points(kf.id)
         # 4. Local BA.
@@ -93,6 +103,23 @@ class LocalMapper:
         if self.cfg.keyframe_culling:
             stats.culled_keyframes = self._cull_keyframes(kf.id)
         return stats
+
+    def _fuse(self, kf: Keyframe) -> int:
+        m = self.map
+        bf = self.fcfg.bf_m_px
+        neighbours = [m.keyframes[k] for k in m.covisible(kf.id, self.cfg.fuse_neighbours)]
+        total = 0
+        own = kf.point_ids[kf.point_ids >= 0]
+        for nb in neighbours:
+            a, b = fuse_into(m, nb, own, self.scales, bf, self.cfg.fuse_radius_px)
+            total += a + b
+            own = kf.point_ids[kf.point_ids >= 0]
+        theirs = m.local_point_ids([nb.id for nb in neighbours])
+        theirs = theirs[~np.isin(theirs, kf.point_ids)]
+        a, b = fuse_into(m, kf, theirs, self.scales, bf, self.cfg.fuse_radius_px)
+        total += a + b
+        refresh_points(m, kf.point_ids[kf.point_ids >= 0], self.scales)
+        return total
 
     def _create_points(self, kf: Keyframe) -> int:
         d = kf.depths_m.astype(np.float64)

@@ -53,7 +53,7 @@ class TrackingConfig:
 
     min_init_points: int = 300
     radius_motion_px: float = 12.0
-    radius_local_px: float = 4.0
+    radius_local_px: float = 7.0
     radius_reloc_px: float = 10.0
     min_motion_inliers: int = 20
     min_local_inliers: int = 30

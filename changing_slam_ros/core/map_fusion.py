@@ -1,0 +1,108 @@
+"""Fusion of duplicated map points between a new keyframe and its neighbours (ORB-SLAM `SearchInNeighbors`).
+
+Tracking misses some existing points, so a new keyframe creates duplicates of them from depth.
+Projecting the keyframe's points into its covisible neighbours (and theirs into it) finds them:
+a keypoint without a point gains an observation, a keypoint holding another point gets the two
+points merged (the one with more observations survives). Then the descriptor and viewing
+direction of every touched point are refreshed from all of its observations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.frame import Frame
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.matcher import ProjectionQuery, hamming, search_by_projection
+from changing_slam_ros.core.orb_features import Features
+from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.slam_map import SlamMap
+
+I64 = npt.NDArray[np.int64]
+
+
+def keyframe_as_frame(kf: Keyframe, bf_m_px: float) -> Frame:
+    """A `Frame` view of a keyframe's keypoints (for projection search into it)."""
+    px = kf.keypoints_px.astype(np.float64)
+    d = kf.depths_m.astype(np.float64)
+    ur = np.where(d > 0, px[:, 0] - bf_m_px / np.maximum(d, 1e-9), -1.0)
+    n = len(kf)
+    feats = Features(px, px, kf.octaves.astype(np.int64), np.zeros(n), np.zeros(n), kf.descriptors, d, ur)
+    return Frame(kf.stamp_ns, -1, kf.camera, feats, point_ids=kf.point_ids.copy(), T_world_cam=kf.T_world_cam)
+
+
+def fuse_into(slam_map: SlamMap, target: Keyframe, ids: I64, level_scales: npt.NDArray[np.float64],
+              bf_m_px: float, radius_px: float = 3.0) -> tuple[int, int]:
+    """Project points `ids` into keyframe `target`; returns (observations added, points merged)."""
+    pts = slam_map.points
+    ids = ids[pts.usable()[ids]]
+    if len(ids) == 0:
+        return 0, 0
+    frame = keyframe_as_frame(target, bf_m_px)
+    q = ProjectionQuery(pts.positions[ids], pts.descriptors[ids], ids, pts.normals[ids], pts.min_dist[ids], pts.max_dist[ids])
+    res = search_by_projection(frame, invert(target.T_world_cam), q, radius_px, level_scales, max_distance=50,
+                               skip_matched=False, bf_m_px=bf_m_px)
+    added = merged = 0
+    for kp, pid in zip(res.kp_indices.tolist(), ids[res.rows].tolist()):
+        if pts.bad[pid]:
+            continue
+        existing = int(target.point_ids[kp])
+        if existing == pid:
+            continue
+        if existing >= 0 and not pts.bad[existing]:
+            keep, drop = (existing, pid) if len(pts.observations[existing]) >= len(pts.observations[pid]) else (pid, existing)
+            replace_point(slam_map, drop, keep)
+            merged += 1
+        elif target.id not in pts.observations[pid]:
+            slam_map.add_observation(pid, target.id, kp)
+            added += 1
+    return added, merged
+
+
+def replace_point(slam_map: SlamMap, old: int, new: int) -> None:
+    """Move every observation of point `old` to point `new` and mark `old` bad."""
+    pts = slam_map.points
+    for kf_id, i in list(pts.observations[old].items()):
+        kf = slam_map.keyframes.get(kf_id)
+        if kf is None:
+            continue
+        if kf_id in pts.observations[new]:
+            kf.point_ids[i] = -1
+        else:
+            pts.observations[new][kf_id] = i
+            kf.point_ids[i] = new
+    pts.observations[old] = {}
+    pts.n_visible[new] += pts.n_visible[old]
+    pts.n_found[new] += pts.n_found[old]
+    pts.set_bad(np.array([old]))
+
+
+def refresh_points(slam_map: SlamMap, ids: I64, level_scales: npt.NDArray[np.float64]) -> None:
+    """Distinctive descriptor (least median Hamming distance to the others) and mean viewing
+    direction / scale distances of each point, from all of its observations."""
+    pts = slam_map.points
+    kfs = slam_map.keyframes
+    for pid in ids.tolist():
+        if pts.bad[pid]:
+            continue
+        obs = [(kfs[k], i) for k, i in pts.observations[pid].items() if k in kfs]
+        if not obs:
+            continue
+        if len(obs) > 2:
+            desc = np.stack([kf.descriptors[i] for kf, i in obs])
+            dist = hamming(desc[:, None, :], desc[None, :, :])
+            pts.descriptors[pid] = desc[int(np.argmin(np.median(dist, axis=1)))]
+        centres = np.stack([kf.T_world_cam[:3, 3] for kf, _ in obs])
+        rays = pts.positions[pid] - centres
+        rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
+        normal = rays.mean(axis=0)
+        pts.normals[pid] = normal / max(float(np.linalg.norm(normal)), 1e-9)
+        ref_kf = kfs.get(int(pts.ref_kf[pid]))
+        if ref_kf is None:
+            ref_kf, i_ref = obs[0]
+        else:
+            i_ref = pts.observations[pid][ref_kf.id]
+        dist_ref = float(np.linalg.norm(pts.positions[pid] - ref_kf.T_world_cam[:3, 3]))
+        pts.max_dist[pid] = dist_ref * level_scales[int(ref_kf.octaves[i_ref])]
+        pts.min_dist[pid] = pts.max_dist[pid] / level_scales[-1]
