@@ -17,6 +17,10 @@ detection box, with the box's class) are compared with the mapped objects:
    have been visible from this keyframe (`object_visibility.py`) and that was neither seen nor
    belief-updated in the last N keyframes gets the "missed" update (belief down). The same N keeps a
    detector miss during continuous viewing from counting, and spaces repeated misses N keyframes apart.
+   An object whose projected centroid lies inside the box of a same-class candidate of this keyframe
+   (any candidate, also truncated or too small ones) is not missed: the detector did see an object of
+   its class there, even if the candidate's 3D centroid (a partial view of a large table) did not
+   associate.
 
 Objects created in this keyframe are not candidates for merging within the same keyframe, so two
 same-class detections of one image never fuse. The result lists the point ids whose active flag the
@@ -46,12 +50,17 @@ PointLookup = Callable[[I64], tuple[F64, npt.NDArray[np.bool_]]]
 
 @dataclass(frozen=True)
 class ObjectCandidate:
-    """Map points (ids (N,), world positions (N, 3)) from one detection box of one keyframe."""
+    """Map points (ids (N,), world positions (N, 3)) from one detection box of one keyframe.
+
+    `truncated`: the box touches the image border; its centroid is biased toward the visible part, so it
+    neither creates nor merges into an object, but its box still explains away a miss (see below).
+    """
 
     class_id: int
     box_xyxy: BoxXyxy
     point_ids: I64
     points_w: F64
+    truncated: bool = False
 
     @property
     def centroid_w(self) -> F64:
@@ -126,7 +135,7 @@ class LongTermAssociation:
         seen: set[int] = set()
         for cand in candidates:
             pts = np.asarray(cand.points_w, float).reshape(-1, 3)
-            if len(pts) < cfg.min_points:
+            if len(pts) < cfg.min_points or cand.truncated:
                 assignments.append(-1)
                 continue
             centroid = pts.mean(axis=0)  # line 2
@@ -143,7 +152,8 @@ class LongTermAssociation:
                 seen.add(obj.id)
                 continue
             if keyframe_id - target.last_seen_keyframe > cfg.n_keyframes_unseen and target.id not in seen:
-                upd = update_seen(target.belief, centroid, target.centroid_w, target.n_points, cfg)  # line 9
+                upd = update_seen(target.belief, centroid, target.centroid_w, target.n_points, cfg,
+                                  float(np.max(target.box_size_m)))  # line 9
                 target.belief = upd.posterior
                 target.last_belief_update_keyframe = keyframe_id
                 target.active = target.belief >= cfg.belief_threshold  # lines 11-15
@@ -156,7 +166,8 @@ class LongTermAssociation:
                 merged_ids.append(target.id)
             seen.add(target.id)
             assignments.append(target.id)
-        visibility = self._vicinity_search(keyframe_id, existing, seen, T_world_cam, camera, depth_m, changes)
+        visibility = self._vicinity_search(keyframe_id, existing, seen, candidates, T_world_cam, camera, depth_m,
+                                           changes)
         activated, deactivated = self._point_flag_changes(before)
         return AssociationResult(keyframe_id, tuple(assignments), tuple(new_ids), tuple(merged_ids), tuple(changes),
                                  activated, deactivated, visibility)
@@ -171,8 +182,9 @@ class LongTermAssociation:
                 best, best_d = obj, d
         return best
 
-    def _vicinity_search(self, keyframe_id: int, pool: list[MapObject], seen: set[int], T_world_cam: F64,
-                         camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None,
+    def _vicinity_search(self, keyframe_id: int, pool: list[MapObject], seen: set[int],
+                         candidates: Sequence[ObjectCandidate], T_world_cam: F64, camera: CameraIntrinsics,
+                         depth_m: npt.NDArray[np.floating] | None,
                          changes: list[BeliefChange]) -> dict[int, Visibility]:
         cfg = self.config
         out: dict[int, Visibility] = {}
@@ -187,6 +199,10 @@ class LongTermAssociation:
             last = max(obj.last_seen_keyframe, obj.last_belief_update_keyframe)
             if keyframe_id - last <= cfg.n_keyframes_unseen:
                 continue
+            u, v = check.pixel_uv
+            if any(c.class_id == obj.class_id and c.box_xyxy[0] <= u <= c.box_xyxy[2]
+                   and c.box_xyxy[1] <= v <= c.box_xyxy[3] for c in candidates):
+                continue  # a same-class detection covers it: not missing
             upd = update_missed(obj.belief, cfg)
             obj.belief = upd.posterior
             obj.last_belief_update_keyframe = keyframe_id

@@ -41,7 +41,10 @@ class ObjectMapConfig:
     Persistence filter (§4.6, see `persistence_filter.py` for the model):
     - `p_detect`: probability that a present object in view is detected and associated.
     - `p_false`: probability that a same-class candidate appears at an absent object's place.
-    - `sigma_point_m`, `sigma_floor_m`: centroid covariance (sigma_point^2 / n_points + sigma_floor^2) I3.
+    - `sigma_point_m`, `sigma_floor_m`, `sigma_size_fraction`: centroid covariance
+      (sigma_point^2 / n_points + sigma_floor^2 + (sigma_size_fraction * largest box side)^2) I3; the last
+      term is ours: a partial view of a large object (a table) moves its candidate centroid by a good
+      fraction of its size, however many points the mapped object has.
     - `belief_min`, `belief_max`: the belief is clamped to [belief_min, belief_max] inside (0, 1).
     Visibility ("should have been seen", `object_visibility.py`):
     - `margin_px`: the centroid must project this far inside the image border.
@@ -60,6 +63,7 @@ class ObjectMapConfig:
     p_false: float = 0.1
     sigma_point_m: float = 1.0
     sigma_floor_m: float = 0.1
+    sigma_size_fraction: float = 0.25
     belief_min: float = 0.01
     belief_max: float = 0.99
     margin_px: float = 20.0
@@ -88,8 +92,8 @@ class ObjectMapConfig:
         if self.p_detect <= self.p_false:
             raise ConfigError(f"{where}.p_detect ({self.p_detect}) must exceed p_false ({self.p_false}): "
                               "otherwise seeing an object would lower its belief")
-        if self.sigma_point_m <= 0.0 or self.sigma_floor_m < 0.0:
-            raise ConfigError(f"{where}.sigma_point_m / sigma_floor_m: expected > 0 / >= 0")
+        if self.sigma_point_m <= 0.0 or self.sigma_floor_m < 0.0 or self.sigma_size_fraction < 0.0:
+            raise ConfigError(f"{where}.sigma_point_m / sigma_floor_m / sigma_size_fraction: expected > 0 / >= 0 / >= 0")
         if not 0.0 <= self.min_range_m < self.max_range_m:
             raise ConfigError(f"{where}.min_range_m / max_range_m: expected 0 <= min < max")
         if self.margin_px < 0.0 or self.occlusion_tolerance_m < 0.0 or self.depth_window_px < 0:

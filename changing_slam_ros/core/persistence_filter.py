@@ -15,10 +15,11 @@ inversely proportional to the number of MapPoints" and says nothing about M_O = 
 both sides are probabilities of the same event and the ratio is meaningful:
 
 - Y = seen at y (a same-class candidate associated, centroid y):
-    p(Y | M_O = 1) = p_detect * exp(-0.5 * |y - mu|^2 / sigma^2),  sigma^2 = sigma_point^2 / n + sigma_floor^2
+    p(Y | M_O = 1) = p_detect * exp(-0.5 * |y - mu|^2 / sigma^2),
+    sigma^2 = sigma_point^2 / n + sigma_floor^2 + (sigma_size_fraction * L)^2
       (the Gaussian kernel, peak 1, centred on the mapped centroid mu; its variance shrinks as 1 / n with
-       the n points of the object, down to a floor for the candidate's own centroid noise - a half-seen
-       object's centroid is off by a decimetre whatever n is);
+       the n points of the object, down to a floor for the candidate's own centroid noise: a half-seen
+       object's centroid is off by a decimetre, or a fraction of its largest box side L, whatever n is);
     p(Y | M_O = 0) = p_false
       (a same-class candidate shows up at an empty place: a false detection or another object).
 - Y = missed (the object should have been visible, `object_visibility.py`, and no candidate matched):
@@ -52,16 +53,18 @@ class BeliefUpdate:
     posterior: float
 
 
-def centroid_sigma_m(n_points: int, config: ObjectMapConfig) -> float:
-    """Standard deviation (metres, per axis) of the mapped centroid of an object with `n_points` points."""
+def centroid_sigma_m(n_points: int, config: ObjectMapConfig, largest_side_m: float = 0.0) -> float:
+    """Standard deviation (metres, per axis) of the mapped centroid of an object with `n_points` points
+    and largest box side `largest_side_m`."""
     n = max(1, int(n_points))
-    return math.sqrt(config.sigma_point_m ** 2 / n + config.sigma_floor_m ** 2)
+    size_term = config.sigma_size_fraction * max(0.0, float(largest_side_m))
+    return math.sqrt(config.sigma_point_m ** 2 / n + config.sigma_floor_m ** 2 + size_term ** 2)
 
 
 def likelihood_seen(observed_centroid_w: F64, mapped_centroid_w: F64, n_points: int,
-                    config: ObjectMapConfig) -> tuple[float, float]:
+                    config: ObjectMapConfig, largest_side_m: float = 0.0) -> tuple[float, float]:
     """(p(Y | M_O = 1), p(Y | M_O = 0)) for a candidate with centroid (3,) seen near the mapped one (3,)."""
-    sigma = centroid_sigma_m(n_points, config)
+    sigma = centroid_sigma_m(n_points, config, largest_side_m)
     d2 = float(np.sum((np.asarray(observed_centroid_w, float) - np.asarray(mapped_centroid_w, float)) ** 2))
     return config.p_detect * math.exp(-0.5 * d2 / sigma ** 2), config.p_false
 
@@ -87,9 +90,9 @@ def bayes_update(prior: float, likelihood_present: float, likelihood_absent: flo
 
 
 def update_seen(prior: float, observed_centroid_w: F64, mapped_centroid_w: F64, n_points: int,
-                config: ObjectMapConfig) -> BeliefUpdate:
+                config: ObjectMapConfig, largest_side_m: float = 0.0) -> BeliefUpdate:
     """The object was observed (a candidate associated) at `observed_centroid_w`."""
-    l1, l0 = likelihood_seen(observed_centroid_w, mapped_centroid_w, n_points, config)
+    l1, l0 = likelihood_seen(observed_centroid_w, mapped_centroid_w, n_points, config, largest_side_m)
     return bayes_update(prior, l1, l0, config)
 
 

@@ -4,7 +4,9 @@ Ground truth at a chosen frame (the last one by default): every object with a CO
 present there, its world-axis-aligned box (the 8 corners of its own box moved by T_world_object) and the
 box centre as its position. Estimated objects (a semantic map) are matched one to one, greedily by
 increasing distance, to present ground-truth objects of the same class whose box centre is within
-`max_distance_m` (0.3 m) of the estimated centroid. Per match: centroid error (estimated centroid to
+`max_distance_m` (0.3 m) of the estimated centroid (or, with `match_on="box_center"`, of the estimated
+box centre: a large object seen from one side has its point centroid on that side, while the robust
+box centre sits nearer the middle). Per match: centroid error (estimated centroid to
 ground-truth box centre), box-centre error, and the 3D IoU of the two axis-aligned boxes.
 
 Unmatched estimates are split into `stale` (within `max_distance_m` of a place a same-class object
@@ -138,8 +140,10 @@ class ObjectMetrics:
 
 def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects, frame: int = -1,
                      max_distance_m: float = DEFAULT_MAX_DISTANCE_M,
-                     only_names: Iterable[str] | None = None) -> ObjectMetrics:
+                     only_names: Iterable[str] | None = None, match_on: str = "centroid") -> ObjectMetrics:
     """Match `estimates` to the ground truth present at `frame` (negative counts from the end)."""
+    if match_on not in ("centroid", "box_center"):
+        raise EvalError(f"match_on: expected 'centroid' or 'box_center', got {match_on!r}")
     n = len(gt.stamps_ns)
     if n == 0:
         raise EvalError(f"objects ground truth of {gt.scenario!r} has no frames")
@@ -152,7 +156,7 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
     est = list(estimates)
     pairs = []
     for i, e in enumerate(est):
-        c = np.asarray(e.centroid_w)
+        c = np.asarray(e.centroid_w if match_on == "centroid" else e.box_center_w)
         for j, (o, box) in enumerate(present):
             assert box is not None
             d = float(np.linalg.norm(c - (box[0] + box[1]) / 2.0))
@@ -171,7 +175,8 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
         e = est[i]
         centre = (box[0] + box[1]) / 2.0
         matches.append(ObjectMatch(
-            e.id, o.name, o.class_id, d, float(np.linalg.norm(np.asarray(e.box_center_w) - centre)),
+            e.id, o.name, o.class_id, float(np.linalg.norm(np.asarray(e.centroid_w) - centre)),
+            float(np.linalg.norm(np.asarray(e.box_center_w) - centre)),
             box_iou_3d(e.box_min_w, e.box_max_w, box[0], box[1]),
         ))
     missed = tuple(present[j][0].name for j in range(len(present)) if j not in used_g)
@@ -179,7 +184,7 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
     for i, e in enumerate(est):
         if i in used_e:
             continue
-        left = _left_place(e, pool, f, max_distance_m)
+        left = _left_place(e, pool, f, max_distance_m, match_on)
         if left is not None:
             stale.append((e.id, left))
         else:
@@ -187,9 +192,10 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
     return ObjectMetrics(tuple(sorted(matches, key=lambda m: m.estimate_id)), missed, tuple(stale), tuple(spurious), f)
 
 
-def _left_place(e: SemanticObject, pool: list[GroundTruthObject], frame: int, max_distance_m: float) -> str | None:
+def _left_place(e: SemanticObject, pool: list[GroundTruthObject], frame: int, max_distance_m: float,
+                match_on: str) -> str | None:
     """Name of a same-class object that stood within reach of `e` at some earlier frame and not at `frame`."""
-    c = np.asarray(e.centroid_w)
+    c = np.asarray(e.centroid_w if match_on == "centroid" else e.box_center_w)
     for o in pool:
         if o.class_id != e.class_id:
             continue

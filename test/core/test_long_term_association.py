@@ -77,8 +77,9 @@ def test_belief_is_updated_only_after_n_keyframes_unseen_and_points_switch_at_th
         assert res.belief_changes == () and res.visibility[0] is Visibility.BEHIND_CAMERA
     n_before = lta.objects[0].n_points
     centroid_before = lta.objects[0].centroid_w.copy()
+    side_before = float(lta.objects[0].box_size_m.max())
     res = lta.process_keyframe(11, [_cand([0.05, 0.0, 2.5], 300)], LOOK_Z, CAM, WALL)
-    expected = update_seen(0.5, np.array([0.05, 0.0, 2.5]), centroid_before, n_before, CFG).posterior
+    expected = update_seen(0.5, np.array([0.05, 0.0, 2.5]), centroid_before, n_before, CFG, side_before).posterior
     assert [c.reason for c in res.belief_changes] == ["seen"]
     assert lta.objects[0].belief == pytest.approx(expected) and expected > 0.6
     assert lta.objects[0].active
@@ -107,6 +108,22 @@ def test_expected_but_missed_object_loses_belief_once_per_n_keyframes_and_turns_
     res = lta.process_keyframe(10, [], LOOK_Z, CAM, WALL)
     assert obj.belief < 0.6 and not obj.active
     assert res.deactivated_point_ids.tolist() == list(range(100, 120)) + list(range(200, 220))
+
+
+def test_a_same_class_box_over_the_object_explains_a_miss_and_truncated_candidates_do_not_associate() -> None:
+    cfg = ObjectMapConfig(n_keyframes_unseen=2)
+    lta = LongTermAssociation(cfg)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    # kf 10: the object projects to (79.5, 59.5); a truncated chair box covers it: no miss, no merge
+    part = _cand([0.3, 0.0, 2.5], 200)
+    cover = ObjectCandidate(CHAIR, (0, 30, 100, 90), part.point_ids, part.points_w, truncated=True)
+    res = lta.process_keyframe(10, [cover], LOOK_Z, CAM, WALL)
+    assert res.assignments == (-1,) and res.belief_changes == () and lta.objects[0].n_points == 20
+    # a cup box there does not explain a chair away; a chair box elsewhere neither
+    elsewhere = ObjectCandidate(CHAIR, (100, 10, 150, 50), part.point_ids, part.points_w, truncated=True)
+    cup = ObjectCandidate(CUP, (0, 30, 100, 90), part.point_ids, part.points_w, truncated=True)
+    res = lta.process_keyframe(11, [cup, elsewhere], LOOK_Z, CAM, WALL)
+    assert [c.reason for c in res.belief_changes] == ["missed"]
 
 
 def test_occluded_or_out_of_range_objects_keep_their_belief() -> None:

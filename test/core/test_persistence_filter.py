@@ -40,6 +40,9 @@ def test_seen_twenty_centimetres_off_uses_a_gaussian_whose_variance_shrinks_with
     few = update_seen(0.5, C0 + [0.2, 0.0, 0.0], C0, 10, CFG)
     assert few.posterior > upd.posterior
     assert centroid_sigma_m(10, CFG) == pytest.approx(math.sqrt(0.1 + 0.01))
+    # a 1.4 m table: + (0.25 * 1.4)^2, so a 0.3 m offset of a partial view still counts as seen
+    assert centroid_sigma_m(100, CFG, 1.4) == pytest.approx(math.sqrt(0.02 + 0.35 ** 2))
+    assert update_seen(0.5, C0 + [0.3, 0.0, 0.0], C0, 100, CFG, 1.4).posterior > 0.7
 
 
 def test_missed_where_expected_lowers_the_belief_by_hand() -> None:
