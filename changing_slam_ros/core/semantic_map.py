@@ -84,10 +84,13 @@ def semantic_object(obj: MapObject) -> SemanticObject:
 
 
 def build_semantic_map(objects: Iterable[MapObject], config: ObjectMapConfig, include_inactive: bool = False,
-                       frame_id: str = "map") -> SemanticMap:
-    """The high-belief objects (belief >= config.belief_threshold, >= config.min_points points)."""
+                       frame_id: str = "map", min_belief: float | None = None) -> SemanticMap:
+    """The high-belief objects (belief >= `min_belief`, by default config.belief_threshold, and at least
+    config.min_points points). `min_belief=0.5` also keeps objects never confirmed nor contradicted (seen in
+    one continuous pass only, which Algorithm 1 never updates)."""
+    threshold = config.belief_threshold if min_belief is None else float(min_belief)
     kept = [
         semantic_object(o) for o in sorted(objects, key=lambda o: o.id)
-        if o.n_points >= config.min_points and (include_inactive or o.belief >= config.belief_threshold)
+        if o.n_points >= config.min_points and (include_inactive or o.belief >= threshold)
     ]
-    return SemanticMap(tuple(kept), config.belief_threshold, frame_id)
+    return SemanticMap(tuple(kept), threshold, frame_id)
