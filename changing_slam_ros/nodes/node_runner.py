@@ -4,7 +4,7 @@
         return run_node(lambda argv: DetectionNode(), args)
 
 `run_node` spins inside `try`, treats Ctrl-C (KeyboardInterrupt) and SIGTERM (ExternalShutdownException)
-as a normal stop, prints a `SlamError` as one line and returns 1, and always destroys the node and calls
+as a normal stop, also when they arrive while the node is still starting, prints a `SlamError` as one line and returns 1, and always destroys the node and calls
 `try_shutdown()`.
 """
 
@@ -78,8 +78,8 @@ def run_node(
     code = 0
     try:
         non_ros = rclpy.utilities.remove_ros_args(argv)[1:]
-        node = make_node(non_ros)
         executor = SingleThreadedExecutor()
+        node = make_node(non_ros)
         executor.add_node(node)
         if body is None:
             executor.spin()
@@ -90,6 +90,10 @@ def run_node(
     except SlamError as err:
         print(f"error: {err}", file=sys.stderr)
         code = 1
+    except Exception:
+        if rclpy.ok():
+            raise
+        code = 0  # SIGINT/SIGTERM arrived while the node was starting: rcl calls fail on the shut-down context
     finally:
         if node is not None:
             node.destroy_node()

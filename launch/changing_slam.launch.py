@@ -1,0 +1,50 @@
+"""The changing_slam_ros node graph, for machines with a full ROS 2 install (`ros2 launch` is not on PyPI).
+
+    ros2 launch changing_slam_ros changing_slam.launch.py bag:=bags/tum_fr1_xyz_first10.mcap config:=tum_fr1
+
+Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_player waits for tracking's
+per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock).
+Without ROS 2 launch, `changing-slam graph BAG` (issue 7) starts the same processes.
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration, PythonExpression
+from launch_ros.actions import Node
+
+PACKAGE = "changing_slam_ros"
+
+
+def generate_launch_description() -> LaunchDescription:
+    bag = LaunchConfiguration("bag")
+    config = LaunchConfiguration("config")
+    rate = LaunchConfiguration("rate")
+    lossless = LaunchConfiguration("lossless")
+    use_sim_time = LaunchConfiguration("use_sim_time")
+    has_bag = PythonExpression(["'", bag, "' != ''"])
+    sim_time = {"use_sim_time": use_sim_time}
+    ack_topic = PythonExpression(["'/bag_player/ack' if '", lossless, "' == 'true' else ''"])
+
+    return LaunchDescription([
+        DeclareLaunchArgument("bag", default_value="", description="bag or mcap to replay; empty = live input"),
+        DeclareLaunchArgument("config", default_value="tum_fr1", description="config name or YAML path"),
+        DeclareLaunchArgument("rate", default_value="1.0", description="bag playback rate"),
+        DeclareLaunchArgument("lossless", default_value="false", description="bag_player waits for tracking"),
+        DeclareLaunchArgument("use_sim_time", default_value="true", description="follow /clock from the bag"),
+        Node(
+            package=PACKAGE, executable="bag_player", name="bag_player", output="screen", condition=IfCondition(has_bag),
+            parameters=[{"bag": bag, "rate": rate, "lossless": lossless,
+                         "ack_topics": ["/camera/rgb/image_color"]}],
+        ),
+        Node(package=PACKAGE, executable="detection", name="detection", output="screen",
+             parameters=[{"config": config}, sim_time], remappings=[("image", "/camera/rgb/image_color")]),
+        Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
+             parameters=[{"config": config, "ack_topic": ack_topic}, sim_time]),
+        Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
+             parameters=[{"config": config}, sim_time]),
+        Node(package=PACKAGE, executable="loop_closing", name="loop_closing", output="screen",
+             parameters=[{"config": config}, sim_time]),
+        Node(package=PACKAGE, executable="object_map", name="object_map", output="screen",
+             parameters=[{"config": config}, sim_time]),
+    ])  # fmt: skip
