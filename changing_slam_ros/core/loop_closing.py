@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from changing_slam_ros.core.backend.global_ba import GlobalBAConfig, GlobalBAResult, global_bundle_adjust
 from changing_slam_ros.core.backend.pose_graph import (
     EdgeKind,
     PoseGraphConfig,
@@ -370,14 +371,17 @@ class SlamMapLoopClosing:
         SlamSystem(config, loop_closer=closing, keyframe_index=closing)
 
     On a loop it applies the correction to the map: keyframe poses, point positions and normals, fusion of
-    the duplicated points, the loop edge, and fresh covisibility links around the query. The latest
+    the duplicated points, the loop edge, and fresh covisibility links around the query; then, when given a
+    `GlobalBAConfig`, a global bundle adjustment (`backend.global_ba`). The latest
     correction is kept in `last_correction` (tracking moves its last frame with `pose_corrections`).
     """
 
-    def __init__(self, closer: LoopCloser, max_candidates: int = 6) -> None:
+    def __init__(self, closer: LoopCloser, max_candidates: int = 6, global_ba: GlobalBAConfig | None = None) -> None:
         self.closer = closer
         self.max_candidates = max_candidates
+        self.global_ba = global_ba  # None: no global BA after a loop
         self.last_correction: LoopCorrection | None = None
+        self.last_global_ba: GlobalBAResult | None = None
 
     # keyframe index seam
     def add(self, kf: Keyframe) -> None:
@@ -410,7 +414,9 @@ class SlamMapLoopClosing:
         if correction is None:
             return False
         apply_correction(slam_map, correction)
-        self.closer.update_poses(correction.corrected_poses)
+        if self.global_ba is not None:
+            self.last_global_ba = global_bundle_adjust(slam_map, self.global_ba)
+        self.closer.update_poses({k: held.T_world_cam for k, held in slam_map.keyframes.items()})
         self.last_correction = correction
         return True
 
