@@ -3,7 +3,7 @@
 Prints, never asserts. Scenes are the synthetic ones of the unit tests (a room of static points and two
 rigid cubes; a box on a 6-DoF path), so the figures are reproducible:
 
-    .venv/bin/python bench/bench_segmentation.py [--runs 5] [--static 800] [--object 100] [--sim [--seed 0]]
+    .venv/bin/python bench/bench_segmentation.py [--runs 5] [--static 800] [--object 100] [--sim] [--loop] [--seed 0]
 
 Wall and CPU milliseconds are both printed: on a shared machine the wall time includes waiting.
 """
@@ -144,6 +144,101 @@ def bench_unknown_mover(args: argparse.Namespace) -> None:
             )
 
 
+def bench_dai_loop(args: argparse.Namespace) -> None:
+    """The whole Dai loop on unknown_mover, a prototype of the integration still to come: ORB tracks at
+    30 Hz (ground-truth camera poses), a 5-keyframe segmentation every 0.1 s whose targets become objects,
+    eq. 12 merging into the objects tracked at that stamp, eq. 7 every frame and eq. 11 at keyposes.
+
+    A track's ground truth is the instance under its first keypoint; a background track that a wrong
+    match hands over to the box therefore counts as "not on the box" although it then moves with it.
+    """
+    import cv2
+    from test_point_correlation_sim import render_at
+
+    from changing_slam_ros.core.object_merging import merge_objects
+    from changing_slam_ros.core.object_tracking import FrameObjectMeasurements, objects_from_segmentation
+    from changing_slam_ros.core.point_correlation import CorrelationWindow
+    from changing_slam_ros.sim.renderer import SimRenderer
+    from changing_slam_ros.sim.scenarios import build_scenario
+    from changing_slam_ros.sim.scene import SceneSpec
+
+    scenario = build_scenario("unknown_mover", args.seed)
+    mover = scenario.actor_index("parcel")
+    rng = np.random.default_rng(args.seed)
+    orb, matcher = cv2.ORB_create(1500), cv2.BFMatcher(cv2.NORM_HAMMING)
+    step, n_key, fps, t0 = 3, 5, 30.0, 6.0
+    n_frames = int(args.loop_seconds * fps)
+    desc = np.zeros((0, 32), np.uint8)
+    alive = np.zeros(0, dtype=bool)
+    on_box = np.zeros(0, dtype=bool)
+    history: list[FrameObjectMeasurements] = []
+    objects: list[MovingObject] = []
+    truth: dict[int, np.ndarray] = {}
+    seg_cpu: list[float] = []
+    spec = SceneSpec(scenario.room, scenario.actors, scenario.fovy_deg, 640, 480)
+    with SimRenderer(spec) as renderer:
+        cam = renderer.camera
+        tracker = ObjectTracker(cam, ObjectTrackingConfig())
+        for k in range(n_frames):
+            t = t0 + k / fps
+            stamp = int(round(t * 1e9))
+            T_world_cam, poses, frame = render_at(renderer, scenario, t)
+            truth[stamp] = poses[mover]
+            kps, dk = orb.detectAndCompute(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), None)
+            uv = np.array([kp.pt for kp in kps])
+            col, row = np.round(uv).astype(int).T
+            z = frame.depth_m[row, col].astype(np.float64)
+            used = np.zeros(len(kps), dtype=bool)
+            ids: list[int] = []
+            slots: list[int] = []
+            tracks = np.flatnonzero(alive)
+            alive[:] = False
+            if len(tracks):
+                for pair in matcher.knnMatch(desc[tracks], dk, k=2):
+                    if len(pair) < 2 or pair[0].distance >= 0.8 * pair[1].distance:
+                        continue
+                    i, j = tracks[pair[0].queryIdx], pair[0].trainIdx
+                    if not used[j] and z[j] > 0:
+                        used[j], alive[i], desc[i] = True, True, dk[j]
+                        ids.append(int(i))
+                        slots.append(int(j))
+            new = np.flatnonzero(~used & (z > 0))
+            ids += list(range(len(desc), len(desc) + len(new)))
+            slots += new.tolist()
+            desc = np.vstack([desc, dk[new]])
+            alive = np.r_[alive, np.ones(len(new), dtype=bool)]
+            on_box = np.r_[on_box, frame.instance_ids[row[new], col[new]] == mover + 1]
+            depth = z[slots] + rng.normal(0.0, 1.425e-3 * z[slots] ** 2)
+            meas = FrameObjectMeasurements(stamp, T_world_cam, np.array(ids, np.int64), cam.backproject(uv[slots], depth))
+            history.append(meas)
+            for obj in objects:
+                result = tracker.track(obj, meas)
+                if result.tracked and result.is_keypose:
+                    tracker.optimise(obj)
+            if k >= step * (n_key - 1) and k % step == 0:
+                frames = [history[k - step * i] for i in range(n_key)][::-1]
+                all_ids = np.unique(np.concatenate([f.point_ids for f in frames]))
+                points_cam = np.full((n_key, len(all_ids), 3), np.nan)
+                for a, f in enumerate(frames):
+                    points_cam[a, np.searchsorted(all_ids, f.point_ids)] = f.points_cam
+                window = CorrelationWindow(all_ids, points_cam, np.stack([f.T_world_cam for f in frames]), cam)
+                c0 = time.process_time()
+                seg = segment(window, SegmentationConfig.multi_frame())
+                seg_cpu.append((time.process_time() - c0) * 1e3)
+                next_id = 1 + max((o.object_id for o in objects), default=0)
+                objects = merge_objects(objects + objects_from_segmentation(seg, window, stamp, next_id), stamp, MergeConfig())
+    print(f"Dai loop on unknown_mover (seed {args.seed}), {args.loop_seconds:.0f} s from {t0:.0f} s at 30 Hz: "
+          f"{len(objects)} objects, segmentation {statistics.median(seg_cpu):.0f} ms CPU median")
+    for obj in sorted(objects, key=lambda o: -len(o.poses))[:5]:
+        stamps = sorted(obj.poses)
+        offset = invert(truth[stamps[0]]) @ obj.poses[stamps[0]]
+        err = [np.linalg.norm(obj.poses[st][:3, 3] - (truth[st] @ offset)[:3, 3]) for st in stamps]
+        travel = np.linalg.norm(truth[stamps[-1]][:3, 3] - truth[stamps[0]][:3, 3])
+        print(f"  object {obj.object_id}: {len(obj.point_ids)} points, {on_box[obj.point_ids].mean():.0%} first seen on the box; "
+              f"tracked {len(stamps)}/{n_frames} frames over {travel:.2f} m of box travel; position RMSE against "
+              f"the box {1e3 * np.sqrt(np.mean(np.square(err))):.1f} mm (max {1e3 * max(err):.1f} mm)")
+
+
 def bench_merging(args: argparse.Namespace) -> None:
     rng = np.random.default_rng(0)
     sets = [rng.normal([x, 0.0, 1.5], 0.1, (100, 3)) for x in np.linspace(0.0, 3.0, 10)]
@@ -157,11 +252,15 @@ def main() -> int:
     parser.add_argument("--static", type=int, default=800, help="static points in the segmentation scene")
     parser.add_argument("--object", type=int, default=100, help="points per moving cube")
     parser.add_argument("--sim", action="store_true", help="also run on the simulator's unknown_mover (renders)")
-    parser.add_argument("--seed", type=int, default=0, help="scenario seed for --sim")
+    parser.add_argument("--seed", type=int, default=0, help="scenario seed for --sim and --loop")
+    parser.add_argument("--loop", action="store_true", help="prototype of the whole Dai loop on unknown_mover")
+    parser.add_argument("--loop-seconds", type=float, default=6.0, help="simulated seconds for --loop")
     args = parser.parse_args()
     bench_segmentation(args)
     if args.sim:
         bench_unknown_mover(args)
+    if args.loop:
+        bench_dai_loop(args)
     bench_object_tracking(args)
     bench_merging(args)
     return 0
