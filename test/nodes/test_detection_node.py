@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from helpers import FR3_WALKING_FRAMES, require
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]  # ~30 s: model load and first inference on a busy CPU
 
 pytest.importorskip("rclpy")
 pytest.importorskip("changing_slam_msgs.msg", reason="interfaces not built (tools/build_interfaces.sh)")
