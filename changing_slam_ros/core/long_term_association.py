@@ -30,13 +30,14 @@ belief change with its reason.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.map_object import BoxXyxy, MapObject, ObjectMapConfig
 from changing_slam_ros.core.object_visibility import Visibility, check_visibility
 from changing_slam_ros.core.persistence_filter import BeliefUpdate, update_missed, update_seen
@@ -64,7 +65,28 @@ class ObjectCandidate:
 
     @property
     def centroid_w(self) -> F64:
-        return np.asarray(self.points_w, float).reshape(-1, 3).mean(axis=0)
+        centroid: F64 = np.asarray(self.points_w, float).reshape(-1, 3).mean(axis=0)
+        return centroid
+
+
+def candidates_from_keyframe(kf: Keyframe, points_w_of: Callable[[I64], F64],
+                             boxes: Mapping[int, tuple[int, BoxXyxy, bool]]) -> list[ObjectCandidate]:
+    """One candidate per short-term object id in `kf.object_ids` that has map points.
+
+    `boxes`: short-term object id -> (COCO class, box in this keyframe, truncated); ids not in it are
+    skipped. `points_w_of(point ids (M,)) -> positions (M, 3)` reads the map. Candidates come out in
+    increasing short-term id, so `AssociationResult.assignments` lines up with `sorted(boxes)` filtered
+    to the ids that have points.
+    """
+    out = []
+    for sid in sorted(boxes):
+        sel = (kf.object_ids == sid) & (kf.point_ids >= 0)
+        if not sel.any():
+            continue
+        ids = np.unique(kf.point_ids[sel])
+        class_id, box, truncated = boxes[sid]
+        out.append(ObjectCandidate(class_id, box, ids, np.asarray(points_w_of(ids), float), truncated))
+    return out
 
 
 @dataclass(frozen=True)

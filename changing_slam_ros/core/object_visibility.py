@@ -93,3 +93,23 @@ def window_depth_m(depth_m: npt.NDArray[np.floating], u: float, v: float, half_w
     patch = np.asarray(depth_m[max(0, cv - r): min(h, cv + r + 1), max(0, cu - r): min(w, cu + r + 1)], float)
     valid = patch[np.isfinite(patch) & (patch > 0.0)]
     return float(np.median(valid)) if valid.size else 0.0
+
+
+def depth_from_keypoints(keypoints_px: npt.NDArray[np.floating], depths_m: npt.NDArray[np.floating],
+                         camera: CameraIntrinsics, radius_px: int = 6) -> npt.NDArray[np.float32]:
+    """A sparse depth image (H, W) float32 from a keyframe's keypoints (N, 2) and depths (N,), 0 = none:
+    each keypoint with depth > 0 fills a (2 r + 1)^2 square, the nearest depth winning where squares overlap.
+    For callers that keep no depth image per keyframe; the occlusion test then reads keypoint depths."""
+    out = np.full((camera.height, camera.width), np.inf, np.float32)
+    kp = np.asarray(keypoints_px, float).reshape(-1, 2)
+    d = np.asarray(depths_m, float).reshape(-1)
+    ok = np.isfinite(d) & (d > 0)
+    r = max(0, int(radius_px))
+    for (u, v), z in zip(kp[ok], d[ok]):
+        cu, cv = int(round(u)), int(round(v))
+        x0, x1 = max(0, cu - r), min(camera.width, cu + r + 1)
+        y0, y1 = max(0, cv - r), min(camera.height, cv + r + 1)
+        if x0 < x1 and y0 < y1:
+            np.minimum(out[y0:y1, x0:x1], np.float32(z), out=out[y0:y1, x0:x1])
+    out[~np.isfinite(out)] = 0.0
+    return out

@@ -15,15 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.detector import COCO80_NAMES
+from changing_slam_ros.core.detector import class_name
 from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
 
 F64 = npt.NDArray[np.float64]
-
-
-def class_name(class_id: int) -> str:
-    """Name of a 0-based COCO class id, "unknown" outside the 80 classes."""
-    return COCO80_NAMES[class_id] if 0 <= class_id < len(COCO80_NAMES) else "unknown"
 
 
 @dataclass(frozen=True)

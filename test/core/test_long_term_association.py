@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.long_term_association import LongTermAssociation, ObjectCandidate
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.long_term_association import (
+    LongTermAssociation, ObjectCandidate, candidates_from_keyframe,
+)
 from changing_slam_ros.core.map_object import ObjectMapConfig
 from changing_slam_ros.core.object_visibility import Visibility
 from changing_slam_ros.core.persistence_filter import update_missed, update_seen
@@ -152,3 +155,21 @@ def test_refresh_points_follows_the_map_and_drops_culled_points() -> None:
     assert obj.point_ids.tolist() == list(range(100, 120, 2))
     np.testing.assert_allclose(obj.centroid_w, [1.0, 0.0, 0.0])
     assert lta.object_of_point()[104] == 0
+
+
+def test_candidates_from_a_keyframe_group_its_map_points_by_short_term_object() -> None:
+    n = 8
+    kf = Keyframe(4, 0, np.eye(4), CAM, np.zeros((n, 2), np.float32), np.zeros(n, np.int8),
+                  np.zeros((n, 32), np.uint8), np.ones(n, np.float32),
+                  point_ids=np.array([10, 11, -1, 12, 13, 14, 14, -1]),
+                  object_ids=np.array([2, 2, 2, 5, 5, -1, 9, 9]))
+    positions = {10: [0, 0, 1], 11: [0, 0, 3], 12: [1, 1, 1], 13: [1, 1, 3], 14: [5, 5, 5]}
+
+    def points_w_of(ids: np.ndarray) -> np.ndarray:
+        return np.array([positions[int(i)] for i in ids], float)
+
+    cands = candidates_from_keyframe(kf, points_w_of, {5: (CUP, (1, 2, 3, 4), True), 2: (CHAIR, (5, 6, 7, 8), False),
+                                                       7: (CHAIR, (0, 0, 1, 1), False)})
+    assert [(c.class_id, c.point_ids.tolist(), c.truncated) for c in cands] == [(CHAIR, [10, 11], False),
+                                                                                 (CUP, [12, 13], True)]
+    np.testing.assert_allclose(cands[0].centroid_w, [0.0, 0.0, 2.0])

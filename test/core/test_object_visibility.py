@@ -7,7 +7,9 @@ import pytest
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.map_object import ObjectMapConfig
-from changing_slam_ros.core.object_visibility import Visibility, check_visibility, window_depth_m
+from changing_slam_ros.core.object_visibility import (
+    Visibility, check_visibility, depth_from_keypoints, window_depth_m,
+)
 
 CAM = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
 CFG = ObjectMapConfig(margin_px=10.0, min_range_m=0.3, max_range_m=4.0, occlusion_tolerance_m=0.2)
@@ -69,3 +71,14 @@ def test_window_depth_is_the_median_of_valid_readings() -> None:
     d[1:4, 1:4] = [[1.0, 0.0, 2.0], [np.nan, 3.0, 0.0], [4.0, 5.0, 0.0]]
     assert window_depth_m(d, 2.0, 2.0, 1) == pytest.approx(3.0)  # median of 1, 2, 3, 4, 5
     assert window_depth_m(d, 0.0, 4.0, 0) == 0.0
+
+
+def test_sparse_depth_from_keypoints_gives_the_occlusion_test_keypoint_depths() -> None:
+    kp = np.array([[79.5, 59.5], [81.0, 60.0], [10.0, 10.0], [150.0, 100.0]])
+    depth = depth_from_keypoints(kp, np.array([3.0, 1.2, 2.0, 0.0]), CAM, radius_px=3)
+    assert depth[60, 80] == pytest.approx(1.2)  # overlapping squares: the nearest wins
+    assert depth[59, 77] == pytest.approx(3.0) and depth[10, 10] == pytest.approx(2.0)
+    assert depth[100, 150] == 0.0 and depth[40, 120] == 0.0  # no depth / no keypoint
+    # an object 2.5 m away behind the 1.2 m keypoint is occluded; with no keypoint near it, unknown
+    assert check_visibility(np.array([0.0, 0.0, 2.5]), I4, CAM, depth, CFG).visibility is Visibility.OCCLUDED
+    assert check_visibility(np.array([0.6, -0.1, 2.5]), I4, CAM, depth, CFG).visibility is Visibility.NO_DEPTH
