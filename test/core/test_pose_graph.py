@@ -113,3 +113,16 @@ def test_points_follow_their_reference_keyframe_correction():
     np.testing.assert_allclose(out[10], [3.0, 0.0, 1.0], atol=1e-12)
     np.testing.assert_allclose(out[11], pts[11])
     np.testing.assert_allclose(out[12], pts[12])
+
+
+def test_keyframes_not_connected_to_the_fixed_one_keep_their_pose_and_do_not_break_the_solve():
+    truth = square_loop(n_per_side=4)
+    est = drifted(truth, np.radians(1.0), 1.02)
+    ids = sorted(est)
+    edges = relative_edges(est, zip(ids[:8], ids[1:8]), EdgeKind.SPANNING_TREE)  # 0..7 chained
+    edges += relative_edges(est, zip(ids[9:], ids[10:]), EdgeKind.SPANNING_TREE)  # 9..15: a floating island
+    edges.append(PoseGraphEdge(0, 7, invert(truth[0]) @ truth[7], EdgeKind.LOOP))
+    out = optimise_pose_graph(est, edges, fixed_id=0)
+    for k in [8, *ids[9:]]:
+        np.testing.assert_array_equal(out[k], est[k])
+    assert np.linalg.norm(out[7][:3, 3] - truth[7][:3, 3]) < 0.5 * np.linalg.norm(est[7][:3, 3] - truth[7][:3, 3])

@@ -100,7 +100,8 @@ def optimise_pose_graph(
 
     `initial_poses` are the starting values (typically the current poses with the loop side already moved
     by the loop correction, as ORB-SLAM propagates it before optimising). `fixed_id` is held in place.
-    Keyframes not reached by any edge keep their initial pose.
+    Keyframes not connected to `fixed_id` through edges keep their initial pose (a component without a fixed
+    keyframe would have a free gauge and make the linear system singular).
     """
     if fixed_id not in initial_poses:
         raise ValueError(f"pose graph: fixed keyframe {fixed_id} has no initial pose")
@@ -122,10 +123,12 @@ def optimise_pose_graph(
     #    A very tight diagonal prior (1e-6 rad, 1e-6 m) rather than a hard constraint, which LM handles poorly.
     prior_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
     graph.add(gtsam.PriorFactorPose3(X(fixed_id), gtsam.Pose3(np.asarray(initial_poses[fixed_id])), prior_noise))
-    # 3. One BetweenFactorPose3 per edge: measured pose of j in i's frame.
+    # 3. One BetweenFactorPose3 per edge (measured pose of j in i's frame), over the component of fixed_id.
+    kept = [e for e in edges if e.i in initial_poses and e.j in initial_poses and e.i != e.j]
+    reached = _component(fixed_id, kept)
     used = {fixed_id}
-    for e in edges:
-        if e.i not in initial_poses or e.j not in initial_poses:
+    for e in kept:
+        if e.i not in reached:
             continue
         noise = loop_noise if e.kind == EdgeKind.LOOP else odo_noise
         graph.add(gtsam.BetweenFactorPose3(X(e.i), X(e.j), gtsam.Pose3(np.asarray(e.T_i_j)), noise))
@@ -142,6 +145,25 @@ def optimise_pose_graph(
     for kf_id in used:
         out[kf_id] = result.atPose3(X(kf_id)).matrix()
     return out
+
+
+def _component(start: int, edges: list[PoseGraphEdge]) -> set[int]:
+    """Keyframe ids connected to `start` through edges (breadth first)."""
+    adjacent: dict[int, list[int]] = {}
+    for e in edges:
+        adjacent.setdefault(e.i, []).append(e.j)
+        adjacent.setdefault(e.j, []).append(e.i)
+    seen = {start}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for k in frontier:
+            for j in adjacent.get(k, ()):
+                if j not in seen:
+                    seen.add(j)
+                    nxt.append(j)
+        frontier = nxt
+    return seen
 
 
 def graph_error(poses: Mapping[int, F64], edges: Iterable[PoseGraphEdge]) -> float:
