@@ -339,3 +339,24 @@ def test_global_ba_after_the_loop_refines_poses_and_points_further():
           f"observations, ATE after pose graph {100 * ate_plain:.1f} cm -> after global BA {100 * ate_ba:.1f} cm")
     assert ba.rms_after_px < 0.5 * ba.rms_before_px  # measured 15.0 -> 0.72 px
     assert ate_ba < 0.7 * ate_plain  # measured 5.6 -> 1.2 cm
+
+
+def test_keyframes_without_features_are_handled_quietly():
+    room = SyntheticRoom(seed=3)
+    closer = LoopCloser(LoopConfig(min_keyframes_in_map=0), Vocabulary.load())
+    covisibility: dict[int, dict[int, int]] = {}
+    for k in range(4):
+        kf, _ = room.keyframe(k, room.pose(k, 48), room.pose(k, 48))
+        covisibility[k] = {}
+        assert closer.process(kf, covisibility, {k: k - 1 if k else None}, {}) is None
+    empty = Keyframe(
+        id=4, stamp_ns=0, T_world_cam=np.eye(4), camera=room.camera, keypoints_px=np.zeros((0, 2), np.float32),
+        octaves=np.zeros(0, np.int8), descriptors=np.zeros((0, 32), np.uint8), depths_m=np.zeros(0, np.float32),
+        point_ids=np.zeros(0, np.int64),
+    )
+    covisibility[4] = {}
+    assert closer.process(empty, covisibility, {4: 3}, {}) is None  # an all-black frame: no words, no loop
+    assert len(closer.database.bow(4)) == 0
+    assert closer.relocalise(empty.keypoints_px, empty.descriptors, room.camera, {}, covisibility) is None
+    closer.erase(4)
+    assert 4 not in closer.database
