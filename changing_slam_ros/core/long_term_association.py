@@ -127,6 +127,15 @@ class LongTermAssociation:
         self.objects[obj.id] = obj
         self._next_id = max(self._next_id, obj.id + 1)
 
+    def new_session(self, first_keyframe_id: int) -> None:
+        """Start a session on a loaded map (multi-session): keyframe ids may restart, and time has passed, so
+        every object counts as unseen for more than N keyframes; its first sighting or expected miss in the
+        new session updates its belief."""
+        stale = first_keyframe_id - self.config.n_keyframes_unseen - 1
+        for obj in self.objects.values():
+            obj.last_seen_keyframe = stale
+            obj.last_belief_update_keyframe = stale
+
     def refresh_points(self, positions_of: PointLookup) -> None:
         """Re-read every object's point positions from the map (after local BA / loop correction) and drop
         culled points; the centroids and boxes follow."""

@@ -10,6 +10,11 @@ Layout (version 1):
          belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
 Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`).
 Load errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
+
+The object map (every MapObject with its point ids, point positions, boxes and persistence state, for a
+saved map that a later session starts from) has its own document, `object_map_to_dict` /
+`object_map_from_dict` (format "changing_slam_ros object map", version 1), meant to be embedded in the
+map file or written alone with `write_object_map` / `read_object_map`.
 """
 
 from __future__ import annotations
@@ -19,14 +24,18 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
+from changing_slam_ros.core.map_object import MapObject
 from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.atomic import atomic_write_text
 
 FORMAT = "changing_slam_ros semantic map"
 VERSION = 1
+OBJECT_MAP_FORMAT = "changing_slam_ros object map"
+OBJECT_MAP_VERSION = 1
 
 
 def _is_yaml(path: Path) -> bool:
@@ -114,6 +123,88 @@ def semantic_map_from_dict(doc: Any, where: str) -> SemanticMap:
     if len(set(ids)) != len(ids):
         raise MapFileError(f"{where}: objects: duplicated ids {sorted({i for i in ids if ids.count(i) > 1})}")
     return SemanticMap(tuple(objects), threshold, frame_id)
+
+
+def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
+    """Every field of every MapObject (ordered by id); points as [[id, x, y, z], ...]."""
+    return {
+        "format": OBJECT_MAP_FORMAT,
+        "version": OBJECT_MAP_VERSION,
+        "objects": [
+            {
+                "id": o.id, "class_id": o.class_id, "first_box_xyxy": list(o.first_box_xyxy),
+                "current_box_xyxy": list(o.current_box_xyxy), "first_keyframe": o.first_keyframe,
+                "last_seen_keyframe": o.last_seen_keyframe, "last_belief_update_keyframe": o.last_belief_update_keyframe,
+                "n_observations": o.n_observations, "belief": o.belief, "active": o.active,
+                "points": [[int(i), *(float(v) for v in p)] for i, p in zip(o.point_ids, o.points_w)],
+            }
+            for o in sorted(objects, key=lambda o: o.id)
+        ],
+    }
+
+
+def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
+    """Validate and rebuild the MapObjects of an object-map document (centroids and boxes recomputed)."""
+    if not isinstance(doc, dict):
+        raise MapFileError(f"{where}: expected a mapping, got {type(doc).__name__}")
+    if doc.get("format") != OBJECT_MAP_FORMAT:
+        raise MapFileError(f"{where}: format: expected {OBJECT_MAP_FORMAT!r}, got {doc.get('format')!r}")
+    if doc.get("version") != OBJECT_MAP_VERSION:
+        raise MapFileError(f"{where}: version: expected {OBJECT_MAP_VERSION}, got {doc.get('version')!r}")
+    raw = doc.get("objects")
+    if not isinstance(raw, list):
+        raise MapFileError(f"{where}: objects: expected a list, got {type(raw).__name__}")
+    out = []
+    for i, item in enumerate(raw):
+        w = f"{where}: objects[{i}]"
+        if not isinstance(item, dict):
+            raise MapFileError(f"{w}: expected a mapping, got {type(item).__name__}")
+        pts = item.get("points")
+        if (not isinstance(pts, list) or any(not isinstance(p, list) or len(p) != 4 for p in pts)
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                       for p in pts for v in p)):
+            raise MapFileError(f"{w}.points: expected a list of [id, x, y, z] numbers")
+        belief = _number(item, "belief", w)
+        if not 0.0 <= belief <= 1.0:
+            raise MapFileError(f"{w}.belief: expected within [0, 1], got {belief}")
+        arr = np.asarray(pts, float).reshape(-1, 4)
+        obj = MapObject(
+            _field(item, "id", int, w), _field(item, "class_id", int, w), _box(item, "first_box_xyxy", w),
+            _box(item, "current_box_xyxy", w), _field(item, "first_keyframe", int, w),
+            _field(item, "last_seen_keyframe", int, w), belief=belief, active=_field(item, "active", bool, w),
+            point_ids=arr[:, 0].astype(np.int64), points_w=arr[:, 1:],
+            last_belief_update_keyframe=_field(item, "last_belief_update_keyframe", int, w),
+            n_observations=_field(item, "n_observations", int, w),
+        )
+        out.append(obj)
+    ids = [o.id for o in out]
+    if len(set(ids)) != len(ids):
+        raise MapFileError(f"{where}: objects: duplicated ids")
+    return out
+
+
+def write_object_map(path: str | Path, objects: list[MapObject]) -> None:
+    """Write every MapObject to `path` (JSON) atomically."""
+    atomic_write_text(Path(path), json.dumps(object_map_to_dict(objects), separators=(",", ":")) + "\n")
+
+
+def read_object_map(path: str | Path) -> list[MapObject]:
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except OSError as err:
+        raise MapFileError(f"{p}: cannot read object map ({err.strerror})") from err
+    except json.JSONDecodeError as err:
+        raise MapFileError(f"{p}: not valid JSON ({err})") from err
+    return object_map_from_dict(doc, str(p))
+
+
+def _box(d: dict[str, Any], key: str, where: str) -> tuple[float, float, float, float]:
+    v = d.get(key)
+    if (not isinstance(v, list) or len(v) != 4
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)):
+        raise MapFileError(f"{where}.{key}: expected 4 numbers [x_min, y_min, x_max, y_max], got {v!r}")
+    return float(v[0]), float(v[1]), float(v[2]), float(v[3])
 
 
 def _field(d: dict[str, Any], key: str, kind: type, where: str) -> Any:

@@ -173,3 +173,19 @@ def test_candidates_from_a_keyframe_group_its_map_points_by_short_term_object() 
     assert [(c.class_id, c.point_ids.tolist(), c.truncated) for c in cands] == [(CHAIR, [10, 11], False),
                                                                                  (CUP, [12, 13], True)]
     np.testing.assert_allclose(cands[0].centroid_w, [0.0, 0.0, 2.0])
+
+
+def test_a_loaded_map_in_a_new_session_updates_beliefs_at_first_sight_or_miss() -> None:
+    first = LongTermAssociation(CFG)
+    first.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100), _cand([0.8, 0.0, 2.5], 200, class_id=CUP)],
+                           LOOK_Z, CAM, WALL)
+    first.process_keyframe(40, [], LOOK_AWAY, CAM, WALL)
+    second = LongTermAssociation(CFG)
+    for obj in first.objects.values():
+        second.add_object(obj)
+    second.new_session(0)  # keyframe ids restart at 0
+    res = second.process_keyframe(0, [_cand([0.02, 0.0, 2.5], 300)], LOOK_Z, CAM, WALL)  # chair there, cup gone
+    assert sorted((c.object_id, c.reason) for c in res.belief_changes) == [(0, "seen"), (1, "missed")]
+    assert second.objects[0].belief > 0.6 and second.objects[1].belief < 0.5
+    assert second.process_keyframe(1, [], LOOK_AWAY, CAM, WALL).new_object_ids == ()
+    assert second.process_keyframe(2, [_cand([3.0, 0.0, 2.5], 400)], LOOK_Z, CAM, WALL).new_object_ids == (2,)

@@ -11,7 +11,9 @@ import pytest
 from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
 from changing_slam_ros.core.semantic_map import build_semantic_map
 from changing_slam_ros.errors import MapFileError
-from changing_slam_ros.io.semantic_map_file import read_semantic_map, write_semantic_map
+from changing_slam_ros.io.semantic_map_file import (
+    read_object_map, read_semantic_map, write_object_map, write_semantic_map,
+)
 
 
 def _objects() -> list[MapObject]:
@@ -84,3 +86,31 @@ def test_corrupt_files_raise_map_file_errors_naming_file_and_field(tmp_path: Pat
         read_semantic_map(_write(tmp_path, broken))
     with pytest.raises(MapFileError, match="expected a mapping at top level"):
         read_semantic_map(_write(tmp_path, [1, 2]))
+
+
+def test_object_map_round_trip_keeps_points_and_persistence_state(tmp_path: Path) -> None:
+    objs = _objects()
+    objs[0].last_belief_update_keyframe = 7
+    objs[0].n_observations = 4
+    write_object_map(tmp_path / "objects.json", objs)
+    back = {o.id: o for o in read_object_map(tmp_path / "objects.json")}
+    assert sorted(back) == [1, 2, 3]
+    for o in objs:
+        b = back[o.id]
+        assert (b.class_id, b.belief, b.active, b.first_keyframe, b.last_seen_keyframe) == \
+            (o.class_id, o.belief, o.active, o.first_keyframe, o.last_seen_keyframe)
+        assert b.first_box_xyxy == o.first_box_xyxy and b.current_box_xyxy == o.current_box_xyxy
+        np.testing.assert_array_equal(b.point_ids, o.point_ids)
+        np.testing.assert_array_equal(b.points_w, o.points_w)  # repr-exact floats
+        np.testing.assert_array_equal(b.centroid_w, o.centroid_w)
+    assert (back[3].last_belief_update_keyframe, back[3].n_observations) == (7, 4)
+    doc = json.loads((tmp_path / "objects.json").read_text())
+    doc["objects"][2]["points"][5] = [1, 2, "x", 4]
+    with pytest.raises(MapFileError, match=r"objects\[2\]\.points: expected a list of \[id, x, y, z\]"):
+        read_object_map(_write(tmp_path, doc))
+    doc = json.loads((tmp_path / "objects.json").read_text())
+    del doc["objects"][0]["current_box_xyxy"]
+    with pytest.raises(MapFileError, match=r"objects\[0\]\.current_box_xyxy: expected 4 numbers"):
+        read_object_map(_write(tmp_path, doc))
+    with pytest.raises(MapFileError, match="format: expected 'changing_slam_ros object map'"):
+        read_object_map(_write(tmp_path, {"format": "changing_slam_ros semantic map", "version": 1, "objects": []}))
