@@ -54,6 +54,7 @@ def test_ssd_postprocessing_converts_normalised_yxyx_to_pixels_and_drops_low_sco
     np.testing.assert_allclose(s, [0.9], atol=1e-6)
 
 
+@pytest.mark.slow  # creating the onnxruntime session takes 10 s on an idle 2-core machine, 45 s when busy
 def test_detector_finds_two_persons_and_chairs_in_a_real_walking_frame(detector: Detector, walking_rgb: np.ndarray) -> None:
     dets = detector.detect(walking_rgb, stamp_ns=1341846313553992000)
     assert detector.layout == "ssd_tf"
@@ -72,6 +73,7 @@ def test_detector_finds_two_persons_and_chairs_in_a_real_walking_frame(detector:
     np.testing.assert_allclose(boxes[1], [468.4, 0.5, 635.9, 478.2], atol=3.0)
 
 
+@pytest.mark.slow
 def test_a_higher_score_threshold_keeps_only_the_confident_detections(detector: Detector, walking_rgb: np.ndarray) -> None:
     default = detector.config
     try:
