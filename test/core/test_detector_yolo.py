@@ -95,3 +95,16 @@ def test_gpu_providers_are_used_only_when_onnxruntime_has_them(tmp_path: Path) -
     cpu_only = Detector(DetectorConfig(model_path=str(path), providers=("CPUExecutionProvider",)))
     assert cpu_only.providers == ("CPUExecutionProvider",)
     assert len(cpu_only.detect(np.zeros((48, 64, 3), np.uint8))) == 0
+
+
+def test_yolov5_rows_with_objectness_multiply_it_into_the_class_scores() -> None:
+    lb = Letterbox(scale=1.0, pad_x=0.0, pad_y=0.0, size_px=64)
+    rows = np.zeros((1, 3, 85), np.float32)
+    rows[0, 0, :5] = (20, 20, 10, 10, 0.9)
+    rows[0, 0, 5 + 56] = 0.8  # chair, 0.72 after objectness
+    rows[0, 1, :5] = (40, 40, 10, 10, 0.3)
+    rows[0, 1, 5 + 0] = 0.9  # person, 0.27 after objectness: below 0.3
+    boxes, scores, classes = postprocess_yolo(rows, lb, 64, 64, score_threshold=0.3, nms_iou_threshold=0.45)
+    assert classes.tolist() == [56]
+    np.testing.assert_allclose(scores, [0.72], atol=1e-6)
+    np.testing.assert_allclose(boxes[0], [15.0, 15.0, 25.0, 25.0])
