@@ -170,6 +170,16 @@ class LoopCloser:
         self._masks[keyframe.id] = mask
         self.database.add(keyframe, mask)
 
+    def set_active_mask(self, kf_id: int, active_mask: npt.NDArray[np.bool_]) -> bool:
+        """Re-index a held keyframe with a new feature mask (object states changed: Changing-SLAM §4.6 points of
+        objects whose belief dropped leave place recognition). Returns whether anything changed."""
+        kf = self._keyframes.get(kf_id)
+        mask = np.asarray(active_mask, bool)
+        if kf is None or np.array_equal(self._masks[kf_id], mask):
+            return False
+        self.add(kf, mask)
+        return True
+
     # ------------------------------------------------------------------ loop closing
     def process(
         self,
@@ -398,6 +408,15 @@ class SlamMapLoopClosing:
         ranked = sorted(found, key=lambda c: (-c.score, c.keyframe_id))
         return [c.keyframe_id for c in ranked if c.keyframe_id in slam_map.keyframes][: self.max_candidates]
 
+    def refresh_active_points(self, slam_map: SlamMap) -> int:
+        """Re-index the map's keyframes whose features see points deactivated (or reactivated) since they were
+        indexed; call after object states change. Returns how many keyframes were re-indexed."""
+        n = 0
+        for kf_id, kf in slam_map.keyframes.items():
+            if kf_id in self.closer.keyframes:
+                n += int(self.closer.set_active_mask(kf_id, _active_mask(kf, slam_map.points)))
+        return n
+
     # loop closer seam
     def process(self, kf: Keyframe, slam_map: SlamMap) -> bool:
         # keyframes culled from the map without `erase` (when this object is not also the keyframe index)
@@ -405,11 +424,9 @@ class SlamMapLoopClosing:
         for k in gone:
             self.closer.erase(k)
         points = slam_map.points
-        mask = loop_feature_mask(kf)
-        seen = kf.point_ids >= 0
-        mask[seen] &= points.active[kf.point_ids[seen]]  # Changing-SLAM: inactive object points take no part
         correction = self.closer.process(
-            kf, slam_map.covisibility, slam_map.parent, _PointPositions(points), mask, _ReferenceKeyframes(points)
+            kf, slam_map.covisibility, slam_map.parent, _PointPositions(points), _active_mask(kf, points),
+            _ReferenceKeyframes(points),
         )
         if correction is None:
             return False
@@ -419,6 +436,15 @@ class SlamMapLoopClosing:
         self.closer.update_poses({k: held.T_world_cam for k, held in slam_map.keyframes.items()})
         self.last_correction = correction
         return True
+
+
+def _active_mask(kf: Keyframe, points: PointStore) -> npt.NDArray[np.bool_]:
+    """Keypoints usable for place recognition: `loop_feature_mask`, minus those on inactive map points
+    (Changing-SLAM: points of objects that left the scene take no part)."""
+    mask = loop_feature_mask(kf)
+    seen = kf.point_ids >= 0
+    mask[seen] &= points.active[kf.point_ids[seen]]
+    return mask
 
 
 def apply_correction(slam_map: SlamMap, correction: LoopCorrection) -> None:

@@ -360,3 +360,17 @@ def test_keyframes_without_features_are_handled_quietly():
     assert closer.relocalise(empty.keypoints_px, empty.descriptors, room.camera, {}, covisibility) is None
     closer.erase(4)
     assert 4 not in closer.database
+
+
+def test_points_deactivated_later_leave_the_bow_of_keyframes_already_indexed():
+    d = build_drifting_map(n_kf=12)
+    kf = d.slam_map.keyframes[5]
+    before = d.closing.closer.database.bow(5)
+    seen = kf.point_ids[kf.point_ids >= 0]
+    d.slam_map.points.active[seen[: len(seen) // 2]] = False  # an object's belief dropped: half the points
+    assert d.closing.refresh_active_points(d.slam_map) >= 1
+    after = d.closing.closer.database.bow(5)
+    assert len(after) < 0.75 * len(before)
+    kept = d.closing.closer.database.vocabulary.bow(kf.descriptors[np.isin(kf.point_ids, seen[len(seen) // 2 :])])
+    np.testing.assert_array_equal(after.word_ids, kept.word_ids)
+    assert d.closing.refresh_active_points(d.slam_map) == 0  # nothing changed since
