@@ -7,11 +7,13 @@ For every new keyframe, `LoopCloser.process`:
 3. keeps candidates whose covisibility group stays consistent over `consistency_threshold` keyframes;
 4. verifies them geometrically with depth (`geometric_verification.verify`); the first that passes is the loop;
 5. moves the keyframe and its covisible neighbours by the loop correction (initial guess), optimises the
-   essential graph (spanning tree + strong covisibility + all loop edges) with GTSAM, and moves every map
-   point with its reference keyframe.
-It returns a `LoopCorrection`; it never writes into keyframes. The map owner applies the correction (and
-fuses the duplicated points listed in it), then reports poses back with `update_poses` when keyframes are
-copies (ROS transport). `relocalise` serves tracking when it is lost.
+   essential graph (spanning tree + strong covisibility + past loop edges + this loop's connections between
+   the two neighbourhoods) with GTSAM, and moves every map point with its reference keyframe.
+It returns a `LoopCorrection`; it never writes into keyframes except through `update_poses`. The map owner
+applies the correction (and fuses the duplicated points listed in it), then reports poses back with
+`update_poses` when keyframes are copies (ROS transport). `detect_merge` finds places shared by two maps of
+the Atlas; `relocalise` serves tracking when it is lost. `SlamMapLoopClosing` (end of module) binds all this
+to the offline runner's `core.slam_map`.
 """
 
 from __future__ import annotations
