@@ -7,7 +7,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMPS := .stamps
 OUT    ?= out/demo
-SAMPLE ?= bags/sim_sample.mcap
+SAMPLE ?= bags/sim_walking_changing.mcap
 PYTEST_ARGS ?=
 
 MSG_SOURCES := $(shell find msg_defs -type f -not -path '*/build/*' 2>/dev/null)
