@@ -32,12 +32,14 @@ def default_room() -> Room:
     """The standard room: brick walls, gravel-like floor, plaster ceiling, posters, two shelves, rug."""
     hx, hy, hz, t = ROOM_HALF_X_M, ROOM_HALF_Y_M, ROOM_HEIGHT_M, WALL_T_M
     parts = [
-        Part((hx + t, hy + t, t), (0.0, 0.0, -t), "gravel", 0.9),  # floor, top face at z = 0
+        Part((hx + t, hy + t, t), (0.0, 0.0, -t), "gravel", 1.3),  # floor, top face at z = 0
         Part((hx + t, hy + t, t), (0.0, 0.0, hz + t), "moon", 1.6),  # ceiling
         Part((hx, t, hz / 2), (0.0, hy + t, hz / 2), "brick", 1.1),  # north wall
-        Part((hx, t, hz / 2), (0.0, -hy - t, hz / 2), "brick_grey", 1.1),  # south wall
-        Part((t, hy, hz / 2), (hx + t, 0.0, hz / 2), "brick_grey", 1.0),  # east wall
-        Part((t, hy, hz / 2), (-hx - t, 0.0, hz / 2), "brick", 1.0),  # west wall
+        # every wall its own photo, so no two walls share a pattern (a tiled photo repeated on all four
+        # walls makes places look alike to a bag of words, which no real room does)
+        Part((hx, t, hz / 2), (0.0, -hy - t, hz / 2), "wallpaper", 0.9),  # south wall
+        Part((t, hy, hz / 2), (hx + t, 0.0, hz / 2), "plaster", 1.7),  # east wall
+        Part((t, hy, hz / 2), (-hx - t, 0.0, hz / 2), "stucco", 1.2),  # west wall
         Part((1.0, 0.7, 0.004), (0.6, -0.4, 0.004), "grass", 0.7),  # rug
         # posters and boards
         _poster_on_wall("north", -1.6, 1.55, 0.9, 0.78, "hubble"),
@@ -45,10 +47,10 @@ def default_room() -> Room:
         _poster_on_wall("north", 0.1, 1.9, 0.6, 0.4, "coins"),
         _poster_on_wall("east", -1.0, 1.5, 0.9, 0.6, "coffee"),
         _poster_on_wall("east", 1.2, 1.45, 1.1, 0.42, "text"),
+        _poster_on_wall("east", 0.2, 2.1, 0.5, 0.38, "clock"),
         _poster_on_wall("south", 0.8, 1.5, 0.9, 0.45, "page"),
-        _poster_on_wall("south", -1.4, 1.6, 0.8, 0.6, "clock"),
+        _poster_on_wall("south", -1.4, 1.6, 0.7, 0.7, "retina"),
         _poster_on_wall("west", 0.9, 1.5, 0.8, 0.8, "ihc"),
-        _poster_on_wall("west", -1.2, 1.7, 0.7, 0.5, "page"),
         # shelves: a low cabinet on the west wall, a bookcase in the south-east corner
         Part((0.22, 0.7, 0.45), (-hx + 0.22, -0.6, 0.45), "wood", 0.5),
         Part((0.2, 0.65, 0.012), (-hx + 0.2, -0.6, 0.915), "page", None),
