@@ -8,8 +8,8 @@ with `/clock` (rosgraph_msgs/Clock) following the bag's time, so nodes run with 
 Topics are renamed by standard `--ros-args -r from:=to` remaps or by the `remap` parameter.
 
 Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
-1. before the first message, wait until every topic in `wait_for_topics` (default: all played topics) has at
-   least `min_subscribers` matched subscriptions (`wait_subscribers_timeout_s`, then the player stops with
+1. before the first message, wait until every topic in `wait_for_topics` (default: the `ack_topics`, else
+   all played topics) has at least `min_subscribers` matched subscriptions (`wait_subscribers_timeout_s`, then the player stops with
    an error rather than play to nobody);
 2. publishers are reliable with KEEP_ALL history, and after each message the player waits until every
    matched reliable subscription has acknowledged it at the DDS level (`Publisher.wait_for_all_acked`);
@@ -127,7 +127,7 @@ class BagPlayerNode(Node):
             ("qos_depth", 10, "publisher history depth (ignored in lossless mode: KEEP_ALL)"),
             ("progress_period_s", 2.0, "seconds between progress log lines"),
             ("lossless", False, "wait for subscribers and acknowledgements instead of dropping"),
-            ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = all played"),
+            ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = ack_topics or all"),
             ("min_subscribers", 1, "lossless: subscriptions each waited-for topic needs before playing"),
             ("wait_subscribers_timeout_s", 60.0, "lossless: give up (error) after this long without subscribers"),
             ("ack_topics", STRING_ARRAY, "lossless: bag topics whose messages wait for a processing ack"),
@@ -270,7 +270,7 @@ class BagPlayerNode(Node):
         self._clock_pub.publish(msg)
 
     def _wait_for_subscribers(self, executor: Executor) -> bool:
-        topics = self._wait_topics or list(self.bag_publishers)
+        topics = self._wait_topics or sorted(self._ack_topics & set(self.bag_publishers)) or list(self.bag_publishers)
         unknown = [t for t in topics if t not in self.bag_publishers]
         if unknown:
             raise ConfigError(f"bag_player: wait_for_topics {', '.join(unknown)} are not played topics")

@@ -5,7 +5,8 @@ message plumbing are real; the call into the core tracking component is one TODO
 this node publishes no pose yet. It logs that once, loudly.
 
 Inputs (defaults are the TUM bag names; remap with --ros-args -r):
-  /camera/rgb/image_color (Image, sensor-data QoS), /camera/depth/image (Image 32FC1 m or 16UC1 mm),
+  /camera/rgb/image_color (Image, sensor-data QoS), /camera/depth/image (Image 32FC1 m or 16UC1 mm), or with
+  `compressed:=true` their /compressed CompressedImage topics (JPEG/PNG colour, PNG or compressedDepth depth),
   /camera/rgb/camera_info, /detection/detections, /local_mapping/map_updates,
   /loop_closing/loop_corrections, /object_map/object_states
 Outputs: ~/pose (PoseStamped), ~/odometry, ~/path, ~/keyframes, ~/object_states (EKF), TF map->odom->camera,
@@ -21,7 +22,7 @@ from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
 
@@ -61,6 +62,7 @@ class TrackingNode(Node):
             ("camera_frame", "camera", "camera optical frame of the published pose"),
             ("publish_tf", True, "publish map->odom->camera on /tf"),
             ("ack_topic", "", "std_msgs/Header per processed frame (bag_player lossless); empty = off"),
+            ("compressed", False, "subscribe CompressedImage on <colour>/compressed and <depth>/compressed"),
         ])  # fmt: skip
         slop_ns = round(p["sync_slop_s"] * 1e9)
         self.pairer: ApproximatePairer[Any, Any] = ApproximatePairer(slop_ns)
@@ -71,8 +73,14 @@ class TrackingNode(Node):
 
         # camera_info first: when it and an image are ready in the same spin, the executor serves it first.
         self.create_subscription(CameraInfo, "/camera/rgb/camera_info", self.on_camera_info, image_qos)
-        self.create_subscription(Image, "/camera/rgb/image_color", self.on_colour, image_qos)
-        self.create_subscription(Image, "/camera/depth/image", self.on_depth, image_qos)
+        if p["compressed"]:
+            self.colour_topic, self.depth_topic = "/camera/rgb/image_color/compressed", "/camera/depth/image/compressed"
+            image_type: Any = CompressedImage
+        else:
+            self.colour_topic, self.depth_topic = "/camera/rgb/image_color", "/camera/depth/image"
+            image_type = Image
+        self.create_subscription(image_type, self.colour_topic, self.on_colour, image_qos)
+        self.create_subscription(image_type, self.depth_topic, self.on_depth, image_qos)
         self.create_subscription(DetectionArray, "/detection/detections", self.on_detections, 10)
         self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
@@ -89,12 +97,12 @@ class TrackingNode(Node):
         self.get_logger().info("tracking: started (SKELETON: core tracking not wired yet, no poses published)")
 
     # -- inputs ---------------------------------------------------------------------------------
-    def on_colour(self, msg: Image) -> None:
+    def on_colour(self, msg: Any) -> None:
         for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_first(stamp_to_ns(msg.header.stamp), msg):
             self.on_frame(t_rgb, rgb_msg, depth_msg)
         self._warn_if_unpaired()
 
-    def on_depth(self, msg: Image) -> None:
+    def on_depth(self, msg: Any) -> None:
         for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_second(stamp_to_ns(msg.header.stamp), msg):
             self.on_frame(t_rgb, rgb_msg, depth_msg)
         self._warn_if_unpaired()
@@ -121,7 +129,7 @@ class TrackingNode(Node):
         pass  # TODO(issue 7): mark points of inactive MapObjects as not usable for tracking.
 
     # -- one RGB-D frame ------------------------------------------------------------------------
-    def on_frame(self, stamp_ns: int, rgb_msg: Image, depth_msg: Image) -> None:
+    def on_frame(self, stamp_ns: int, rgb_msg: Any, depth_msg: Any) -> None:
         if self.camera is None:
             self._warn_once("no_camera", "tracking: no camera_info yet; frames are skipped until one arrives")
             self._ack(rgb_msg.header)
@@ -129,8 +137,8 @@ class TrackingNode(Node):
         try:
             frame = RgbdFrame(
                 stamp_ns=stamp_ns,
-                rgb=image_to_rgb(rgb_msg, "/camera/rgb/image_color"),
-                depth_m=image_to_depth_m(depth_msg, "/camera/depth/image"),
+                rgb=image_to_rgb(rgb_msg, self.colour_topic),
+                depth_m=image_to_depth_m(depth_msg, self.depth_topic),
                 camera=self.camera,
                 index=self.frames_in,
             )

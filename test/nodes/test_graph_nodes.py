@@ -170,3 +170,27 @@ def test_object_map_answers_queries_latches_the_semantic_map_and_resets(ros_cont
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
+
+
+def test_tracking_takes_compressed_colour_and_depth_from_the_bundled_sim_bag(ros_context):
+    from helpers import REPO, require
+
+    path = require(REPO / "bags" / "sim_walking_changing.mcap")
+    colour = "/camera/rgb/image_color/compressed"
+    tracking = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("ack_topic", value="/bag_player/ack"), Parameter("compressed", value=True)])  # fmt: skip
+    player = BagPlayerNode(context=ros_context, parameter_overrides=[
+        Parameter("bag", value=str(path)), Parameter("rate", value=4.0), Parameter("start_offset_s", value=13.0),
+        Parameter("lossless", value=True), Parameter("ack_topics", value=[colour]),
+    ])  # fmt: skip
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(tracking)
+    executor.add_node(player)
+    result = player.play(executor)
+    n_colour = result.per_topic[colour]
+    assert result.completed and n_colour >= 20 and result.ack_timeouts == 0
+    assert tracking.frames_in == n_colour  # every JPEG colour frame paired with its PNG depth frame and decoded
+    assert tracking.camera is not None and (tracking.camera.width, tracking.camera.height) == (320, 240)  # sim camera
+    executor.shutdown()
+    tracking.destroy_node()
+    player.destroy_node()
