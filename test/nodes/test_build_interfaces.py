@@ -35,16 +35,23 @@ def test_a_second_call_does_nothing_and_returns_at_once(built):
 
 
 def test_the_stamp_follows_the_message_definitions(built, tmp_path):
-    """--check compares hashes of msg_defs/: a changed definition makes it report 'out of date'."""
-    stamp = PREFIX / "share" / "changing_slam_msgs" / "build_stamp"
-    text = stamp.read_text()
-    try:
-        stamp.write_text("0" * 64 + "\n")
-        done = _run("--check")
-        assert done.returncode == 1 and "out of date" in done.stdout
-    finally:
-        stamp.write_text(text)
-    assert _run("--check").returncode == 0
+    """--check hashes msg_defs/ contents: an identical copy is up to date, an edited definition is not.
+
+    Read-only on the venv: a copy of the script and msg_defs/ in tmp_path checks against the installed stamps.
+    """
+    import shutil
+
+    root = tmp_path / "repo"
+    (root / "tools").mkdir(parents=True)
+    shutil.copy2(SCRIPT, root / "tools" / SCRIPT.name)
+    shutil.copytree(REPO / "msg_defs", root / "msg_defs", ignore=shutil.ignore_patterns("__pycache__"))
+    env = dict(os.environ, VIRTUAL_ENV=str(PREFIX))
+    check = ["bash", str(root / "tools" / SCRIPT.name), "--check"]
+    assert subprocess.run(check, capture_output=True, text=True, env=env, timeout=60).returncode == 0
+    with (root / "msg_defs" / "changing_slam_msgs" / "msg" / "Detection.msg").open("a") as fh:
+        fh.write("float32 extra\n")
+    done = subprocess.run(check, capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 1 and "out of date" in done.stdout
 
 
 def test_installed_interfaces_import_from_a_bare_environment(built):
