@@ -76,6 +76,14 @@ class Features:
     def __len__(self) -> int:
         return len(self.keypoints_px)
 
+    def subset(self, mask: npt.NDArray[np.bool_]) -> "Features":
+        """The rows where `mask` (N,) bool is True, in order (e.g. the keypoints tracking may use)."""
+        m = np.asarray(mask, dtype=bool)
+        return Features(
+            self.keypoints_px[m], self.raw_px[m], self.octaves[m], self.angles_deg[m], self.responses[m],
+            np.ascontiguousarray(self.descriptors[m]), self.depths_m[m], self.u_right[m],
+        )
+
 
 class OrbExtractor:
     """Detects bucketed ORB keypoints and looks up their depth. One instance per camera."""

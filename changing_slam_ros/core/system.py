@@ -21,6 +21,8 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.detector import Detection
+from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
 from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig, MappingStats
@@ -85,6 +87,7 @@ class FrameOutput:
     mapping: MappingStats | None
     loop_corrected: bool
     timings_ms: dict[str, float]
+    dynamic: DynamicFrame | None = None  # the dynamic filter's verdict on the frame's keypoints (before subsetting)
 
 
 class SlamSystem:
@@ -95,6 +98,7 @@ class SlamSystem:
         config: SystemConfig | None = None,
         loop_closer: LoopCloser | None = None,
         keyframe_index: KeyframeIndex | None = None,
+        dynamic_filter: DynamicFilter | None = None,
     ) -> None:
         self.config = config or SystemConfig()
         cv2.setNumThreads(1)
@@ -104,6 +108,7 @@ class SlamSystem:
         self.mapper = LocalMapper(self.atlas, self.config.features, self.config.mapping)
         self.loop_closer = loop_closer
         self.keyframe_index = keyframe_index
+        self.dynamic_filter = dynamic_filter
         self._extractor: OrbExtractor | None = None
         self._camera: CameraIntrinsics | None = None
         self.records: list[FrameRecord] = []
@@ -116,12 +121,19 @@ class SlamSystem:
             self._camera = camera
         return self._extractor
 
-    def process(self, rgbd: RgbdFrame) -> FrameOutput:
+    def process(self, rgbd: RgbdFrame, detections: tuple[Detection, ...] | list[Detection] | None = None) -> FrameOutput:
         t0 = time.perf_counter()
         feats = self._extractor_for(rgbd.camera).extract(rgbd.rgb, rgbd.depth_m)
         t1 = time.perf_counter()
+        dyn = None
+        if self.dynamic_filter is not None:  # drop keypoints on people and moving objects before tracking
+            dyn = self.dynamic_filter.before_tracking(rgbd, feats, detections)
+            feats = feats.subset(dyn.keep)
+            self.timings_ms["dynamic"].append(dyn.ms)
         frame = Frame(rgbd.stamp_ns, len(self.records), rgbd.camera, feats)  # own counter: input order
         res: TrackResult = self.tracker.track(frame)
+        if dyn is not None:
+            self._after_dynamic(dyn, res)
         self._record(frame, res)  # relative to the reference keyframe, before mapping moves it
         t2 = time.perf_counter()
         stats = None
@@ -150,7 +162,15 @@ class SlamSystem:
             self.timings_ms[k].append(v)
         if res.new_keyframe is not None:
             self.timings_ms["local_mapping_per_keyframe"].append(timings["local_mapping"])
-        return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings)
+        return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings, dyn)
+
+    def _after_dynamic(self, dyn: DynamicFrame, res: TrackResult) -> None:
+        """The object EKFs get the tracked pose; a new keyframe keeps its keypoints' classes and object ids."""
+        assert self.dynamic_filter is not None
+        self.dynamic_filter.after_tracking(res.T_world_cam if res.state == TrackingState.OK else None)
+        if res.new_keyframe is not None and len(res.new_keyframe) == int(dyn.keep.sum()):
+            res.new_keyframe.kp_classes = dyn.kp_classes[dyn.keep]
+            res.new_keyframe.object_ids = dyn.object_ids[dyn.keep]
 
     def _record(self, frame: Frame, res: TrackResult) -> None:
         m = self.atlas.current
