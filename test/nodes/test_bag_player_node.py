@@ -281,3 +281,20 @@ def test_the_bundled_fr1_sample_replays_every_frame_and_ground_truth_pose(ros_co
     assert len(gt) == counts["/ground_truth/pose"]
     depth = decode_depth(rec.images["/camera/depth/image"][0])
     assert 0.3 < float(np.median(depth[depth > 0])) < 3.0
+
+
+def test_a_ros2_sqlite3_bag_replays_like_the_mcap_one(ros_context, tmp_path, fr1_bag_writer):
+    bag = fr1_bag_writer(tmp_path / "sqlite_bag", n=4, scale=8, storage="sqlite3")
+    assert any(p.suffix == ".db3" for p in bag.path.iterdir())
+    rec = Recorder(ros_context, topics=("/camera/rgb/image_color", "/camera/depth/image"))
+    result = _spin_player(ros_context, make_player(ros_context, bag.path, rate=2.0), rec)
+    assert result.completed and player_kind(bag.path) == "ros2 bag (sqlite3)"
+    assert [stamp_ns(m) for m in rec.images["/camera/rgb/image_color"]] == bag.rgb_stamps_ns
+    assert [stamp_ns(m) for m in rec.images["/camera/depth/image"]] == bag.depth_stamps_ns
+    np.testing.assert_array_equal(decode_rgb(rec.images["/camera/rgb/image_color"][0]), bag.first_rgb)
+
+
+def player_kind(path) -> str:  # noqa: ANN001
+    from changing_slam_ros.io.bag_messages import detect_bag_kind
+
+    return detect_bag_kind(path).value
