@@ -223,7 +223,7 @@ class LongTermAssociation:
             if obj.id in seen or obj.n_points < cfg.min_points:
                 continue
             check = check_visibility(obj.centroid_w, T_world_cam, camera, depth_m, cfg,
-                                     half_extent_m=0.5 * float(np.max(obj.box_size_m)))
+                                     box_size_m=obj.box_size_m)
             out[obj.id] = check.visibility
             if not check.expected:
                 continue

@@ -2,8 +2,10 @@
 
 An object "should have been seen" when its centroid, transformed into the camera,
 1. lies in front of the camera within [min_range_m, max_range_m] along the optical axis,
-2. projects inside the image with `margin_px` to spare on every side, and
-3. is not occluded: the measured depth around that pixel (median of the valid depths in a
+2. projects inside the image with `margin_px` to spare on every side,
+3. would look large enough to be detected: its box (`box_size_m`, when the caller gives it) covers at
+   least `min_projected_area_px` pixels at that depth ((fx / z)^2 times its two largest sides), and
+4. is not occluded: the measured depth around that pixel (median of the valid depths in a
    (2 w + 1)^2 window) is not much closer than the centroid:
        depth_measured >= z_centroid - (occlusion_tolerance_m + half the object's largest box side).
    The tolerance includes the object's half-size because when the object is there, the camera
@@ -36,6 +38,7 @@ class Visibility(enum.Enum):
     BEHIND_CAMERA = "behind_camera"
     OUT_OF_RANGE = "out_of_range"
     OUT_OF_IMAGE = "out_of_image"
+    TOO_SMALL = "too_small"
     OCCLUDED = "occluded"
     NO_DEPTH = "no_depth"
 
@@ -56,12 +59,12 @@ class VisibilityCheck:
 
 def check_visibility(centroid_w: F64, T_world_cam: F64, camera: CameraIntrinsics,
                      depth_m: npt.NDArray[np.floating] | None, config: ObjectMapConfig,
-                     half_extent_m: float = 0.0) -> VisibilityCheck:
+                     box_size_m: F64 | None = None) -> VisibilityCheck:
     """Visibility of a centroid (3,) from the optical-frame camera pose T_world_cam (4, 4).
 
     `depth_m` (H, W) metres, 0 = invalid, registered to `camera`; None skips the occlusion test (then a
-    centroid in the frustum and range counts as visible). `half_extent_m`: half the object's largest box
-    side, added to the occlusion tolerance.
+    centroid in the frustum and range counts as visible). `box_size_m` (3,): the object's box; half its
+    largest side is added to the occlusion tolerance, and it drives the size test (None skips both).
     """
     p_c = invert(np.asarray(T_world_cam, float)) @ np.append(np.asarray(centroid_w, float), 1.0)
     z = float(p_c[2])
@@ -75,6 +78,12 @@ def check_visibility(centroid_w: F64, T_world_cam: F64, camera: CameraIntrinsics
     m = config.margin_px
     if not (m <= u <= camera.width - 1 - m and m <= v <= camera.height - 1 - m):
         return VisibilityCheck(Visibility.OUT_OF_IMAGE, uv, z, 0.0)
+    half_extent_m = 0.0
+    if box_size_m is not None:
+        sides = np.sort(np.asarray(box_size_m, float).reshape(3))
+        half_extent_m = 0.5 * float(sides[2])
+        if (camera.fx / z) * (camera.fy / z) * float(sides[1] * sides[2]) < config.min_projected_area_px:
+            return VisibilityCheck(Visibility.TOO_SMALL, uv, z, 0.0)
     if depth_m is None:
         return VisibilityCheck(Visibility.VISIBLE, uv, z, 0.0)
     measured = window_depth_m(depth_m, u, v, config.depth_window_px)

@@ -16,7 +16,7 @@ from changing_slam_ros.core.persistence_filter import update_missed, update_seen
 
 CAM = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
 CFG = ObjectMapConfig(ltda_threshold_m=0.5, n_keyframes_unseen=5, belief_threshold=0.6, p_detect=0.8,
-                      p_false=0.1, min_points=5)
+                      p_false=0.1, min_points=5, min_projected_area_px=40.0)
 LOOK_Z = np.eye(4)  # camera at the origin looking down world +z
 LOOK_AWAY = np.diag([-1.0, 1.0, -1.0, 1.0])  # looking down -z
 WALL = np.full((CAM.height, CAM.width), 5.0, np.float32)
@@ -91,7 +91,7 @@ def test_belief_is_updated_only_after_n_keyframes_unseen_and_points_switch_at_th
 
 
 def test_expected_but_missed_object_loses_belief_once_per_n_keyframes_and_turns_inactive() -> None:
-    cfg = ObjectMapConfig(n_keyframes_unseen=2, belief_threshold=0.6)
+    cfg = ObjectMapConfig(n_keyframes_unseen=2, belief_threshold=0.6, min_projected_area_px=40.0)
     lta = LongTermAssociation(cfg)
     lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
     lta.process_keyframe(3, [], LOOK_AWAY, CAM, WALL)
@@ -114,7 +114,7 @@ def test_expected_but_missed_object_loses_belief_once_per_n_keyframes_and_turns_
 
 
 def test_a_same_class_box_over_the_object_explains_a_miss_and_truncated_candidates_do_not_associate() -> None:
-    cfg = ObjectMapConfig(n_keyframes_unseen=2)
+    cfg = ObjectMapConfig(n_keyframes_unseen=2, min_projected_area_px=40.0)
     lta = LongTermAssociation(cfg)
     lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
     # kf 10: the object projects to (79.5, 59.5); a truncated chair box covers it: no miss, no merge

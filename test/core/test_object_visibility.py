@@ -24,7 +24,7 @@ def test_object_in_view_in_front_of_the_wall_behind_it_is_visible() -> None:
     # the object's front surface (2.3 m) is measured; its centroid is at 2.5 m, half-extent 0.25 m
     depth = _wall(4.0)
     depth[50:70, 70:90] = 2.3
-    chk = check_visibility(np.array([0.0, 0.0, 2.5]), I4, CAM, depth, CFG, half_extent_m=0.25)
+    chk = check_visibility(np.array([0.0, 0.0, 2.5]), I4, CAM, depth, CFG, box_size_m=np.array([0.5, 0.5, 0.5]))
     assert chk.visibility is Visibility.VISIBLE and chk.expected
     assert chk.pixel_uv == pytest.approx((79.5, 59.5))
     assert chk.measured_depth_m == pytest.approx(2.3)
@@ -33,10 +33,10 @@ def test_object_in_view_in_front_of_the_wall_behind_it_is_visible() -> None:
 
 
 def test_object_behind_a_wall_is_occluded() -> None:
-    chk = check_visibility(np.array([0.0, 0.0, 3.0]), I4, CAM, _wall(1.5), CFG, half_extent_m=0.3)
+    chk = check_visibility(np.array([0.0, 0.0, 3.0]), I4, CAM, _wall(1.5), CFG, box_size_m=np.array([0.6, 0.6, 0.6]))
     assert chk.visibility is Visibility.OCCLUDED and not chk.expected
     # tolerance: a surface 0.45 m in front of the centroid with half-extent 0.3 + 0.2 is not an occluder
-    assert check_visibility(np.array([0.0, 0.0, 3.0]), I4, CAM, _wall(2.55), CFG, half_extent_m=0.3).expected
+    assert check_visibility(np.array([0.0, 0.0, 3.0]), I4, CAM, _wall(2.55), CFG, box_size_m=np.array([0.6, 0.6, 0.6])).expected
 
 
 def test_object_outside_the_frustum_or_the_margin_or_behind_the_camera_is_not_expected() -> None:
@@ -82,3 +82,12 @@ def test_sparse_depth_from_keypoints_gives_the_occlusion_test_keypoint_depths() 
     # an object 2.5 m away behind the 1.2 m keypoint is occluded; with no keypoint near it, unknown
     assert check_visibility(np.array([0.0, 0.0, 2.5]), I4, CAM, depth, CFG).visibility is Visibility.OCCLUDED
     assert check_visibility(np.array([0.6, -0.1, 2.5]), I4, CAM, depth, CFG).visibility is Visibility.NO_DEPTH
+
+
+def test_object_too_small_to_be_detected_is_not_expected() -> None:
+    # a cup 0.05 x 0.08 x 0.1 m: (131.25 / 2.6)^2 * 0.008 = 20.4 px < 100 px; at 1.2 m: 95.7 px; at 1.1 m: 113.9 px
+    cup = np.array([0.05, 0.08, 0.1])
+    far = check_visibility(np.array([0.0, 0.0, 2.6]), I4, CAM, _wall(4.0), CFG, box_size_m=cup)
+    assert far.visibility is Visibility.TOO_SMALL and not far.expected
+    assert not check_visibility(np.array([0.0, 0.0, 1.2]), I4, CAM, _wall(4.0), CFG, box_size_m=cup).expected
+    assert check_visibility(np.array([0.0, 0.0, 1.1]), I4, CAM, _wall(4.0), CFG, box_size_m=cup).expected
