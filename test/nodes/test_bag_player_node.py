@@ -298,3 +298,17 @@ def player_kind(path) -> str:  # noqa: ANN001
     from changing_slam_ros.io.bag_messages import detect_bag_kind
 
     return detect_bag_kind(path).value
+
+
+def test_a_node_with_use_sim_time_follows_the_bag_clock(ros_context, fr1_bag):
+    sim = Node("sim_time_node", context=ros_context, parameter_overrides=[Parameter("use_sim_time", value=True)])
+    seen: list[int] = []
+    sim.create_timer(0.01, lambda: seen.append(sim.get_clock().now().nanoseconds))  # runs on the bag's clock
+    rec = Recorder(ros_context)
+    result = _spin_player(ros_context, make_player(ros_context, fr1_bag.path, rate=1.0), rec, sim)
+    assert result.completed
+    now_ns = sim.get_clock().now().nanoseconds
+    last = max(fr1_bag.rgb_stamps_ns[-1], fr1_bag.depth_stamps_ns[-1])
+    assert last <= now_ns < last + S // 2  # sim time = bag time (2011), not the wall clock
+    assert seen and seen[0] >= fr1_bag.rgb_stamps_ns[0] and all(b >= a for a, b in zip(seen, seen[1:]))
+    sim.destroy_node()
