@@ -20,6 +20,7 @@ from typing import Any
 
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import Odometry, Path
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -62,6 +63,7 @@ class TrackingNode(Node):
             ("camera_frame", "camera", "camera optical frame of the published pose"),
             ("publish_tf", True, "publish map->odom->camera on /tf"),
             ("ack_topic", "", "std_msgs/Header per processed frame (bag_player lossless); empty = off"),
+            ("stats_period_s", 10.0, "seconds between log lines with frame and drop counts"),
             ("compressed", False, "subscribe CompressedImage on <colour>/compressed and <depth>/compressed"),
         ])  # fmt: skip
         slop_ns = round(p["sync_slop_s"] * 1e9)
@@ -94,6 +96,8 @@ class TrackingNode(Node):
         self.tf_pub = self.create_publisher(TFMessage, "/tf", 100) if p["publish_tf"] else None
         self.ack_pub = self.create_publisher(Header, p["ack_topic"], 100) if p["ack_topic"] else None
         self.path = Path(header=Header(frame_id=p["map_frame"]))
+        # Steady clock: the stats line keeps coming when use_sim_time is on and the bag is paused.
+        self.create_timer(p["stats_period_s"], self._log_stats, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info("tracking: started (SKELETON: core tracking not wired yet, no poses published)")
 
     # -- inputs ---------------------------------------------------------------------------------
@@ -176,6 +180,14 @@ class TrackingNode(Node):
             odom_cam = TransformStamped(header=make_header(stamp_ns, p["odom_frame"]), child_frame_id=p["camera_frame"])
             odom_cam.transform = matrix_to_transform(T_world_cam)
             self.tf_pub.publish(TFMessage(transforms=[map_odom, odom_cam]))
+
+    def _log_stats(self) -> None:
+        s = self.pairer.stats
+        if s.pairs or s.dropped_first or s.dropped_second:
+            self.get_logger().info(
+                f"tracking: {self.frames_in} frames, {s.pairs} colour/depth pairs, unpaired dropped: "
+                f"{s.dropped_first} colour, {s.dropped_second} depth"
+            )
 
     def _ack(self, header: Header) -> None:
         if self.ack_pub is not None:
