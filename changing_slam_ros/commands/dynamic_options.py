@@ -1,0 +1,101 @@
+"""Dynamic-scene options of `changing-slam run` (a helper of `commands/run.py`, not a subcommand).
+
+    --detections {none,model,oracle}   where boxes come from (default: model, the shipped SSD-MobileNetV2
+                                       or `detector.model_path`); oracle = the simulator's detections.json
+                                       inside the TUM folder, or --detections-file
+    --detections-file FILE             oracle detections JSON given explicitly
+    --dynamic / --no-dynamic           dynamic handling on (default, or `dynamic.enabled`) / off (plain engine)
+    --[no-]detection-filtering --[no-]repopulation --[no-]ekf-doc --[no-]segmentation
+                                       issue 5's ablation switches (default: the `dynamic:` config section)
+
+Config sections read: `dynamic:` (`core.dynamic_filter.DynamicConfig`) and `detector:`
+(`core.detector.DetectorConfig`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from changing_slam_ros.config import section
+from changing_slam_ros.core.detector import Detection, Detector, DetectorConfig
+from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.io.detections_file import DetectionsFile, find_detections_file, read_detections_file
+
+DETECTION_SOURCES = ("none", "model", "oracle")
+SWITCHES = ("detection_filtering", "repopulation", "ekf_doc", "segmentation")
+
+
+def add_dynamic_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("dynamic scenes (issue 5)")
+    group.add_argument("--detections", choices=DETECTION_SOURCES, default="model",
+                       help="object boxes: none, model (ONNX detector, default) or oracle (simulator detections.json)")
+    group.add_argument("--detections-file", type=Path, default=None, metavar="FILE",
+                       help="oracle detections JSON (default: detections.json inside SOURCE)")
+    group.add_argument("--dynamic", action=argparse.BooleanOptionalAction, default=None,
+                       help="dynamic-scene keypoint filtering (default on, or the config's dynamic.enabled)")
+    for name in SWITCHES:
+        group.add_argument(f"--{name.replace('_', '-')}", dest=name, action=argparse.BooleanOptionalAction,
+                           default=None, help=f"ablation switch dynamic.{name} (default from the config)")
+
+
+@dataclass
+class DynamicSetup:
+    """The run's dynamic filter (None = plain engine) and where each frame's detections come from."""
+
+    filter: DynamicFilter | None
+    source: str
+    detector: Detector | None = None
+    oracle: DetectionsFile | None = None
+    detection_ms: list[float] = field(default_factory=list)
+
+    def detections_for(self, rgbd: RgbdFrame) -> tuple[Detection, ...] | None:
+        if self.filter is None or not self.filter.config.detection_filtering:
+            return None
+        if self.detector is not None:
+            t0 = time.perf_counter()
+            found = self.detector.detect(rgbd.rgb, rgbd.stamp_ns).detections
+            self.detection_ms.append((time.perf_counter() - t0) * 1e3)
+            return found
+        if self.oracle is not None:
+            return self.oracle.for_stamp(rgbd.stamp_ns)
+        return ()
+
+    def summary(self) -> dict[str, Any]:
+        """For metrics.json: switches, detection source, keypoints kept, milliseconds per frame."""
+        if self.filter is None:
+            return {"enabled": False}
+        f = self.filter
+        out: dict[str, Any] = {"enabled": True, "detections": self.source}
+        out.update({name: getattr(f.config, name) for name in SWITCHES})
+        out["kept_fraction"] = f.kept_fraction()
+        out["filter_ms_median"] = float(np.median(f.frames_ms)) if f.frames_ms else 0.0
+        if self.detection_ms:
+            out["detection_ms_median"] = float(np.median(self.detection_ms))
+        return out
+
+
+def dynamic_setup(args: argparse.Namespace, data: dict[str, Any], where: str) -> DynamicSetup:
+    """Build the filter and the detection source from the config sections and the command line."""
+    config = section(DynamicConfig, data.get("dynamic"), f"{where}: dynamic")
+    overrides = {name: getattr(args, name) for name in SWITCHES if getattr(args, name) is not None}
+    if args.dynamic is not None:
+        overrides["enabled"] = args.dynamic
+    config = dataclasses.replace(config, **overrides)
+    if not config.enabled:
+        return DynamicSetup(None, "none")
+    flt = DynamicFilter(config)
+    source = args.detections if config.detection_filtering else "none"
+    if source == "model":
+        return DynamicSetup(flt, source, detector=Detector(section(DetectorConfig, data.get("detector"), f"{where}: detector")))
+    if source == "oracle":
+        path = args.detections_file or find_detections_file(args.source)
+        return DynamicSetup(flt, source, oracle=read_detections_file(path))
+    return DynamicSetup(flt, source)
