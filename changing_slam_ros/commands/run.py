@@ -1,6 +1,8 @@
 """`changing-slam run SOURCE --out DIR [--config YAML]`: the SLAM pipeline offline, every frame processed.
 
     changing-slam run SOURCE --out DIR [--config NAME|FILE] [--max-frames N] [--no-loop] [--no-plot] [--quiet]
+        [--detections none|model|oracle] [--detections-file FILE] [--no-dynamic] [ablation switches]
+(dynamic-scene options: see `commands/dynamic_options.py`).
 
 SOURCE is anything `io.dataset.open_dataset` reads (TUM-layout folder, 7-Scenes, ROS 1/2 bag, mcap).
 DIR receives:
@@ -28,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dynamic_setup
 from changing_slam_ros.config import find_config, load_yaml, section
 from changing_slam_ros.core.local_mapping import MappingConfig
 from changing_slam_ros.core.orb_features import FeatureConfig
@@ -50,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-loop", action="store_true", help="disable loop closing")
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_dynamic_arguments(parser)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -68,12 +72,13 @@ def main(args: argparse.Namespace) -> int:
     config = system_config_from_mapping(data, where)
     source = open_dataset(args.source, settings)
     closing = None if args.no_loop else _loop_closing(data, where)
-    system = SlamSystem(config, loop_closer=closing, keyframe_index=closing)
+    dynamic = dynamic_setup(args, data, where)
+    system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=dynamic.filter)
 
     n_total = len(source) if not args.max_frames else min(args.max_frames, len(source))
     t0 = time.perf_counter()
     for rgbd in _progress(_prefetch(source, n_total), n_total, args.quiet):
-        system.process(rgbd)
+        system.process(rgbd, dynamic.detections_for(rgbd))
     wall_s = time.perf_counter() - t0
 
     out = Path(args.out)
@@ -97,6 +102,7 @@ def main(args: argparse.Namespace) -> int:
         "wall_s": wall_s,
         "fps": len(system.records) / wall_s if wall_s > 0 else 0.0,
         "tracking_ms_median": timing.get("tracking", {}).get("p50", 0.0),
+        "dynamic": dynamic.summary(),
     }
     gt = source.groundtruth
     if gt is not None and len(final) >= 3:
