@@ -38,6 +38,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.map_object import BoxXyxy, MapObject, ObjectMapConfig
 from changing_slam_ros.core.object_visibility import Visibility, check_visibility
 from changing_slam_ros.core.persistence_filter import BeliefUpdate, update_missed, update_seen
@@ -254,3 +255,34 @@ class LongTermAssociation:
                 changed = [p for p in obj.point_ids.tolist() if p not in old_points]
             (on if obj.active else off).extend(changed)
         return np.array(sorted(set(on)), np.int64), np.array(sorted(set(off)), np.int64)
+
+
+# --- glue to the metric map (core.map_point.PointStore) ---
+
+def point_lookup(points: PointStore) -> PointLookup:
+    """`positions_of` for `LongTermAssociation.refresh_points` reading a PointStore (bad points dropped)."""
+
+    def positions_of(ids: I64) -> tuple[F64, npt.NDArray[np.bool_]]:
+        ids = np.asarray(ids, np.int64)
+        known = (ids >= 0) & (ids < points.size)
+        safe = np.where(known, ids, 0)
+        pos: F64 = points.positions[safe].copy()
+        usable = known & ~points.bad[safe]
+        return pos, usable
+
+    return positions_of
+
+
+def apply_to_point_store(points: PointStore, candidates: Sequence[ObjectCandidate], result: AssociationResult) -> None:
+    """Write one keyframe's outcome into the map points: each associated candidate's points get the map
+    object's id and class (§4.2), and the active flags follow the objects' beliefs (§4.7)."""
+    for cand, oid in zip(candidates, result.assignments):
+        if oid < 0:
+            continue
+        ids = np.asarray(cand.point_ids, np.int64)
+        ids = ids[(ids >= 0) & (ids < points.size)]
+        points.object_id[ids] = oid
+        points.class_id[ids] = cand.class_id
+    for ids, flag in ((result.activated_point_ids, True), (result.deactivated_point_ids, False)):
+        ids = ids[(ids >= 0) & (ids < points.size)]
+        points.active[ids] = flag

@@ -8,8 +8,9 @@ import pytest
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.long_term_association import (
-    LongTermAssociation, ObjectCandidate, candidates_from_keyframe,
+    LongTermAssociation, ObjectCandidate, apply_to_point_store, candidates_from_keyframe, point_lookup,
 )
+from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.map_object import ObjectMapConfig
 from changing_slam_ros.core.object_visibility import Visibility
 from changing_slam_ros.core.persistence_filter import update_missed, update_seen
@@ -189,3 +190,30 @@ def test_a_loaded_map_in_a_new_session_updates_beliefs_at_first_sight_or_miss() 
     assert second.objects[0].belief > 0.6 and second.objects[1].belief < 0.5
     assert second.process_keyframe(1, [], LOOK_AWAY, CAM, WALL).new_object_ids == ()
     assert second.process_keyframe(2, [_cand([3.0, 0.0, 2.5], 400)], LOOK_Z, CAM, WALL).new_object_ids == (2,)
+
+
+def test_outcome_is_written_into_a_point_store_and_read_back_after_culling() -> None:
+    store = PointStore()
+    rng = np.random.default_rng(1)
+    pos = np.array([0.0, 0.0, 2.5]) + rng.normal(0.0, 0.05, (30, 3))
+    ids = store.add(pos, np.zeros((30, 32), np.uint8), 0, np.arange(30), np.zeros(3), np.zeros(30, np.int64),
+                    np.ones(8))
+    lta = LongTermAssociation(CFG)
+    cands = [ObjectCandidate(CHAIR, (10, 10, 50, 50), ids[:20], store.positions[ids[:20]])]
+    res = lta.process_keyframe(0, cands, LOOK_Z, CAM, WALL)
+    apply_to_point_store(store, cands, res)
+    assert store.object_id[:20].tolist() == [0] * 20 and store.object_id[20:30].tolist() == [-1] * 10
+    assert store.class_id[:20].tolist() == [CHAIR] * 20
+    assert not store.active[:20].any() and store.active[20:30].all()  # object points start inactive
+    assert not store.usable()[:20].any()
+    # culling and bundle adjustment: the object follows the store
+    store.set_bad(ids[:5])
+    store.positions[ids[5:20]] += [0.0, 1.0, 0.0]
+    lta.refresh_points(point_lookup(store))
+    assert lta.objects[0].point_ids.tolist() == ids[5:20].tolist()
+    np.testing.assert_allclose(lta.objects[0].centroid_w, store.positions[ids[5:20]].mean(axis=0))
+    # a long-term sighting activates the points again
+    cands = [ObjectCandidate(CHAIR, (10, 10, 50, 50), ids[5:20], store.positions[ids[5:20]])]
+    res = lta.process_keyframe(10, cands, LOOK_Z, CAM, WALL)
+    apply_to_point_store(store, cands, res)
+    assert lta.objects[0].active and store.active[ids[5:20]].all()

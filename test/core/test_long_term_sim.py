@@ -216,7 +216,7 @@ def test_second_session_on_a_saved_map_of_a_changed_room(tmp_path: Path) -> None
     assert m.stale == ()
 
 
-if __name__ == "__main__":  # diagnostics: python test/core/test_long_term_sim.py vanishing [masks]
+if __name__ == "__main__":  # diagnostics: python test/core/test_long_term_sim.py vanishing [masks] [out.png]
     import json
     import sys
 
@@ -235,3 +235,10 @@ if __name__ == "__main__":  # diagnostics: python test/core/test_long_term_sim.p
         for x in m.matches:
             print(f"  #{x.estimate_id} {x.gt_name}: centroid {x.centroid_error_m:.3f} m, box centre "
                   f"{x.box_center_error_m:.3f} m, IoU {x.iou:.2f}")
+    png = [a for a in sys.argv if a.endswith(".png")]
+    if png:
+        from changing_slam_ros.eval.semantic_map_plot import plot_semantic_map
+
+        final = [(o.name, *b) for o in run.gt.objects if (b := o.box_at(-1)) is not None and o.class_id >= 0]
+        plot_semantic_map(png[0], build_semantic_map(run.lta.objects.values(), cfg, include_inactive=True),
+                          ground_truth=final, title=f"{run.gt.scenario} (160x120, oracle boxes)")
