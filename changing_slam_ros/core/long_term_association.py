@@ -102,7 +102,8 @@ class BeliefChange:
 @dataclass(frozen=True)
 class AssociationResult:
     """What one keyframe changed. `assignments[i]` is the map object id candidate i went to (new or
-    merged), -1 if it had fewer than `min_points` points and was skipped."""
+    merged), -1 if it was skipped (truncated, or fewer than `min_points` points). `visibility`: the verdict
+    of the vicinity search for every mapped object that no candidate matched."""
 
     keyframe_id: int
     assignments: tuple[int, ...]
@@ -158,7 +159,7 @@ class LongTermAssociation:
         (0 = invalid) for the occlusion test, or None to skip that test.
         """
         cfg = self.config
-        before = {oid: (obj.active, set(obj.point_ids.tolist())) for oid, obj in self.objects.items()}
+        before = {oid: (obj.active, obj.n_points) for oid, obj in self.objects.items()}
         existing = list(self.objects.values())
         assignments: list[int] = []
         new_ids: list[int] = []
@@ -242,19 +243,20 @@ class LongTermAssociation:
             changes.append(BeliefChange(obj.id, "missed", upd))
         return out
 
-    def _point_flag_changes(self, before: dict[int, tuple[bool, set[int]]]) -> tuple[I64, I64]:
+    def _point_flag_changes(self, before: dict[int, tuple[bool, int]]) -> tuple[I64, I64]:
         """Point ids whose flag must be set: all points of objects whose state flipped, plus the points
-        that joined an object (set to the object's state)."""
-        on: list[int] = []
-        off: list[int] = []
+        that joined an object (set to the object's state). `before`: object id -> (active, number of points)
+        at the start of the keyframe; `MapObject.add_points` appends, so the joiners are the tail."""
+        on: list[I64] = []
+        off: list[I64] = []
         for oid, obj in self.objects.items():
-            was_active, old_points = before.get(oid, (None, set()))
-            if was_active is None or was_active != obj.active:
-                changed = obj.point_ids.tolist()
+            if oid not in before or before[oid][0] != obj.active:
+                changed = obj.point_ids
             else:
-                changed = [p for p in obj.point_ids.tolist() if p not in old_points]
-            (on if obj.active else off).extend(changed)
-        return np.array(sorted(set(on)), np.int64), np.array(sorted(set(off)), np.int64)
+                changed = obj.point_ids[before[oid][1]:]
+            (on if obj.active else off).append(changed)
+        return (np.unique(np.concatenate(on)) if on else np.zeros(0, np.int64),
+                np.unique(np.concatenate(off)) if off else np.zeros(0, np.int64))
 
 
 # --- glue to the metric map (core.map_point.PointStore) ---

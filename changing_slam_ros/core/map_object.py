@@ -180,7 +180,10 @@ class MapObject:
         ids = np.asarray(point_ids, dtype=np.int64).reshape(-1)
         pts = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
         new = ~np.isin(ids, self.point_ids)
-        self.set_points(np.concatenate([self.point_ids, ids[new]]), np.vstack([self.points_w, pts[new]]))
+        ids, pts = ids[new], pts[new]
+        _, first = np.unique(ids, return_index=True)  # a repeated id in the input is added once
+        first.sort()
+        self.set_points(np.concatenate([self.point_ids, ids[first]]), np.vstack([self.points_w, pts[first]]))
 
     def refresh_points(self, positions_w: F64, keep: npt.NDArray[np.bool_] | None = None) -> None:
         """Move the points to `positions_w` (N, 3), row-aligned with `point_ids` (after bundle

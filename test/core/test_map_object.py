@@ -45,7 +45,7 @@ def test_map_object_centroid_is_the_mean_and_add_points_is_a_union() -> None:
     obj = MapObject(7, 56, (0, 0, 10, 10), (0, 0, 10, 10), 3, 3,
                     point_ids=np.array([1, 2, 3]), points_w=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]))
     np.testing.assert_allclose(obj.centroid_w, [1.0, 0.0, 0.0])
-    obj.add_points(np.array([3, 4]), np.array([[9.0, 9.0, 9.0], [3.0, 0.0, 0.0]]))  # id 3 already held
+    obj.add_points(np.array([3, 4, 4]), np.array([[9.0, 9.0, 9.0], [3.0, 0.0, 0.0], [3.0, 0.0, 0.0]]))  # 3 held
     assert obj.point_ids.tolist() == [1, 2, 3, 4]
     np.testing.assert_allclose(obj.centroid_w, [1.5, 0.0, 0.0])
     assert obj.belief == 0.5 and not obj.active
