@@ -70,6 +70,12 @@ class ObjectCandidate:
         return centroid
 
 
+def box_truncated(box_xyxy: BoxXyxy, camera: CameraIntrinsics, border_px: float = 1.0) -> bool:
+    """True when a box (x_min, y_min, x_max exclusive, y_max exclusive) touches the image border."""
+    x0, y0, x1, y1 = box_xyxy
+    return x0 < border_px or y0 < border_px or x1 > camera.width - border_px or y1 > camera.height - border_px
+
+
 def candidates_from_keyframe(kf: Keyframe, points_w_of: Callable[[I64], F64],
                              boxes: Mapping[int, tuple[int, BoxXyxy, bool]]) -> list[ObjectCandidate]:
     """One candidate per short-term object id in `kf.object_ids` that has map points.

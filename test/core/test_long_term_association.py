@@ -8,7 +8,7 @@ import pytest
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.long_term_association import (
-    LongTermAssociation, ObjectCandidate, apply_to_point_store, candidates_from_keyframe, point_lookup,
+    LongTermAssociation, ObjectCandidate, apply_to_point_store, box_truncated, candidates_from_keyframe, point_lookup,
 )
 from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.map_object import ObjectMapConfig
@@ -174,6 +174,8 @@ def test_candidates_from_a_keyframe_group_its_map_points_by_short_term_object() 
     assert [(c.class_id, c.point_ids.tolist(), c.truncated) for c in cands] == [(CHAIR, [10, 11], False),
                                                                                  (CUP, [12, 13], True)]
     np.testing.assert_allclose(cands[0].centroid_w, [0.0, 0.0, 2.0])
+    assert box_truncated((0, 5, 20, 20), CAM) and box_truncated((5, 5, 160, 20), CAM)
+    assert not box_truncated((1, 1, 159, 119), CAM) and box_truncated((1, 1, 159, 119), CAM, border_px=2)
 
 
 def test_a_loaded_map_in_a_new_session_updates_beliefs_at_first_sight_or_miss() -> None:

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.long_term_association import LongTermAssociation, ObjectCandidate
+from changing_slam_ros.core.long_term_association import LongTermAssociation, ObjectCandidate, box_truncated
 from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
 from changing_slam_ros.core.se3 import rot_to_quat
 from changing_slam_ros.core.semantic_map import build_semantic_map
@@ -37,10 +37,9 @@ def candidates_from_boxes(depth_m: np.ndarray, boxes: list[tuple[int, tuple[int,
     """One candidate per (class, box) from the depth inside the box; point ids count from first_point_id.
     `masks` (one (H, W) bool per box): keep only the pixels of the object (an ideal segmentation)."""
     out = []
-    h, w = depth_m.shape
     pid = first_point_id
     for k, (class_id, (x0, y0, x1, y1)) in enumerate(boxes):
-        truncated = x0 < border_px or y0 < border_px or x1 > w - border_px or y1 > h - border_px
+        truncated = box_truncated((x0, y0, x1, y1), camera, border_px)
         vv, uu = np.mgrid[y0:y1:step_px, x0:x1:step_px]
         d = depth_m[vv, uu]
         ok = d > 0
