@@ -136,7 +136,7 @@ class DynamicFilter:
         self.config = config or DynamicConfig()
         self._tracker: DynamicObjectTracker | None = None
         self._camera: CameraIntrinsics | None = None
-        self._history: deque[_Past] = deque(maxlen=self.config.segmentation_gap_frames + 1)
+        self._history: deque[_Past] = deque(maxlen=self.config.segmentation_gap_frames)
         self._poses: deque[F64] = deque(maxlen=2)  # last two tracked poses, for the prediction
         self._pending: _Past | None = None
         self._classified = False
@@ -221,7 +221,7 @@ class DynamicFilter:
         """(N,) keypoints of the frame that the two-frame segmentation puts on an object target."""
         cfg = self.config
         moving = np.zeros(len(features), dtype=bool)
-        if len(self._history) <= cfg.segmentation_gap_frames:
+        if len(self._history) < cfg.segmentation_gap_frames:
             return moving
         past = self._history[0]  # segmentation_gap_frames frames before this one
         T_now = self._predicted_pose()
