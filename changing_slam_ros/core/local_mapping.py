@@ -32,7 +32,7 @@ class MappingConfig:
 
     - `max_new_point_depth_m`: keypoints deeper than this make no new point.
     - `cull_found_ratio`, `min_observations`: recent point culling (ORB-SLAM 0.25, 3 with stereo observations counted twice).
-    - `local_ba`: enable local BA; `ba_window`, `ba_max_fixed`, `ba_iterations`: its size and effort.
+    - `local_ba`: enable local BA; `ba_window`, `ba_max_fixed`, `ba_iterations`, `ba_max_points`: its size and effort.
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
     """
@@ -44,6 +44,7 @@ class MappingConfig:
     ba_window: int = 10
     ba_max_fixed: int = 10
     ba_iterations: int = 5
+    ba_max_points: int = 600
     keyframe_culling: bool = True
     redundancy: float = 0.9
     fuse_neighbours: int = 10
@@ -94,8 +95,8 @@ class LocalMapper:
         # 4. Local BA.
         if self.cfg.local_ba and len(m.keyframes) > 1:
             ba_cfg = LocalBAConfig(
-                self.cfg.ba_window, self.cfg.ba_max_fixed, self.cfg.ba_iterations, self.fcfg.bf_m_px,
-                tuple(float(s) for s in self.scales),
+                self.cfg.ba_window, self.cfg.ba_max_fixed, self.cfg.ba_iterations, self.cfg.ba_max_points,
+                self.fcfg.bf_m_px, tuple(float(s) for s in self.scales),
             )
             stats.ba = local_bundle_adjust(m, kf.id, ba_cfg)
             m.update_connections(kf.id)

@@ -80,29 +80,45 @@ def replace_point(slam_map: SlamMap, old: int, new: int) -> None:
 
 def refresh_points(slam_map: SlamMap, ids: I64, level_scales: npt.NDArray[np.float64]) -> None:
     """Distinctive descriptor (least median Hamming distance to the others) and mean viewing
-    direction / scale distances of each point, from all of its observations."""
+    direction / scale distances of each point, from all of its observations (vectorised per batch)."""
     pts = slam_map.points
     kfs = slam_map.keyframes
-    for pid in ids.tolist():
-        if pts.bad[pid]:
-            continue
-        obs = [(kfs[k], i) for k, i in pts.observations[pid].items() if k in kfs]
-        if not obs:
-            continue
-        if len(obs) > 2:
-            desc = np.stack([kf.descriptors[i] for kf, i in obs])
-            dist = hamming(desc[:, None, :], desc[None, :, :])
-            pts.descriptors[pid] = desc[int(np.argmin(np.median(dist, axis=1)))]
-        centres = np.stack([kf.T_world_cam[:3, 3] for kf, _ in obs])
-        rays = pts.positions[pid] - centres
-        rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
-        normal = rays.mean(axis=0)
-        pts.normals[pid] = normal / max(float(np.linalg.norm(normal)), 1e-9)
-        ref_kf = kfs.get(int(pts.ref_kf[pid]))
-        if ref_kf is None:
-            ref_kf, i_ref = obs[0]
-        else:
-            i_ref = pts.observations[pid][ref_kf.id]
-        dist_ref = float(np.linalg.norm(pts.positions[pid] - ref_kf.T_world_cam[:3, 3]))
-        pts.max_dist[pid] = dist_ref * level_scales[int(ref_kf.octaves[i_ref])]
-        pts.min_dist[pid] = pts.max_dist[pid] / level_scales[-1]
+    ids = ids[~pts.bad[ids]]
+    # 1. Flatten the observations: (point row, keyframe centre, descriptor, octave).
+    rows, centres, descs, octs, is_ref = [], [], [], [], []
+    for r, pid in enumerate(ids.tolist()):
+        ref = int(pts.ref_kf[pid])
+        for k, i in pts.observations[pid].items():
+            kf = kfs.get(k)
+            if kf is None:
+                continue
+            rows.append(r)
+            centres.append(kf.T_world_cam[:3, 3])
+            descs.append(kf.descriptors[i])
+            octs.append(int(kf.octaves[i]))
+            is_ref.append(k == ref)
+    if not rows:
+        return
+    row = np.array(rows)
+    rays = pts.positions[ids[row]] - np.array(centres)
+    dist = np.linalg.norm(rays, axis=1)
+    # 2. Mean viewing direction.
+    acc = np.zeros((len(ids), 3))
+    np.add.at(acc, row, rays / np.maximum(dist, 1e-9)[:, None])
+    norm = np.linalg.norm(acc, axis=1)
+    seen = norm > 0
+    pts.normals[ids[seen]] = acc[seen] / norm[seen, None]
+    # 3. Scale-invariance distances from the reference observation (ORB-SLAM `UpdateNormalAndDepth`).
+    ref_mask = np.array(is_ref)
+    r_ref = row[ref_mask]
+    max_d = dist[ref_mask] * level_scales[np.array(octs)[ref_mask]]
+    pts.max_dist[ids[r_ref]] = max_d
+    pts.min_dist[ids[r_ref]] = max_d / level_scales[-1]
+    # 4. Distinctive descriptor for points seen at least three times.
+    desc = np.array(descs)
+    starts = np.searchsorted(row, np.arange(len(ids)))
+    counts = np.bincount(row, minlength=len(ids))
+    for r in np.flatnonzero(counts > 2).tolist():
+        d = desc[starts[r]: starts[r] + counts[r]]
+        ham = hamming(d[:, None, :], d[None, :, :])
+        pts.descriptors[ids[r]] = d[int(np.argmin(np.median(ham, axis=1)))]

@@ -2,7 +2,7 @@
 
 Variables: poses X(k) (gtsam `Pose3` = camera-to-world) of the local keyframes (the new keyframe and
 its covisible neighbours) and positions L(p) of every usable map point they see. Keyframes outside
-the window that also observe those points enter as fixed poses (constrained, not optimised).
+the window that also observe those points enter as fixed poses (held by tight priors).
 Factors: `GenericStereoFactor3D` for keypoints with depth (u_l, u_r, v in pixels, sigma = level scale
 px on each), `GenericProjectionFactorCal3_S2` for keypoints without (u, v), both with a Huber kernel
 on the whitened error (k = sqrt(7.815) stereo, sqrt(5.991) mono). Afterwards observations whose
@@ -27,12 +27,15 @@ F64 = npt.NDArray[np.float64]
 @dataclass(frozen=True)
 class LocalBAConfig:
     """`n_window`: covisible keyframes optimised with the new one; `max_fixed`: fixed keyframes kept
-    (most observations first); `iterations`: Levenberg-Marquardt iterations; `level_scales`: pyramid
+    (most observations first); `iterations`: Levenberg-Marquardt iterations; `max_points`: points
+    optimised at most, those with the most observations in the window first (the solver's cost grows
+    with the number of variables: gtsam spends ~0.1 ms per variable per linear solve here); `level_scales`: pyramid
     scales, set by the caller from the feature config; `bf_m_px`: virtual stereo baseline * fx."""
 
     n_window: int = 10
     max_fixed: int = 10
     iterations: int = 5
+    max_points: int = 600
     bf_m_px: float = 40.0
     level_scales: tuple[float, ...] = tuple(1.2**i for i in range(8))
 
@@ -130,6 +133,10 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
     # Points seen only once in the window carry no constraint: leave them out.
     n_per_point = np.bincount(np.searchsorted(point_ids, obs.point_ids), minlength=len(point_ids))
     keep_pts = point_ids[n_per_point >= 2]
+    if len(keep_pts) > cfg.max_points:
+        counts_kept = n_per_point[n_per_point >= 2]
+        order = np.lexsort((keep_pts, -counts_kept))[: cfg.max_points]
+        keep_pts = np.sort(keep_pts[order])
     keep_obs = np.isin(obs.point_ids, keep_pts)
     obs = Observations(*(getattr(obs, f)[keep_obs] for f in ("kf_ids", "point_ids", "uv", "u_right", "level", "kp_index")))
     if len(keep_pts) == 0:
@@ -137,13 +144,16 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
     poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
     e2_before, _ = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales)
 
-    # 3. Graph: fixed poses as equality constraints (they fix the gauge), robust reprojection factors.
+    # 3. Graph: fixed poses (they fix the gauge), robust reprojection factors.
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for k in all_kfs:
         values.insert(X(k), gtsam.Pose3(poses[k]))
+    # Fixed keyframes: a very tight prior (1e-6 rad / m; rotation first) instead of a hard
+    # NonlinearEquality, whose constrained noise model forces gtsam onto its slow QR path.
+    fixed_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
     for k in fixed:
-        graph.add(gtsam.NonlinearEqualityPose3(X(k), gtsam.Pose3(poses[k])))
+        graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(poses[k]), fixed_noise))
     for pid in keep_pts.tolist():
         values.insert(L(pid), slam_map.points.positions[pid])
     k_stereo = gtsam.Cal3_S2Stereo(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, cfg.bf_m_px / cam.fx)
@@ -162,6 +172,7 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
     # 4. Optimise.
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.iterations)
+    params.setRelativeErrorTol(1e-3)  # stop once an iteration gains < 0.1 %
     try:
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
     except RuntimeError:
