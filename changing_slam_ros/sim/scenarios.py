@@ -3,11 +3,12 @@
 TUM fr3-like (`walking_xyz`, `walking_static`, `walking_rpy`, `walking_halfsphere`, `sitting_xyz`): two
 people walk (or sit) between a hand-held camera and an office corner with a table, a monitor and chairs.
 PUC-USP-like (`static`, `one_chair`, `vanishing`, `changing`, `shift`, `replacing`): a camera on a
-wheeled robot (0.07 m/s, turning 30 deg/s) drives a square loop twice facing the four walls in turn;
+wheeled robot (0.07 m/s, turning 30 deg/s in place) drives 7 or 8 sides of a 0.8 m square, facing the
+walls in turn so that each changed place is seen before and after its change (101 or 115 s, 15 Hz);
 objects are moved, removed, replaced or added while the robot faces away, and every change is checked
-to be out of view when it happens. Dai-like `unknown_mover`: a box of no COCO class carried by hand in
-front of a nearly still camera. `walking_changing`: a short panning shot with a walker and an
-out-of-view move (the sample bag).
+to be out of view when it happens. `office_xyz` is `walking_xyz` without people (its control). Dai-like
+`unknown_mover`: a box of no COCO class carried by hand in front of a nearly still camera.
+`walking_changing`: a short panning shot with a walker and an out-of-view move (the sample bag).
 
 A seed jitters placements, walking paths, speeds and motion phases; the same seed gives the same scenario.
 """
