@@ -26,6 +26,7 @@ from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
 from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig, MappingStats
+from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerResult
 from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.se3 import invert
@@ -88,6 +89,7 @@ class FrameOutput:
     loop_corrected: bool
     timings_ms: dict[str, float]
     dynamic: DynamicFrame | None = None  # the dynamic filter's verdict on the frame's keypoints (before subsetting)
+    objects: ObjectLayerResult | None = None  # the object layer's work on this frame's new keyframe
 
 
 class SlamSystem:
@@ -99,6 +101,7 @@ class SlamSystem:
         loop_closer: LoopCloser | None = None,
         keyframe_index: KeyframeIndex | None = None,
         dynamic_filter: DynamicFilter | None = None,
+        object_layer: ObjectLayer | None = None,
     ) -> None:
         self.config = config or SystemConfig()
         cv2.setNumThreads(1)
@@ -109,6 +112,7 @@ class SlamSystem:
         self.loop_closer = loop_closer
         self.keyframe_index = keyframe_index
         self.dynamic_filter = dynamic_filter
+        self.object_layer = object_layer  # MapObjects and beliefs (issue 6); None = every point stays active
         self._extractor: OrbExtractor | None = None
         self._camera: CameraIntrinsics | None = None
         self.records: list[FrameRecord] = []
@@ -144,6 +148,9 @@ class SlamSystem:
                 for k in stats.culled_keyframes:
                     self.keyframe_index.erase(k)
                 self.keyframe_index.add(res.new_keyframe)
+        objects = None
+        if res.new_keyframe is not None and self.object_layer is not None and res.new_keyframe.id in self.atlas.current.keyframes:
+            objects = self._after_objects(res.new_keyframe, rgbd, dyn)
         t3 = time.perf_counter()
         if res.new_keyframe is not None and self.loop_closer is not None and res.new_keyframe.id in self.atlas.current.keyframes:
             corrected = bool(self.loop_closer.process(res.new_keyframe, self.atlas.current))
@@ -162,7 +169,19 @@ class SlamSystem:
             self.timings_ms[k].append(v)
         if res.new_keyframe is not None:
             self.timings_ms["local_mapping_per_keyframe"].append(timings["local_mapping"])
-        return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings, dyn)
+        return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings, dyn,
+                           objects)
+
+    def _after_objects(self, kf: Keyframe, rgbd: RgbdFrame, dyn: DynamicFrame | None) -> ObjectLayerResult:
+        """The object layer on a mapped keyframe (before loop closing, so that it sees the points this keyframe
+        deactivated); the loop closer re-indexes keyframes whose points changed state."""
+        assert self.object_layer is not None
+        out = self.object_layer.after_keyframe(kf, self.atlas.current, rgbd.depth_m, dyn.objects if dyn is not None else ())
+        refresh = getattr(self.loop_closer, "refresh_active_points", None)
+        if out.active_flags_changed and refresh is not None:
+            refresh(self.atlas.current)
+        self.timings_ms["objects_per_keyframe"].append(out.ms)
+        return out
 
     def _after_dynamic(self, dyn: DynamicFrame, res: TrackResult) -> None:
         """The object EKFs get the tracked pose; a new keyframe keeps its keypoints' classes and object ids."""
