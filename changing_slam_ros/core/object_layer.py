@@ -112,6 +112,11 @@ class ObjectLayer:
     def enabled(self) -> bool:
         return self.config.enabled
 
+    @property
+    def map_ids(self) -> list[int]:
+        """Maps that have an object map, ascending."""
+        return sorted(self._maps)
+
     def association(self, map_id: int) -> LongTermAssociation:
         """The object map of `map_id` (created empty on first use)."""
         return self._for(map_id).lta
