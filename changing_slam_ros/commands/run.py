@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dynamic_setup
+from changing_slam_ros.commands.objects_options import LoopLog, add_object_arguments, object_layer_setup, write_object_outputs
 from changing_slam_ros.config import find_config, load_yaml, section
 from changing_slam_ros.core.local_mapping import MappingConfig
 from changing_slam_ros.core.orb_features import FeatureConfig
@@ -54,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_dynamic_arguments(parser)
+    add_object_arguments(parser)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -73,12 +75,16 @@ def main(args: argparse.Namespace) -> int:
     source = open_dataset(args.source, settings)
     closing = None if args.no_loop else _loop_closing(data, where)
     dynamic = dynamic_setup(args, data, where)
-    system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=dynamic.filter)
+    objects = object_layer_setup(args, data, where)
+    system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=dynamic.filter,
+                        object_layer=objects)
+    loops = LoopLog()
 
     n_total = len(source) if not args.max_frames else min(args.max_frames, len(source))
     t0 = time.perf_counter()
     for rgbd in _progress(_prefetch(source, n_total), n_total, args.quiet):
-        system.process(rgbd, dynamic.detections_for(rgbd))
+        if system.process(rgbd, dynamic.detections_for(rgbd)).loop_corrected:
+            loops.record(closing, system)
     wall_s = time.perf_counter() - t0
 
     out = Path(args.out)
@@ -107,6 +113,8 @@ def main(args: argparse.Namespace) -> int:
     gt = source.groundtruth
     if gt is not None and len(final) >= 3:
         metrics.update(_evaluate(gt, final, online, out, args.no_plot))
+    metrics["loops"] = loops.evaluate(gt)
+    metrics["objects"] = write_object_outputs(out, objects, final, gt, args.source, args.no_plot)
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     atomic_write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
     line = (
