@@ -1,0 +1,129 @@
+"""Issue 6's table: changing-scene scenarios with the object layer on and off (oracle detections, loop closing on).
+
+Per scenario and mode: camera ATE (final trajectory, SE(3)-aligned), ATE relative to the `static` run of the
+same mode, loops accepted and how many are wrong (relative pose of the two keyframes off by more than 10 cm or
+5 degrees from ground truth), the largest loop error, and the semantic map against the simulator's objects at
+the last frame (objects with belief >= the threshold; "loose" also keeps belief 0.5, objects seen in one pass
+only): matched / stale (a removed or moved-away object kept) / spurious / missed, mean centroid error and
+mean 3D IoU of the matches, and the object layer's milliseconds per keyframe. Prints, never asserts.
+
+Each cell is one `changing-slam run` (the same command a user types), whose metrics.json is read back:
+
+    changing-slam simulate one_chair --out /tmp/simobj/one_chair --seed 0 --width 320 --height 240
+    changing-slam run /tmp/simobj/one_chair --out /tmp/simobj/runs/one_chair-objects --detections oracle --objects
+    changing-slam run /tmp/simobj/one_chair --out /tmp/simobj/runs/one_chair-no-objects --detections oracle --no-objects
+
+    nice -n 10 .venv/bin/python bench/changing_scenes.py --root /tmp/simobj [--render] [--rerun]
+        [--scenarios static one_chair ...] [--width 320 --height 240] [--json table.json]
+
+Runs whose metrics.json already exists under ROOT/runs are reused unless --rerun; --render renders missing
+scenarios first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+SCENARIOS = ["static", "one_chair", "changing", "shift", "replacing", "vanishing"]
+MODES = ["objects", "no-objects"]
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "changing_slam_ros.cli", *args]
+
+
+def render(root: Path, name: str, width: int, height: int) -> Path:
+    folder = root / name
+    if not (folder / "objects.json").is_file():
+        subprocess.run(_cli("simulate", name, "--out", str(folder), "--seed", "0", "--width", str(width),
+                            "--height", str(height), "--quiet"), check=True)
+    return folder
+
+
+def run(root: Path, name: str, mode: str, rerun: bool) -> dict[str, Any]:
+    out = root / "runs" / f"{name}-{mode}"
+    metrics = out / "metrics.json"
+    if rerun or not metrics.is_file():
+        subprocess.run(_cli("run", str(root / name), "--out", str(out), "--detections", "oracle", f"--{mode}",
+                            "--quiet"), check=True)
+    result: dict[str, Any] = json.loads(metrics.read_text())
+    return result
+
+
+def row(name: str, mode: str, m: dict[str, Any], static_ate: float | None) -> dict[str, Any]:
+    loops = m.get("loops", {})
+    errs = [(x.get("error_m", math.nan), x.get("error_deg", math.nan)) for x in loops.get("loops", [])]
+    obj = m.get("objects", {})
+    sm, loose = obj.get("semantic_map", {}), obj.get("loose", {})
+    ate = float(m.get("ate_rmse_m", math.nan))
+    return {
+        "scenario": name, "mode": mode, "tracked": f"{m['frames_tracked']}/{m['frames']}", "ate_cm": 100 * ate,
+        "ate_vs_static": ate / static_ate if static_ate else math.nan,
+        "loops": loops.get("accepted", 0), "wrong_loops": loops.get("wrong", 0),
+        "max_loop_err_cm": max((100 * e[0] for e in errs), default=math.nan),
+        "max_loop_err_deg": max((e[1] for e in errs), default=math.nan),
+        "sm_matched": sm.get("matched"), "sm_stale": len(sm.get("stale", [])) if sm else None,
+        "sm_spurious": len(sm.get("spurious", [])) if sm else None,
+        "sm_centroid_cm": 100 * sm.get("mean_centroid_error_m", math.nan) if sm else math.nan,
+        "sm_iou": sm.get("mean_iou", math.nan) if sm else math.nan,
+        "loose_matched": loose.get("matched"), "loose_stale": len(loose.get("stale", [])) if loose else None,
+        "loose_spurious": len(loose.get("spurious", [])) if loose else None,
+        "loose_centroid_cm": 100 * loose.get("mean_centroid_error_m", math.nan) if loose else math.nan,
+        "loose_iou": loose.get("mean_iou", math.nan) if loose else math.nan,
+        "missed": ",".join(loose.get("missed", [])) if loose else "",
+        "layer_ms_kf": obj.get("layer", {}).get("ms_per_keyframe_mean", math.nan),
+    }
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return "-" if math.isnan(v) else f"{v:.2f}"
+    return str(v)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--root", type=Path, default=Path("/tmp/simobj"))
+    ap.add_argument("--scenarios", nargs="+", default=SCENARIOS)
+    ap.add_argument("--modes", nargs="+", default=MODES, choices=MODES)
+    ap.add_argument("--render", action="store_true", help="render missing scenarios first")
+    ap.add_argument("--rerun", action="store_true", help="run again even where metrics.json exists")
+    ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--height", type=int, default=240)
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    args = ap.parse_args()
+    rows = []
+    for mode in args.modes:
+        static_ate = None
+        for name in sorted(args.scenarios, key=lambda s: s != "static"):
+            if args.render:
+                render(args.root, name, args.width, args.height)
+            if not (args.root / name / "objects.json").is_file():
+                print(f"skip {name}: not rendered under {args.root} (use --render)", file=sys.stderr)
+                continue
+            m = run(args.root, name, mode, args.rerun)
+            if name == "static":
+                static_ate = float(m.get("ate_rmse_m", math.nan))
+            rows.append(row(name, mode, m, static_ate))
+    cols = ["scenario", "mode", "tracked", "ate_cm", "ate_vs_static", "loops", "wrong_loops", "max_loop_err_cm",
+            "max_loop_err_deg", "sm_matched", "sm_stale", "sm_spurious", "sm_centroid_cm", "sm_iou", "loose_matched",
+            "loose_stale", "loose_spurious", "loose_centroid_cm", "loose_iou", "missed", "layer_ms_kf"]
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    for r in rows:
+        print("| " + " | ".join(_fmt(r[c]) for c in cols) + " |")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
