@@ -30,6 +30,7 @@ $(STAMPS)/apt: tools/apt-packages.txt | $(STAMPS)
 
 $(STAMPS)/venv: requirements.txt | $(STAMPS)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@touch $(VENV)/COLCON_IGNORE  # the venv holds ROS package.xml files colcon must not crawl
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt 2> $(STAMPS)/pip.log || { cat $(STAMPS)/pip.log; exit 1; }
 	@touch $@
 

@@ -99,6 +99,7 @@ export AMENT_PREFIX_PATH="$PREFIX${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 
 if want_fallback; then
   if [[ $MODE == force || ! -f "$FALLBACK_MARKER" || "$(cat "$FALLBACK_MARKER")" != "$(pkg_hash tf2_msgs_fallback)" ]]; then
+    mkdir -p "$(dirname "$FALLBACK_MARKER")"
     echo building > "$FALLBACK_MARKER"  # still ours while it builds; the hash is written on success
     build_one "$ROOT/msg_defs/tf2_msgs_fallback"
     # The marker says "this tf2_msgs is ours" and holds the hash it was built from.
