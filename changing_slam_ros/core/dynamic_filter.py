@@ -66,6 +66,9 @@ class DynamicConfig:
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
       are left out).
     - `segmentation_min_matches`: fewer matches = no segmentation in that frame.
+    - `detection_hold_frames`: a box of a `hold_class_ids` class that the detector stops reporting is kept
+      for this many frames, grown by `detection_hold_grow_px` per side per missed frame (a real detector
+      misses a person in single frames; 0 = off, the paper's behaviour).
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
     """
@@ -79,6 +82,9 @@ class DynamicConfig:
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
     segmentation_min_matches: int = 30
+    detection_hold_frames: int = 0
+    detection_hold_grow_px: float = 8.0
+    hold_class_ids: tuple[int, ...] = (0,)
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
 
@@ -144,6 +150,7 @@ class DynamicFilter:
         self.n_keypoints = 0
         self.n_kept = 0
         self.frames_ms: list[float] = []
+        self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
 
     @property
     def objects(self) -> DynamicObjectTracker | None:
@@ -169,7 +176,7 @@ class DynamicFilter:
             if cfg.detection_filtering:
                 tracker = self._tracker_for(rgbd.camera)
                 res = tracker.classify(
-                    rgbd.stamp_ns, features.raw_px, rgbd.depth_m, tuple(detections or ()),
+                    rgbd.stamp_ns, features.raw_px, rgbd.depth_m, self._with_held(tuple(detections or ())),
                     moving_mask=moving if cfg.segmentation else None,
                 )
                 self._classified = True
@@ -202,6 +209,25 @@ class DynamicFilter:
     def kept_fraction(self) -> float:
         """Fraction of all keypoints so far that tracking was allowed to use."""
         return self.n_kept / self.n_keypoints if self.n_keypoints else 1.0
+
+    def _with_held(self, detections: tuple[Detection, ...]) -> tuple[Detection, ...]:
+        """The frame's detections plus held boxes of earlier frames that none of them overlaps."""
+        cfg = self.config
+        if cfg.detection_hold_frames <= 0:
+            return detections
+        fresh = [d for d in detections if d.class_id in cfg.hold_class_ids]
+        held: list[tuple[Detection, int]] = [(d, 0) for d in fresh]
+        for old, age in self._held:
+            if age + 1 > cfg.detection_hold_frames or any(_iou(old, d) > 0.1 for d in fresh if d.class_id == old.class_id):
+                continue
+            held.append((old, age + 1))
+        self._held = held
+        g = cfg.detection_hold_grow_px
+        extra = tuple(
+            Detection((d.box_xyxy[0] - g * a, d.box_xyxy[1] - g * a, d.box_xyxy[2] + g * a, d.box_xyxy[3] + g * a), d.class_id, d.score)
+            for d, a in held if a > 0
+        )
+        return detections + extra
 
     def _tracker_for(self, camera: CameraIntrinsics) -> DynamicObjectTracker:
         if self._tracker is None or camera != self._camera:
@@ -246,3 +272,13 @@ class DynamicFilter:
         result = segment(window, cfg.correlation)
         moving[q[result.dynamic_mask]] = True
         return moving
+
+
+def _iou(a: Detection, b: Detection) -> float:
+    ax0, ay0, ax1, ay1 = a.box_xyxy
+    bx0, by0, bx1, by1 = b.box_xyxy
+    iw = max(0.0, min(ax1, bx1) - max(ax0, bx0))
+    ih = max(0.0, min(ay1, by1) - max(ay0, by0))
+    inter = iw * ih
+    union = a.area_px + b.area_px - inter
+    return inter / union if union > 0 else 0.0

@@ -130,3 +130,20 @@ def test_dynamic_section_parses_nested_settings_and_rejects_unknown_keys() -> No
         section(DynamicConfig, {"segmentaton": True}, "x.yaml: dynamic")
     with pytest.raises(ConfigError, match="segmentation_gap_frames"):
         DynamicConfig(segmentation_gap_frames=0)
+
+
+def test_a_person_box_the_detector_misses_is_held_for_the_configured_frames() -> None:
+    flt = DynamicFilter(DynamicConfig(detection_hold_frames=3))
+    rgbd, feats, r = _scene()
+    kept_person = []
+    for k in range(6):
+        dets = DETS if k == 0 else ()  # the detector reports the person in the first frame only
+        res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), feats, dets)
+        flt.after_tracking(np.eye(4))
+        kept_person.append(bool(res.keep[r["person"]].any()))
+    assert kept_person == [False, False, False, False, True, True]
+    # Off (the default): the person's keypoints are used as soon as the box is missing.
+    plain = DynamicFilter(DynamicConfig())
+    plain.before_tracking(rgbd, feats, DETS)
+    plain.after_tracking(np.eye(4))
+    assert plain.before_tracking(dataclasses.replace(rgbd, stamp_ns=FRAME_NS), feats, ()).keep[r["person"]].all()
