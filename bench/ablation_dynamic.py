@@ -44,6 +44,8 @@ ROWS: dict[str, DynamicConfig | None] = {
     "+repopulation": DynamicConfig(repopulation=True, ekf_doc=False, segmentation=False),
     "+ekf_doc": DynamicConfig(repopulation=True, ekf_doc=True, segmentation=False),
     "+segmentation": DynamicConfig(repopulation=True, ekf_doc=True, segmentation=True),
+    # Beyond the paper: +ekf_doc with missed person boxes held for 10 frames (for the real detector).
+    "+ekf_doc+hold10": DynamicConfig(repopulation=True, ekf_doc=True, segmentation=False, detection_hold_frames=10),
 }
 
 
