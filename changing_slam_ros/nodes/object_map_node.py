@@ -1,13 +1,19 @@
-"""`object_map`: object candidates + keyframe poses -> object beliefs and the semantic map (Changing-SLAM §4.6-4.8).
+"""`object_map`: the semantic map (Changing-SLAM §4.8) on topics and services.
 
-SKELETON (issue 7) around a real message layer: the semantic map it holds (`self.objects`, MapObject messages)
-is published as `~/semantic_map` (MapObjectArray) and `~/markers` (MarkerArray: a box per object coloured by
-class, alpha by belief, a text label), both transient-local so late subscribers get them; the QueryObjects
-service filters it by class and region; Reset clears it. What fills it, the core long-term association and
-persistence filter, is one TODO line in `on_candidates`; SaveMap / LoadMap answer success=false until the
-core map file exists. It says so at start.
+INTERIM MODE (issue 7): the object layer (`core.object_layer.ObjectLayer`: long-term association, persistence
+beliefs, inactive points) runs inside the tracking node's in-process backend, because it reads and flags the
+metric map's points, which a separate process cannot reach until map-update replication exists. Tracking
+publishes the map it keeps on `/tracking/semantic_map` (MapObjectArray, transient-local, every object with its
+belief and activity); this node holds the latest one (`self.objects`, MapObject messages) and serves it:
+`~/semantic_map` (MapObjectArray) and `~/markers` (MarkerArray: a box per object coloured by class, alpha by
+belief, a text label), both transient-local so late subscribers get them; `~/object_states` (belief, active);
+QueryObjects by class and region; SaveMap / LoadMap as the project's semantic-map file
+(`io/semantic_map_file.py`, JSON or YAML, atomic); Reset clears it. With `map_file` set the map is loaded from it
+at start (so a restarted node comes back with its last map) and saved to it after every update.
+Open: candidates from a separate local_mapping process (`/local_mapping/object_candidates`) are received but
+not associated here, and a loaded map is served, not fed back into the tracking process's object layer.
 
-Inputs: /local_mapping/object_candidates (MapObjectArray), /local_mapping/map_updates (keyframe poses)
+Inputs: /tracking/semantic_map (MapObjectArray), /local_mapping/object_candidates (MapObjectArray)
 Outputs: ~/object_states (ObjectStateArray: belief, active), ~/semantic_map, ~/markers
 Services: ~/query_objects (QueryObjects), ~/save_map (SaveMap), ~/load_map (LoadMap), ~/reset (std_srvs/Trigger)
 """
@@ -16,6 +22,7 @@ from __future__ import annotations
 
 import colorsys
 from collections.abc import Iterable, Sequence
+from pathlib import Path
 from typing import Any
 
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
@@ -25,8 +32,10 @@ from std_msgs.msg import ColorRGBA, Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
-from changing_slam_msgs.msg import MapObject, MapObjectArray, MapUpdate, ObjectStateArray
+from changing_slam_msgs.msg import MapObject, MapObjectArray, MapUpdate, ObjectState, ObjectStateArray
 from changing_slam_msgs.srv import LoadMap, QueryObjects, SaveMap
+from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
+from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -75,6 +84,31 @@ def semantic_markers(objects: Sequence[Any], header: Header, min_alpha: float = 
     return out
 
 
+def semantic_object_to_msg(o: SemanticObject) -> MapObject:
+    """core SemanticObject (map frame, metres) -> MapObject message."""
+    c, b, s = o.centroid_w, o.box_center_w, o.box_size_m
+    return MapObject(
+        id=int(o.id), class_id=int(o.class_id), class_name=o.class_name,
+        centroid=Point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
+        box_center=Point(x=float(b[0]), y=float(b[1]), z=float(b[2])),
+        box_size=Vector3(x=float(s[0]), y=float(s[1]), z=float(s[2])), belief=float(o.belief), active=bool(o.active),
+        first_seen_keyframe=int(o.first_seen_keyframe), last_seen_keyframe=int(o.last_seen_keyframe),
+        n_points=int(o.n_points),
+    )  # fmt: skip
+
+
+def semantic_object_from_msg(m: Any) -> SemanticObject:
+    return SemanticObject(
+        int(m.id), int(m.class_id), str(m.class_name), (m.centroid.x, m.centroid.y, m.centroid.z),
+        (m.box_center.x, m.box_center.y, m.box_center.z), (m.box_size.x, m.box_size.y, m.box_size.z),
+        float(m.belief), bool(m.active), int(m.n_points), int(m.first_seen_keyframe), int(m.last_seen_keyframe),
+    )  # fmt: skip
+
+
+def semantic_map_to_msg(smap: SemanticMap, header: Header) -> MapObjectArray:
+    return MapObjectArray(header=header, objects=[semantic_object_to_msg(o) for o in smap.objects])
+
+
 class ObjectMapNode(Node):
     def __init__(self, output_qos: QoSProfile | int = 10, **node_kwargs: Any) -> None:
         super().__init__("object_map", **node_kwargs)
@@ -82,9 +116,12 @@ class ObjectMapNode(Node):
             ("config", "tum_fr1", "config name or YAML path (objects section: thresholds of the paper)"),
             ("map_frame", "map", "frame of the semantic map"),
             ("belief_threshold", 0.5, "BeliefThreshold: objects below are inactive (Changing-SLAM §4.7)"),
-            ("map_file", "", "map loaded at start and saved on SaveMap without a path; empty = none"),
+            ("map_file", "", "semantic map loaded at start, saved after every update and on SaveMap without a "
+                             "path; empty = none"),
         ])  # fmt: skip
         self.objects: dict[int, MapObject] = {}
+        self.updates_in = 0
+        self.create_subscription(MapObjectArray, "/tracking/semantic_map", self.on_semantic_map, LATCHED)
         self.create_subscription(MapObjectArray, "/local_mapping/object_candidates", self.on_candidates, 10)
         self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
         self.state_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
@@ -94,17 +131,36 @@ class ObjectMapNode(Node):
         self.create_service(SaveMap, "~/save_map", self.on_save)
         self.create_service(LoadMap, "~/load_map", self.on_load)
         self.create_service(Trigger, "~/reset", self.on_reset)
-        self.get_logger().info("object_map: started (SKELETON: core object layer not wired; map stays empty)")
+        start = ""
+        map_file = self.params["map_file"]
+        if map_file and Path(map_file).is_file():
+            try:
+                self.load(map_file)
+                start = f", {len(self.objects)} objects loaded from {map_file}"
+            except SlamError as err:
+                self.get_logger().error(f"object_map: {err}; starting empty")
+        self.get_logger().info(f"object_map: started (semantic map from /tracking/semantic_map{start})")
 
     # -- inputs ---------------------------------------------------------------------------------
+    def on_semantic_map(self, msg: MapObjectArray) -> None:
+        """The object layer's current map (interim: from the tracking node's in-process backend)."""
+        self.objects = {int(o.id): o for o in msg.objects}
+        self.updates_in += 1
+        self.publish_map(msg.header.stamp)
+        if self.params["map_file"]:
+            try:
+                self.save(self.params["map_file"])
+            except (SlamError, OSError) as err:
+                self.get_logger().warning(f"object_map: autosave failed: {err}", throttle_duration_sec=10.0)
+
     def on_candidates(self, msg: MapObjectArray) -> None:
-        # TODO(issue 7): self.objects = self.object_layer.update(candidates, keyframe poses)  (core §4.6-4.7)
         self.get_logger().info(
-            f"object_map: {len(msg.objects)} candidates received; not associated (skeleton)", throttle_duration_sec=10.0
-        )
+            f"object_map: {len(msg.objects)} candidates from a separate local_mapping received; not associated "
+            "(interim: the object layer runs in tracking's backend)", throttle_duration_sec=30.0,
+        )  # fmt: skip
 
     def on_map_update(self, msg: MapUpdate) -> None:
-        pass  # TODO(issue 7): keyframe poses for the visibility test of the persistence filter.
+        pass  # Separate local_mapping process: keyframe poses for the visibility test (open, see module doc).
 
     # -- outputs --------------------------------------------------------------------------------
     def publish_map(self, stamp: Any = None) -> None:
@@ -113,6 +169,29 @@ class ObjectMapNode(Node):
         objects = sorted(self.objects.values(), key=lambda o: o.id)
         self.map_pub.publish(MapObjectArray(header=header, objects=objects))
         self.marker_pub.publish(semantic_markers(objects, header))
+        states = ObjectStateArray(header=header)
+        for o in objects:
+            states.objects.append(ObjectState(id=o.id, class_id=o.class_id, class_name=o.class_name, position=o.centroid,
+                                              belief=o.belief, active=o.active))  # fmt: skip
+        self.state_pub.publish(states)
+
+    def semantic_map(self) -> SemanticMap:
+        objs = tuple(semantic_object_from_msg(o) for o in sorted(self.objects.values(), key=lambda o: o.id))
+        return SemanticMap(objs, float(self.params["belief_threshold"]), self.params["map_frame"])
+
+    def save(self, path: str) -> int:
+        from changing_slam_ros.io.semantic_map_file import write_semantic_map
+
+        write_semantic_map(path, self.semantic_map())
+        return len(self.objects)
+
+    def load(self, path: str) -> int:
+        from changing_slam_ros.io.semantic_map_file import read_semantic_map
+
+        smap = read_semantic_map(path)
+        self.objects = {o.id: semantic_object_to_msg(o) for o in smap.objects}
+        self.publish_map()
+        return len(self.objects)
 
     # -- services -------------------------------------------------------------------------------
     def on_query(self, request: Any, response: Any) -> Any:
@@ -120,13 +199,24 @@ class ObjectMapNode(Node):
         return response
 
     def on_save(self, request: Any, response: Any) -> Any:
-        response.success = False
-        response.message = "object_map: saving is not implemented yet (core map file, issue 6)"
+        path = request.path or self.params["map_file"]
+        if not path:
+            response.success, response.message = False, "object_map: no path given and no map_file parameter"
+            return response
+        try:
+            n = self.save(path)
+            response.success, response.message = True, f"object_map: saved {n} objects to {path}"
+        except (SlamError, OSError) as err:
+            response.success, response.message = False, f"object_map: {err}"
         return response
 
     def on_load(self, request: Any, response: Any) -> Any:
-        response.success = False
-        response.message = "object_map: loading is not implemented yet (core map file, issue 6)"
+        path = request.path or self.params["map_file"]
+        try:
+            n = self.load(path)
+            response.success, response.message = True, f"object_map: loaded {n} objects from {path}"
+        except (SlamError, OSError) as err:
+            response.success, response.message = False, f"object_map: {err}"
         return response
 
     def on_reset(self, request: Any, response: Any) -> Any:

@@ -1,49 +1,89 @@
-"""`tracking`: colour + depth + camera_info (+ detections, map updates, object states) -> camera pose.
+"""`tracking`: colour + depth + camera_info (+ detections) -> camera pose, path, TF, keyframes, semantic map.
 
-SKELETON (issue 7): the topics, parameters, QoS, colour/depth pairing, frame conversion and the outputs'
-message plumbing are real; the call into the core tracking component is one TODO line in `on_frame`, so
-this node publishes no pose yet. It logs that once, loudly.
+    python -m changing_slam_ros.nodes.tracking_node --ros-args -p config:=tum_fr1 -p output_dir:=/tmp/out
+
+INTERIM MODE, `in_process_backend:=true` (the default): the node runs the whole `core.system.SlamSystem`
+(tracking -> local mapping -> object layer -> loop closing, as `changing-slam run` wires them) in its own
+process, see `nodes/slam_backend.py`. Separate `local_mapping` / `loop_closing` processes need map-update
+replication into tracking's map, which the core does not have yet; until then those nodes stay skeletons and
+the map updates / loop corrections / object states topics below are subscribed but not applied.
+With `in_process_backend:=false` frames are paired, converted and acknowledged only (no pose; plumbing tests).
+
+Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour
+stamp for at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is
+there, or `detections_required:=true`), then goes through the system with them (or with none: the object EKFs
+then predict). Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto`
+follows the config's `dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults).
 
 Inputs (defaults are the TUM bag names; remap with --ros-args -r):
   /camera/rgb/image_color (Image, sensor-data QoS), /camera/depth/image (Image 32FC1 m or 16UC1 mm), or with
   `compressed:=true` their /compressed CompressedImage topics (JPEG/PNG colour, PNG or compressedDepth depth),
   /camera/rgb/camera_info, /detection/detections, /local_mapping/map_updates,
   /loop_closing/loop_corrections, /object_map/object_states
-Outputs: ~/pose (PoseStamped), ~/odometry, ~/path, ~/keyframes, ~/object_states (EKF), TF map->odom->camera,
-  and, when `ack_topic` is set, a std_msgs/Header per processed frame for bag_player's lossless mode.
+Outputs: ~/pose (PoseStamped, map frame), ~/odometry, ~/path (the online poses; rebuilt from the optimised
+  trajectory after a loop closure), ~/keyframes, ~/semantic_map (MapObjectArray, transient-local, after each
+  keyframe the object layer worked on), ~/debug_image (keypoints used for tracking, coloured by class, and the
+  frame's detection boxes), TF map->odom (identity: no separate odometry yet) and odom->camera (REP-105,
+  `publish_tf`), and, when `ack_topic` is set, a std_msgs/Header per processed frame (bag_player lossless).
+On shutdown (SIGINT/SIGTERM, or `destroy_node`) with `output_dir` set: trajectory.txt (final, after all
+optimisation), trajectory_online.txt, keyframes.txt (TUM), semantic_map.json and tracking_stats.json (frames,
+drops, image-to-pose latency: colour message received -> pose published, steady clock), written atomically.
 """
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 from geometry_msgs.msg import PoseStamped, TransformStamped
-from nav_msgs.msg import Odometry, Path
+from nav_msgs.msg import Odometry, Path as PathMsg
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
 
-from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapUpdate, ObjectStateArray
+from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArray, MapUpdate, ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.tracking import TrackingState
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import (
     camera_info_to_intrinsics,
     detections_from_msg,
     image_to_depth_m,
     image_to_rgb,
+    keyframe_to_msg,
     make_header,
     matrix_to_pose,
     matrix_to_transform,
+    rgb_to_image,
     stamp_to_ns,
 )
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# BGR-free RGB colours of the debug image per KeypointClass (static, movable, dynamic, unused).
+CLASS_RGB = {0: (0, 220, 0), 1: (0, 120, 255), 2: (255, 0, 0), 3: (160, 160, 160)}
+
+
+@dataclass
+class PendingFrame:
+    """A colour/depth pair waiting for its detections (or its deadline, steady-clock seconds)."""
+
+    stamp_ns: int
+    rgb_msg: Any
+    depth_msg: Any
+    received_s: float
+    deadline_s: float
 
 
 class TrackingNode(Node):
@@ -55,9 +95,10 @@ class TrackingNode(Node):
     ) -> None:
         super().__init__("tracking", **node_kwargs)
         self.params = p = declare_parameters(self, [
-            ("config", "tum_fr1", "config name or YAML path (camera, tracking, dynamic sections)"),
+            ("config", "tum_fr1", "config name or YAML path (camera, dataset, features, tracking, mapping, loop, "
+                                  "dynamic, objects sections)"),
             ("sync_slop_s", 0.02, "largest colour/depth stamp difference paired (TUM associate.py: 0.02)"),
-            ("intrinsics_from", "camera_info", "'camera_info' topic or 'config' (TUM bags carry ROS defaults)"),
+            ("intrinsics_from", "auto", "'camera_info', 'config', or 'auto' = the config's dataset.bag_intrinsics_from"),
             ("map_frame", "map", "REP-105 map frame"),
             ("odom_frame", "odom", "REP-105 odom frame"),
             ("camera_frame", "camera", "camera optical frame of the published pose"),
@@ -65,13 +106,47 @@ class TrackingNode(Node):
             ("ack_topic", "", "std_msgs/Header per processed frame (bag_player lossless); empty = off"),
             ("stats_period_s", 10.0, "seconds between log lines with frame and drop counts"),
             ("compressed", False, "subscribe CompressedImage on <colour>/compressed and <depth>/compressed"),
+            ("in_process_backend", True, "INTERIM: run local mapping, objects and loop closing in this process"),
+            ("loop_closing", True, "in-process backend: loop closing on (unless the config's loop.enabled is false)"),
+            ("dynamic", "config", "dynamic-scene filter: config (the dynamic section's enabled), on, off"),
+            ("objects", "config", "object layer (MapObjects, beliefs): config, on, off"),
+            ("detections_wait_s", 0.2, "longest wait for a frame's detections once detections are flowing"),
+            ("detections_required", False, "wait for detections from the first frame (a detection node is started)"),
+            ("debug_image", True, "publish ~/debug_image (keypoints by class, detection boxes)"),
+            ("output_dir", "", "write trajectories, semantic map and stats here on shutdown; empty = none"),
         ])  # fmt: skip
         slop_ns = round(p["sync_slop_s"] * 1e9)
         self.pairer: ApproximatePairer[Any, Any] = ApproximatePairer(slop_ns)
-        self.camera: CameraIntrinsics | None = None
+        self.camera: CameraIntrinsics | None = None  # from camera_info, as received
         self.detections: dict[int, Any] = {}
-        self.frames_in = 0
+        self.frames_in = 0  # frames converted to RgbdFrame
+        self.colour_in = 0  # colour messages received
+        self.frames_rejected = 0
+        self.frames_without_detections = 0
+        self.latency_ms: list[float] = []
+        self.process_ms: list[float] = []
+        self.published_poses = 0
         self._warned: set[str] = set()
+        self._received_s: dict[int, float] = {}
+        self._pending: deque[PendingFrame] = deque()
+        self._detections_seen = False
+        self._finished = False
+
+        self.backend: Any = None
+        self.config_camera: CameraIntrinsics | None = None
+        intrinsics_from = p["intrinsics_from"]
+        if p["in_process_backend"]:
+            from changing_slam_ros.nodes.slam_backend import build_backend, config_camera, intrinsics_source, load_backend_config
+
+            cfg = load_backend_config(p["config"])
+            self.backend = build_backend(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"])
+            if intrinsics_from == "auto":
+                intrinsics_from = intrinsics_source(cfg)
+            if intrinsics_from == "config":
+                self.config_camera = config_camera(cfg)
+        if intrinsics_from not in ("camera_info", "config", "auto"):
+            raise SlamError(f"tracking: parameter intrinsics_from: '{intrinsics_from}' unknown; expected auto, camera_info or config")
+        self.intrinsics_from = "config" if self.config_camera is not None else "camera_info"
 
         # camera_info first: when it and an image are ready in the same spin, the executor serves it first.
         self.create_subscription(CameraInfo, "/camera/rgb/camera_info", self.on_camera_info, image_qos)
@@ -90,19 +165,31 @@ class TrackingNode(Node):
 
         self.pose_pub = self.create_publisher(PoseStamped, "~/pose", output_qos)
         self.odom_pub = self.create_publisher(Odometry, "~/odometry", output_qos)
-        self.path_pub = self.create_publisher(Path, "~/path", output_qos)
+        self.path_pub = self.create_publisher(PathMsg, "~/path", output_qos)
         self.keyframe_pub = self.create_publisher(KeyframeMsg, "~/keyframes", QoSProfile(depth=100))
         self.object_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
+        self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
+        self.debug_pub = self.create_publisher(Image, "~/debug_image", 2) if p["debug_image"] else None
         self.tf_pub = self.create_publisher(TFMessage, "/tf", 100) if p["publish_tf"] else None
         self.ack_pub = self.create_publisher(Header, p["ack_topic"], 100) if p["ack_topic"] else None
-        self.path = Path(header=Header(frame_id=p["map_frame"]))
-        # Steady clock: the stats line keeps coming when use_sim_time is on and the bag is paused.
-        self.create_timer(p["stats_period_s"], self._log_stats, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info("tracking: started (SKELETON: core tracking not wired yet, no poses published)")
+        self.path = PathMsg(header=Header(frame_id=p["map_frame"]))
+        # Steady clock: the stats line and the detection deadlines keep going when use_sim_time is on and the
+        # bag is paused.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(p["stats_period_s"], self._log_stats, clock=steady)
+        self.create_timer(0.01, self._drain, clock=steady)
+        mode = "in-process backend (INTERIM: tracking + local mapping + objects + loop closing here)" if self.backend \
+            else "pairing only (in_process_backend:=false, no poses)"  # fmt: skip
+        self.get_logger().info(f"tracking: started, {mode}, intrinsics from {self.intrinsics_from}")
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_colour(self, msg: Any) -> None:
-        for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_first(stamp_to_ns(msg.header.stamp), msg):
+        self.colour_in += 1
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        self._received_s[stamp_ns] = time.monotonic()
+        while len(self._received_s) > 200:
+            del self._received_s[next(iter(self._received_s))]
+        for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_first(stamp_ns, msg):
             self.on_frame(t_rgb, rgb_msg, depth_msg)
         self._warn_if_unpaired()
 
@@ -119,45 +206,89 @@ class TrackingNode(Node):
 
     def on_detections(self, msg: DetectionArray) -> None:
         ds = detections_from_msg(msg)
+        self._detections_seen = True
         self.detections[ds.stamp_ns] = ds
         while len(self.detections) > 30:
             del self.detections[next(iter(self.detections))]
+        self._drain()
 
     def on_map_update(self, msg: MapUpdate) -> None:
-        pass  # TODO(issue 7): apply to the tracker's local map replica (core tracking component).
+        pass  # Separate local_mapping process: needs map-update replication in core (open, see module doc).
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
-        pass  # TODO(issue 7): correct the current pose and the local map replica.
+        pass  # Separate loop_closing process: same (the in-process backend corrects its own map).
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
-        pass  # TODO(issue 7): mark points of inactive MapObjects as not usable for tracking.
+        pass  # Separate object_map process: same (the in-process object layer sets point activity itself).
 
     # -- one RGB-D frame ------------------------------------------------------------------------
     def on_frame(self, stamp_ns: int, rgb_msg: Any, depth_msg: Any) -> None:
-        if self.camera is None:
-            self._warn_once("no_camera", "tracking: no camera_info yet; frames are skipped until one arrives")
-            self._ack(rgb_msg.header)
-            return
+        now = time.monotonic()
+        received = self._received_s.pop(stamp_ns, now)
+        wait = self.params["detections_wait_s"] if self._wait_for_detections() else 0.0
+        self._pending.append(PendingFrame(stamp_ns, rgb_msg, depth_msg, received, now + wait))
+        self._drain()
+
+    def _wait_for_detections(self) -> bool:
+        return (self.backend is not None and self.backend.wants_detections
+                and (self._detections_seen or self.params["detections_required"]))  # fmt: skip
+
+    def _drain(self) -> None:
+        """Process waiting frames in order: each when its detections are in, or at its deadline."""
+        while self._pending:
+            head = self._pending[0]
+            if head.stamp_ns not in self.detections and time.monotonic() < head.deadline_s:
+                return
+            self._pending.popleft()
+            self._process(head)
+
+    def _frame_camera(self, width: int, height: int) -> CameraIntrinsics | None:
+        cam = self.config_camera if self.config_camera is not None else self.camera
+        if cam is not None and (cam.width, cam.height) != (width, height):
+            cam = cam.scaled(width, height)
+        return cam
+
+    def _process(self, item: PendingFrame) -> None:
+        t0 = time.monotonic()
         try:
-            frame = RgbdFrame(
-                stamp_ns=stamp_ns,
-                rgb=image_to_rgb(rgb_msg, self.colour_topic),
-                depth_m=image_to_depth_m(depth_msg, self.depth_topic),
-                camera=self.camera,
-                index=self.frames_in,
-            )
+            rgb = image_to_rgb(item.rgb_msg, self.colour_topic)
+            depth = image_to_depth_m(item.depth_msg, self.depth_topic)
+            camera = self._frame_camera(rgb.shape[1], rgb.shape[0])
+            if camera is None:
+                self._warn_once("no_camera", "tracking: no camera_info yet; frames are skipped until one arrives")
+                self._ack(item.rgb_msg.header)
+                return
+            if depth.shape != rgb.shape[:2]:
+                raise ValueError(f"depth {depth.shape} and colour {rgb.shape[:2]} sizes differ")
+            depth = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)  # NaN depths = no reading
+            frame = RgbdFrame(stamp_ns=item.stamp_ns, rgb=rgb, depth_m=depth, camera=camera, index=self.frames_in)
         except (SlamError, ValueError) as err:
+            self.frames_rejected += 1
             self.get_logger().warning(f"tracking: frame rejected: {err}", throttle_duration_sec=5.0)
-            self._ack(rgb_msg.header)
+            self._ack(item.rgb_msg.header)
             return
         self.frames_in += 1
-        detections = self.detections.get(stamp_ns)
-        result = None  # TODO(issue 7): result = self.tracker.track(frame, detections)  (core tracking component)
-        self._warn_once("skeleton", "tracking: frames arrive and pair, but no core tracker is wired (skeleton)")
-        if result is not None:
-            self.publish_pose(stamp_ns, result.T_world_cam)
-        del frame, detections
-        self._ack(rgb_msg.header)
+        if self.backend is None:
+            self._warn_once("no_backend", "tracking: in_process_backend:=false: frames pair and convert, no poses")
+            self._ack(item.rgb_msg.header)
+            return
+        dets = self.detections.pop(item.stamp_ns, None)
+        if dets is None and self.backend.wants_detections:
+            self.frames_without_detections += 1
+        out = self.backend.system.process(frame, None if dets is None else dets.detections)
+        if out.state == TrackingState.OK and out.T_world_cam is not None:
+            self.publish_pose(item.stamp_ns, out.T_world_cam)
+            self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
+        if out.loop_corrected:
+            self._rebuild_path()
+        if out.keyframe is not None:
+            self.keyframe_pub.publish(keyframe_to_msg(out.keyframe, self.params["map_frame"]))
+        if out.objects is not None:
+            self.publish_semantic_map(item.stamp_ns)
+        if self.debug_pub is not None and self.debug_pub.get_subscription_count() > 0:
+            self.debug_pub.publish(self._debug_image(frame, out, dets))
+        self.process_ms.append((time.monotonic() - t0) * 1e3)
+        self._ack(item.rgb_msg.header)
 
     # -- outputs --------------------------------------------------------------------------------
     def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
@@ -172,21 +303,92 @@ class TrackingNode(Node):
         self.path.header.stamp = header.stamp
         self.path.poses.append(pose)
         self.path_pub.publish(self.path)
+        self.published_poses += 1
         if self.tf_pub is not None:
-            import numpy as np
-
             map_odom = TransformStamped(header=header, child_frame_id=p["odom_frame"])
             map_odom.transform = matrix_to_transform(np.eye(4))
             odom_cam = TransformStamped(header=make_header(stamp_ns, p["odom_frame"]), child_frame_id=p["camera_frame"])
             odom_cam.transform = matrix_to_transform(T_world_cam)
             self.tf_pub.publish(TFMessage(transforms=[map_odom, odom_cam]))
 
+    def _rebuild_path(self) -> None:
+        """After a loop closure: the path becomes the optimised (final) trajectory so far."""
+        traj = self.backend.system.final_trajectory()
+        frame = self.params["map_frame"]
+        self.path.poses = [
+            PoseStamped(header=make_header(round(t * 1e9), frame), pose=matrix_to_pose(T))
+            for t, T in zip(traj.stamps_s, traj.poses(), strict=True)
+        ]
+
+    def publish_semantic_map(self, stamp_ns: int) -> None:
+        from changing_slam_ros.nodes.object_map_node import semantic_map_to_msg
+
+        layer = self.backend.objects
+        smap = layer.semantic_map(self.backend.system.atlas.current.id, include_inactive=True)
+        self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(stamp_ns, self.params["map_frame"])))
+
+    def _debug_image(self, frame: RgbdFrame, out: Any, dets: Any) -> Image:
+        """Colour image with the keypoints tracking used (coloured by class) and the detection boxes (red)."""
+        import cv2
+
+        img = np.ascontiguousarray(frame.rgb.copy())
+        last = self.backend.system.tracker.last_frame
+        if out.dynamic is not None and last is not None and len(last.features) == int(out.dynamic.keep.sum()):
+            classes = out.dynamic.kp_classes[out.dynamic.keep]
+            for (u, v), c in zip(last.features.keypoints_px, classes, strict=True):
+                cv2.circle(img, (int(u), int(v)), 2, CLASS_RGB.get(int(c), (255, 255, 255)), -1)
+        elif last is not None:
+            for u, v in last.features.keypoints_px:
+                cv2.circle(img, (int(u), int(v)), 2, CLASS_RGB[0], -1)
+        for d in () if dets is None else dets.detections:
+            x0, y0, x1, y1 = (int(round(v)) for v in d.box_xyxy)
+            cv2.rectangle(img, (x0, y0), (x1, y1), (255, 0, 0), 1)
+        return rgb_to_image(img, frame.stamp_ns, self.params["camera_frame"])
+
+    def stats(self) -> dict[str, Any]:
+        """Counts and latencies for tracking_stats.json and the log."""
+        s = self.pairer.stats
+        lat = np.asarray(self.latency_ms) if self.latency_ms else np.zeros(0)
+        proc = np.asarray(self.process_ms) if self.process_ms else np.zeros(0)
+        return {
+            "colour_received": self.colour_in, "pairs": s.pairs, "unpaired_colour_dropped": s.dropped_first,
+            "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
+            "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
+            "frames_without_detections": self.frames_without_detections,
+            "latency_ms_median": float(np.median(lat)) if lat.size else None,
+            "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
+            "process_ms_median": float(np.median(proc)) if proc.size else None,
+            "latency_ms": [round(float(v), 2) for v in lat],
+        }  # fmt: skip
+
+    def finish(self) -> list[Path]:
+        """Process frames still waiting, then write the outputs to `output_dir` (once; no-op without it)."""
+        if self._finished:
+            return []
+        self._finished = True
+        while self._pending:
+            self._process(self._pending.popleft())
+        if not self.params["output_dir"] or self.backend is None:
+            return []
+        from changing_slam_ros.nodes.slam_backend import write_backend_outputs
+
+        written = write_backend_outputs(Path(self.params["output_dir"]), self.backend, self.stats())
+        self.get_logger().info(f"tracking: wrote {', '.join(p.name for p in written)} to {self.params['output_dir']}")
+        return written
+
+    def destroy_node(self) -> None:
+        try:
+            self.finish()
+        finally:
+            super().destroy_node()
+
     def _log_stats(self) -> None:
         s = self.pairer.stats
         if s.pairs or s.dropped_first or s.dropped_second:
+            lat = f", latency median {np.median(self.latency_ms):.0f} ms" if self.latency_ms else ""
             self.get_logger().info(
                 f"tracking: {self.frames_in} frames, {s.pairs} colour/depth pairs, unpaired dropped: "
-                f"{s.dropped_first} colour, {s.dropped_second} depth"
+                f"{s.dropped_first} colour, {s.dropped_second} depth, {self.published_poses} poses{lat}"
             )
 
     def _ack(self, header: Header) -> None:

@@ -1,4 +1,5 @@
-"""The node skeletons in-process: real topics, conversions, acks, services. (Core calls are TODO in the nodes.)"""
+"""The nodes in-process: topics, conversions, acks, services (tracking with `in_process_backend:=false`: plumbing only;
+its SLAM backend is tested in test_tracking_node.py)."""
 
 from __future__ import annotations
 
@@ -42,7 +43,8 @@ def spin_until(executor, condition, timeout_s: float = 10.0) -> bool:  # noqa: A
 
 def test_tracking_pairs_every_bag_frame_and_acks_it_for_a_lossless_bag_player(ros_context, tmp_path, fr1_bag_writer):
     bag = fr1_bag_writer(tmp_path / "bag", n=10, scale=4)
-    tracking = TrackingNode(context=ros_context, parameter_overrides=[Parameter("ack_topic", value="/bag_player/ack")])
+    tracking = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("ack_topic", value="/bag_player/ack"), Parameter("in_process_backend", value=False)])  # fmt: skip
     player = BagPlayerNode(context=ros_context, parameter_overrides=[
         Parameter("bag", value=str(bag.path)), Parameter("rate", value=5.0), Parameter("lossless", value=True),
         Parameter("ack_topics", value=["/camera/rgb/image_color"]),
@@ -70,7 +72,7 @@ def test_tracking_pairs_every_bag_frame_and_acks_it_for_a_lossless_bag_player(ro
 
 
 def test_tracking_publishes_pose_and_rep105_tf_from_a_camera_to_world_matrix(ros_context):
-    tracking = TrackingNode(context=ros_context)
+    tracking = TrackingNode(context=ros_context, parameter_overrides=[Parameter("in_process_backend", value=False)])
     probe = Node("probe", context=ros_context)
     poses: list[PoseStamped] = []
     tfs: list[TFMessage] = []
@@ -165,8 +167,8 @@ def test_object_map_answers_queries_latches_the_semantic_map_and_resets(ros_cont
     region = QueryObjects.Request(use_region=True, region_min=Point(x=0.5, y=-1.0, z=0.0),
                                   region_max=Point(x=2.0, y=1.0, z=2.0))  # fmt: skip
     assert [o.id for o in call(query, region).objects] == [3]
-    saved = call(save, SaveMap.Request(path="/tmp/x.map"))
-    assert not saved.success and "not implemented" in saved.message
+    saved = call(save, SaveMap.Request(path=""))  # no path and no map_file parameter
+    assert not saved.success and "no path" in saved.message
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
@@ -178,7 +180,8 @@ def test_tracking_takes_compressed_colour_and_depth_from_the_bundled_sim_bag(ros
     path = require(REPO / "bags" / "sim_walking_changing.mcap")
     colour = "/camera/rgb/image_color/compressed"
     tracking = TrackingNode(context=ros_context, parameter_overrides=[
-        Parameter("ack_topic", value="/bag_player/ack"), Parameter("compressed", value=True)])  # fmt: skip
+        Parameter("ack_topic", value="/bag_player/ack"), Parameter("compressed", value=True),
+        Parameter("in_process_backend", value=False)])  # fmt: skip
     player = BagPlayerNode(context=ros_context, parameter_overrides=[
         Parameter("bag", value=str(path)), Parameter("rate", value=4.0), Parameter("start_offset_s", value=13.0),
         Parameter("lossless", value=True), Parameter("ack_topics", value=[colour]),
