@@ -7,6 +7,7 @@ Config section read: `objects:` (`core.object_layer.ObjectLayerConfig`: `enabled
 
 Outputs written into the run's folder when the layer is on:
 - `semantic_map.json`  the §4.8 semantic map (objects with belief >= the belief threshold), map frame;
+- `object_map.json`    every MapObject of the main map (points, beliefs; `io.semantic_map_file` object-map layout);
 - `semantic_map.png`   its top view over the final trajectory (low-belief objects drawn dashed);
 - `objects.json` metrics (when the source folder holds the simulator's `objects.json`): the estimated
   objects, moved into the ground-truth frame with the SE(3) alignment of the final trajectory, matched to
@@ -150,7 +151,7 @@ def trajectory_alignment(gt: Trajectory, est: Trajectory) -> F64 | None:
 def write_object_outputs(out: Path, layer: ObjectLayer, final: Trajectory, gt: Trajectory | None, source: str,
                          no_plot: bool) -> dict[str, Any]:
     """Semantic map files, and object metrics against the simulator's ground truth when available (metrics.json `objects`)."""
-    from changing_slam_ros.io.semantic_map_file import write_semantic_map
+    from changing_slam_ros.io.semantic_map_file import write_object_map, write_semantic_map
 
     result: dict[str, Any] = {"layer": layer.summary()}
     if not layer.enabled:
@@ -158,6 +159,7 @@ def write_object_outputs(out: Path, layer: ObjectLayer, final: Trajectory, gt: T
     map_id = _main_map(layer)
     smap = layer.semantic_map(map_id)
     write_semantic_map(out / "semantic_map.json", smap)
+    write_object_map(out / "object_map.json", layer.objects(map_id))
     if not no_plot:
         from changing_slam_ros.errors import EvalError
         from changing_slam_ros.eval.semantic_map_plot import plot_semantic_map

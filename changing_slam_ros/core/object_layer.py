@@ -4,23 +4,28 @@
 `after_keyframe(kf, slam_map, depth_m, short_term_objects)` once per new keyframe, after local mapping
 and before loop closing, so that loop closing already sees the points this keyframe deactivated:
 
-1. every object's points are re-read from the map (bundle adjustment and loop correction move them);
-2. the keyframe's candidates: its map points grouped by the short-term object id of their keypoint
-   (`Keyframe.object_ids`, set by the dynamic filter), one candidate per object the dynamic stage does
-   not consider dynamic, with its class and box in this keyframe; boxes touching the border are
-   truncated candidates (`long_term_association.box_truncated`);
+1. every object's points are re-read (bundle adjustment and loop correction move keyframes and points);
+2. the keyframe's candidates, one per short-term object of the dynamic stage that is not dynamic (static,
+   or not yet classified), with its class and its box in this keyframe; boxes touching the border are
+   truncated candidates (`long_term_association.box_truncated`). A candidate's points are
+   - the map points of its keypoints (`Keyframe.object_ids`, set by the dynamic filter): only the keypoints
+     tracking was allowed to use have map points, i.e. those of objects the EKF found static;
+   - depth samples inside its box (`depth_samples` on a grid, within `depth_band_m` of the box's median
+     depth, back-projected from the keyframe): the object's shape even while its keypoints are filtered
+     (a movable object the EKF has not yet called static has no map point at all). They carry negative ids
+     (below -1) and never enter the metric map;
 3. Algorithm 1 (`LongTermAssociation.process_keyframe`) merges, creates and belief-updates objects and
    runs the vicinity search with the keyframe's depth image;
-4. the map points take their object's id and class, and the active flag follows the object's belief
+4. the map points take their object's id and class, and their active flag follows the object's belief
    (`apply_to_point_store`): tracking, local BA, map fusion and place recognition skip inactive points
-   through `PointStore.usable()` / the loop closer's active masks.
+   through `PointStore.usable()` and the loop closer's active masks.
 
-Object points outlive metric culling. Inactive points are never matched again, so ORB-SLAM's
-recent-point culling removes most of them two keyframes after their creation; a MapObject that lost its
-points would fall under `min_points` and could never be associated again. The layer therefore anchors
-every object point in the keyframe that first gave it to the object (position in that camera's frame)
-and, once the map culled the point, re-expresses it from that keyframe's current pose (culled keyframes
-through their parents, `SlamMap.pose_of`). Points still in the map are read from the map.
+Object points outlive metric culling. Inactive points are never matched again, so ORB-SLAM's recent-point
+culling removes most of them two keyframes after their creation; a MapObject that lost its points would
+fall under `min_points` and could never be associated again. Every object point is therefore anchored in
+the keyframe that first gave it to the object (position in that camera's frame); depth samples, and map
+points once the map culled them, are re-expressed from that keyframe's current pose (culled keyframes
+through their parents, `SlamMap.pose_of`). Live map points are read from the map.
 
 `enabled=False` (YAML `objects: {enabled: false}`, CLI `--no-objects`) turns the layer into a no-op:
 every map point stays active, as in the plain engine; this is the "what the layer prevents" baseline.
@@ -38,9 +43,9 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.dynamic_objects import ObjectState
 from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.long_term_association import (
     AssociationResult, LongTermAssociation, ObjectCandidate, apply_to_point_store, box_truncated,
-    candidates_from_keyframe,
 )
 from changing_slam_ros.core.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
 from changing_slam_ros.core.se3 import invert
@@ -54,30 +59,53 @@ I64 = npt.NDArray[np.int64]
 
 @dataclass(frozen=True)
 class ObjectLayerConfig:
-    """YAML section `objects:`: `enabled` (the layer's switch) plus every `ObjectMapConfig` field."""
+    """YAML section `objects:`: the layer's own keys plus every `ObjectMapConfig` field.
+
+    - `enabled`: the layer's switch (off = every map point stays active).
+    - `depth_samples`: depth pixels sampled per candidate box (on a regular grid); 0 = map points only.
+    - `depth_band_m`: samples farther than this from the box's median depth are background and left out.
+    """
 
     enabled: bool = True
+    depth_samples: int = 100
+    depth_band_m: float = 0.35
     association: ObjectMapConfig = field(default_factory=ObjectMapConfig)
+
+    def __post_init__(self) -> None:
+        if self.depth_samples < 0:
+            raise ConfigError(f"objects.depth_samples: expected >= 0, got {self.depth_samples}")
+        if self.depth_band_m <= 0.0:
+            raise ConfigError(f"objects.depth_band_m: expected > 0, got {self.depth_band_m}")
+
+
+_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float}
 
 
 def object_layer_config(data: dict[str, Any] | None, where: str = "objects") -> ObjectLayerConfig:
-    """Parse the `objects:` mapping (None = defaults); `enabled` is read here, the rest by `ObjectMapConfig`."""
+    """Parse the `objects:` mapping (None = defaults); the layer's keys are read here, the rest by `ObjectMapConfig`."""
     if data is None:
         return ObjectLayerConfig()
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
     rest = dict(data)
-    enabled = rest.pop("enabled", True)
-    if not isinstance(enabled, bool):
-        raise ConfigError(f"{where}.enabled: expected true or false, got {enabled!r}")
-    return ObjectLayerConfig(enabled, object_map_config(rest, where))
+    own: dict[str, Any] = {}
+    for key, kind in _OWN_KEYS.items():
+        if key not in rest:
+            continue
+        v = rest.pop(key)
+        ok = isinstance(v, bool) if kind is bool else (isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                       and (kind is float or isinstance(v, int)))
+        if not ok:
+            raise ConfigError(f"{where}.{key}: expected {kind.__name__}, got {v!r}")
+        own[key] = kind(v)
+    return ObjectLayerConfig(**own, association=object_map_config(rest, where))
 
 
 @dataclass(frozen=True)
 class ObjectLayerResult:
     """What one keyframe did to the object map of its map: `association` (None when the layer is off),
-    `candidates` (the keyframe's object candidates, in association order), points whose active flag was set
-    (`n_activated`, `n_deactivated`) and the milliseconds spent."""
+    `candidates` (the keyframe's object candidates, in association order), map points whose active flag was
+    set (`n_activated`, `n_deactivated`) and the milliseconds spent."""
 
     map_id: int
     association: AssociationResult | None
@@ -91,13 +119,41 @@ class ObjectLayerResult:
         return self.n_activated + self.n_deactivated > 0
 
 
+class _Anchors:
+    """Object points anchored in keyframes: point id -> (keyframe id, position (3,) in that camera's frame)."""
+
+    def __init__(self) -> None:
+        self._ids: list[I64] = []
+        self._kfs: list[I64] = []
+        self._pts: list[F64] = []
+        self._cache: tuple[I64, I64, F64] | None = None
+
+    def add(self, kf_id: int, ids: I64, points_cam: F64) -> None:
+        self._ids.append(np.asarray(ids, np.int64))
+        self._kfs.append(np.full(len(ids), kf_id, np.int64))
+        self._pts.append(np.asarray(points_cam, float).reshape(-1, 3))
+        self._cache = None
+
+    def arrays(self) -> tuple[I64, I64, F64]:
+        """(ids (M,) sorted, keyframe ids (M,), camera-frame positions (M, 3)); the first anchor of an id wins."""
+        if self._cache is None:
+            if not self._ids:
+                self._cache = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
+            else:
+                ids, kfs, pts = np.concatenate(self._ids), np.concatenate(self._kfs), np.vstack(self._pts)
+                uniq, first = np.unique(ids, return_index=True)
+                self._cache = (uniq, kfs[first], pts[first])
+                self._ids, self._kfs, self._pts = [uniq], [kfs[first]], [pts[first]]
+        return self._cache
+
+
 @dataclass
 class _MapObjects:
-    """The object map of one SlamMap: the association and each object point's anchor
-    (point id -> (keyframe id, position (3,) in that keyframe's camera frame))."""
+    """The object map of one SlamMap: the association, the anchors, the next depth-sample id (negative)."""
 
     lta: LongTermAssociation
-    anchors: dict[int, tuple[int, F64]] = field(default_factory=dict)
+    anchors: _Anchors = field(default_factory=_Anchors)
+    next_sample_id: int = -2
 
 
 class ObjectLayer:
@@ -141,48 +197,80 @@ class ObjectLayer:
             return ObjectLayerResult(slam_map.id, None, (), 0, 0, 0.0)
         mo = self._for(slam_map.id)
         mo.lta.refresh_points(lambda ids: self._positions(mo, slam_map, ids))
-        boxes: dict[int, tuple[int, BoxXyxy, bool]] = {
-            int(o.object_id): (int(o.class_id), o.box_xyxy, box_truncated(o.box_xyxy, kf.camera))
-            for o in short_term_objects if not o.is_dynamic
-        }
-        cands: list[ObjectCandidate] = []
-        if boxes and kf.object_ids is not None and len(kf.object_ids) == len(kf.point_ids):
-            cands = candidates_from_keyframe(kf, lambda ids: slam_map.points.positions[ids].copy(), boxes)
-        res = mo.lta.process_keyframe(kf.id, cands, kf.T_world_cam, kf.camera, depth_m)
+        cands = self._candidates(mo, kf, slam_map, depth_m, short_term_objects)
+        res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m)
         self._anchor(mo, kf, cands, res)
-        apply_to_point_store(slam_map.points, cands, res)
+        apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
-        return ObjectLayerResult(slam_map.id, res, tuple(cands), len(res.activated_point_ids),
-                                 len(res.deactivated_point_ids), ms)
+        return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands), int((res.activated_point_ids >= 0).sum()),
+                                 int((res.deactivated_point_ids >= 0).sum()), ms)
+
+    def _candidates(self, mo: _MapObjects, kf: Keyframe, slam_map: SlamMap,
+                    depth_m: npt.NDArray[np.floating] | None,
+                    short_term_objects: Sequence[ObjectState]) -> list[tuple[ObjectCandidate, F64]]:
+        """(candidate, camera-frame positions (N, 3) of its points) per non-dynamic short-term object."""
+        out = []
+        has_ids = len(kf.object_ids) == len(kf.point_ids)
+        T_cam_world = invert(kf.T_world_cam)
+        for o in sorted(short_term_objects, key=lambda o: o.object_id):
+            if o.is_dynamic:
+                continue
+            ids = np.zeros(0, np.int64)
+            if has_ids:
+                sel = (kf.object_ids == o.object_id) & (kf.point_ids >= 0)
+                ids = np.unique(kf.point_ids[sel])
+                ids = ids[~slam_map.points.bad[ids]]
+            pts_w = slam_map.points.positions[ids].reshape(-1, 3)
+            pts_c = pts_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+            if depth_m is not None and self.config.depth_samples > 0:
+                sample_c = box_depth_samples(depth_m, o.box_xyxy, kf.camera, self.config.depth_samples,
+                                             self.config.depth_band_m)
+                sample_ids = np.arange(mo.next_sample_id, mo.next_sample_id - len(sample_c), -1, dtype=np.int64)
+                mo.next_sample_id -= len(sample_c)
+                ids = np.concatenate([ids, sample_ids])
+                pts_c = np.vstack([pts_c, sample_c])
+                pts_w = np.vstack([pts_w, sample_c @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3]])
+            if len(ids) == 0:
+                continue
+            box = tuple(float(v) for v in o.box_xyxy)
+            cand = ObjectCandidate(int(o.class_id), box, ids, pts_w, box_truncated(box, kf.camera))  # type: ignore[arg-type]
+            out.append((cand, pts_c))
+        return out
 
     @staticmethod
-    def _anchor(mo: _MapObjects, kf: Keyframe, cands: Sequence[ObjectCandidate], res: AssociationResult) -> None:
-        T_cam_world = invert(kf.T_world_cam)
-        for cand, oid in zip(cands, res.assignments):
-            if oid < 0:
-                continue
-            for pid, p in zip(np.asarray(cand.point_ids, np.int64).tolist(), np.asarray(cand.points_w, float)):
-                if pid not in mo.anchors:
-                    mo.anchors[pid] = (kf.id, T_cam_world[:3, :3] @ p + T_cam_world[:3, 3])
+    def _anchor(mo: _MapObjects, kf: Keyframe, cands: Sequence[tuple[ObjectCandidate, F64]],
+                res: AssociationResult) -> None:
+        for (cand, pts_c), oid in zip(cands, res.assignments):
+            if oid >= 0:
+                mo.anchors.add(kf.id, cand.point_ids, pts_c)
 
     @staticmethod
     def _positions(mo: _MapObjects, slam_map: SlamMap, ids: I64) -> tuple[F64, npt.NDArray[np.bool_]]:
-        """World positions (N, 3) of object points: from the map while the point lives, else from its anchor."""
+        """World positions (N, 3) of object points: live map points from the map, the others from their anchor."""
         pts = slam_map.points
         ids = np.asarray(ids, np.int64)
-        known = (ids >= 0) & (ids < pts.size)
-        safe = np.where(known, ids, 0)
+        live = (ids >= 0) & (ids < pts.size)
+        safe = np.where(live, ids, 0)
+        live &= ~pts.bad[safe]
         pos: F64 = pts.positions[safe].copy()
-        usable = known.copy()
-        for i in np.flatnonzero(known & pts.bad[safe]).tolist():
-            anchor = mo.anchors.get(int(ids[i]))
-            kf_id = -1 if anchor is None else anchor[0]
-            if anchor is None or not (kf_id in slam_map.keyframes or kf_id in slam_map.removed):
-                usable[i] = False
+        usable = live.copy()
+        need = np.flatnonzero(~live)
+        if len(need) == 0:
+            return pos, usable
+        a_ids, a_kfs, a_pts = mo.anchors.arrays()
+        if len(a_ids) == 0:
+            return pos, usable
+        j = np.searchsorted(a_ids, ids[need]).clip(0, len(a_ids) - 1)
+        found = a_ids[j] == ids[need]
+        need, j = need[found], j[found]
+        for kf_id in np.unique(a_kfs[j]).tolist():
+            if kf_id not in slam_map.keyframes and kf_id not in slam_map.removed:
                 continue
+            sel = a_kfs[j] == kf_id
             T = slam_map.pose_of(kf_id)
-            pos[i] = T[:3, :3] @ anchor[1] + T[:3, 3]
+            pos[need[sel]] = a_pts[j[sel]] @ T[:3, :3].T + T[:3, 3]
+            usable[need[sel]] = True
         return pos, usable
 
     # --- results ---
@@ -195,12 +283,34 @@ class ObjectLayer:
         """Counts for metrics.json: objects, active ones, milliseconds per keyframe."""
         objs = self.objects()
         ms = np.asarray(self.keyframe_ms) if self.keyframe_ms else np.zeros(1)
+        min_points = self.config.association.min_points
         return {
             "enabled": self.config.enabled,
             "objects": len(objs),
             "objects_active": sum(1 for o in objs if o.active),
-            "objects_inactive_with_points": sum(1 for o in objs if not o.active and o.n_points >= self.config.association.min_points),
+            "objects_inactive_with_points": sum(1 for o in objs if not o.active and o.n_points >= min_points),
             "keyframes": len(self.keyframe_ms),
             "ms_per_keyframe_mean": float(ms.mean()),
             "ms_per_keyframe_p90": float(np.percentile(ms, 90)),
         }
+
+
+def box_depth_samples(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
+                      n_samples: int, depth_band_m: float) -> F64:
+    """Camera-frame points (M, 3), M <= about n_samples: the box's pixels on a regular grid with valid depth
+    within `depth_band_m` of their median depth (the object, not the background seen past it)."""
+    h, w = depth_m.shape[:2]
+    x0, y0 = max(0, int(np.floor(box_xyxy[0]))), max(0, int(np.floor(box_xyxy[1])))
+    x1, y1 = min(w, int(np.ceil(box_xyxy[2]))), min(h, int(np.ceil(box_xyxy[3])))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return np.zeros((0, 3))
+    step = max(1, int(np.ceil(np.sqrt((x1 - x0) * (y1 - y0) / max(n_samples, 1)))))
+    vv, uu = np.mgrid[y0 + step // 2:y1:step, x0 + step // 2:x1:step]
+    d = np.asarray(depth_m[vv, uu], float)
+    ok = d > 0
+    if ok.sum() < 3:
+        return np.zeros((0, 3))
+    ok &= np.abs(d - np.median(d[ok])) < depth_band_m
+    px = np.c_[uu[ok], vv[ok]].astype(float)
+    pts: F64 = camera.backproject(px, d[ok])
+    return pts

@@ -1,0 +1,140 @@
+"""ObjectLayer on constructed maps: candidates from map points and box depth, point flags, anchors, the switch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic_objects import ObjectMotion, ObjectState
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.map_object import ObjectMapConfig
+from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerConfig, box_depth_samples, object_layer_config
+from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.errors import ConfigError
+
+CAM = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
+CHAIR = 56
+BOX = (100.0, 60.0, 180.0, 180.0)
+
+
+def _depth(object_m: float = 2.0, background_m: float = 4.0) -> np.ndarray:
+    """(240, 320) depth: background, with the box region at object_m except a 10-pixel column showing the wall."""
+    d = np.full((240, 320), background_m, np.float32)
+    d[60:180, 100:180] = object_m
+    d[60:180, 170:180] = background_m
+    return d
+
+
+def _state(motion: ObjectMotion = ObjectMotion.STATIC, box: tuple[float, float, float, float] = BOX) -> ObjectState:
+    nan3 = np.full(3, np.nan)
+    return ObjectState(7, CHAIR, box, nan3, nan3, 0.0, motion, 3, False)
+
+
+def _map_with_keyframe(kf_id: int, T_world_cam: np.ndarray, n_obj: int = 12) -> tuple[SlamMap, Keyframe]:
+    """A map with one keyframe: n_obj keypoints on the object (short-term id 7) with map points at 2 m, 8 on the background."""
+    rng = np.random.default_rng(kf_id)
+    px_obj = np.c_[rng.uniform(105, 165, n_obj), rng.uniform(65, 175, n_obj)]
+    px_bg = np.c_[rng.uniform(0, 90, 8), rng.uniform(0, 240, 8)]
+    px = np.vstack([px_obj, px_bg])
+    depth = np.r_[np.full(n_obj, 2.0), np.full(8, 4.0)]
+    n = len(px)
+    kf = Keyframe(kf_id, kf_id * 10**9, T_world_cam, CAM, px.astype(np.float32), np.zeros(n, np.int8),
+                  np.zeros((n, 32), np.uint8), depth.astype(np.float32), np.full(n, -1, np.int64),
+                  object_ids=np.r_[np.full(n_obj, 7), np.full(8, -1)].astype(np.int64))
+    m = SlamMap(0)
+    pts_c = CAM.backproject(px, depth)
+    pts_w = pts_c @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+    ids = m.points.add(pts_w, kf.descriptors, kf_id, np.arange(n), T_world_cam[:3, 3], np.zeros(n, np.int64),
+                       np.ones(8))
+    kf.point_ids[:] = ids
+    m.add_keyframe(kf)
+    return m, kf
+
+
+def test_box_depth_samples_keep_the_object_not_the_wall_behind() -> None:
+    pts = box_depth_samples(_depth(), BOX, CAM, 100, 0.35)
+    assert 50 <= len(pts) <= 110
+    np.testing.assert_allclose(pts[:, 2], 2.0)
+    u = CAM.fx * pts[:, 0] / pts[:, 2] + CAM.cx
+    assert u.min() >= 100 and u.max() < 170  # the wall column (170-180) is left out
+    assert len(box_depth_samples(np.zeros((240, 320), np.float32), BOX, CAM, 100, 0.35)) == 0
+
+
+def test_new_object_is_created_inactive_and_its_map_points_leave_tracking() -> None:
+    m, kf = _map_with_keyframe(0, np.eye(4))
+    layer = ObjectLayer()
+    out = layer.after_keyframe(kf, m, _depth(), [_state()])
+    assert out.association is not None and len(out.association.new_object_ids) == 1
+    (obj,) = layer.objects(0)
+    assert obj.class_id == CHAIR and obj.belief == 0.5 and not obj.active
+    # 12 map points plus the depth samples; centroid inside the object's slab at 2 m
+    assert (obj.point_ids >= 0).sum() == 12 and (obj.point_ids < -1).sum() > 50
+    assert abs(obj.centroid_w[2] - 2.0) < 1e-6
+    usable = m.points.usable()
+    assert not usable[:12].any() and usable[12:].all()  # object points inactive, background untouched
+    assert (m.points.object_id[:12] == obj.id).all() and (m.points.class_id[:12] == CHAIR).all()
+    assert out.n_deactivated == 12 and out.active_flags_changed
+
+
+def test_dynamic_objects_are_ignored_and_switch_off_keeps_every_point_active() -> None:
+    m, kf = _map_with_keyframe(0, np.eye(4))
+    layer = ObjectLayer()
+    layer.after_keyframe(kf, m, _depth(), [_state(ObjectMotion.DYNAMIC)])
+    assert layer.objects() == [] and m.points.usable().all()
+    off = ObjectLayer(ObjectLayerConfig(enabled=False))
+    out = off.after_keyframe(kf, m, _depth(), [_state()])
+    assert out.association is None and off.objects() == [] and m.points.usable().all()
+
+
+def test_object_points_follow_their_keyframe_after_the_map_culled_them() -> None:
+    m, kf = _map_with_keyframe(0, np.eye(4))
+    layer = ObjectLayer(ObjectLayerConfig(depth_samples=0))
+    layer.after_keyframe(kf, m, None, [_state()])
+    (obj,) = layer.objects(0)
+    before = obj.centroid_w.copy()
+    for pid in range(12):  # recent-point culling removes the (inactive) object points
+        m.erase_point(pid)
+    shift = make_pose(np.eye(3), np.array([0.3, 0.0, 0.0]))
+    kf.T_world_cam = shift @ kf.T_world_cam  # a loop correction moves the keyframe
+    # a later keyframe without the object: refresh only
+    kf2 = Keyframe(1, 10**9, np.eye(4), CAM, np.zeros((0, 2), np.float32), np.zeros(0, np.int8),
+                   np.zeros((0, 32), np.uint8), np.zeros(0, np.float32), np.zeros(0, np.int64))
+    m.add_keyframe(kf2)
+    layer.after_keyframe(kf2, m, None, [])
+    assert obj.n_points == 12  # kept, from the anchors
+    np.testing.assert_allclose(obj.centroid_w, before + [0.3, 0.0, 0.0], atol=1e-9)
+
+
+def test_returning_object_is_merged_and_missing_object_loses_belief() -> None:
+    cfg = ObjectLayerConfig(association=ObjectMapConfig(n_keyframes_unseen=1))
+    layer = ObjectLayer(cfg)
+    m, kf = _map_with_keyframe(0, np.eye(4))
+    layer.after_keyframe(kf, m, _depth(), [_state()])
+    (obj,) = layer.objects(0)
+    # keyframe 5, same pose, object seen again after more than N keyframes: merged, belief up
+    kf5 = Keyframe(5, 5 * 10**9, np.eye(4), CAM, kf.keypoints_px, kf.octaves, kf.descriptors, kf.depths_m,
+                   kf.point_ids.copy(), object_ids=kf.object_ids.copy())
+    m.add_keyframe(kf5)
+    layer.after_keyframe(kf5, m, _depth(), [_state()])
+    assert len(layer.objects(0)) == 1 and obj.belief > 0.5
+    # keyframe 9, same pose, the object is gone (depth shows the wall) and nothing is detected: belief down
+    belief = obj.belief
+    kf9 = Keyframe(9, 9 * 10**9, np.eye(4), CAM, np.zeros((0, 2), np.float32), np.zeros(0, np.int8),
+                   np.zeros((0, 32), np.uint8), np.zeros(0, np.float32), np.zeros(0, np.int64))
+    m.add_keyframe(kf9)
+    layer.after_keyframe(kf9, m, np.full((240, 320), 4.0, np.float32), [])
+    assert obj.belief < belief
+
+
+def test_config_section() -> None:
+    cfg = object_layer_config({"enabled": False, "depth_samples": 50, "belief_threshold": 0.7})
+    assert not cfg.enabled and cfg.depth_samples == 50 and cfg.association.belief_threshold == 0.7
+    assert object_layer_config(None) == ObjectLayerConfig()
+    with pytest.raises(ConfigError, match="objects.enabled"):
+        object_layer_config({"enabled": "yes"})
+    with pytest.raises(ConfigError, match="bogus"):
+        object_layer_config({"bogus": 1})
+    with pytest.raises(ConfigError, match="depth_band_m"):
+        object_layer_config({"depth_band_m": 0.0})
