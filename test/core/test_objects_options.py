@@ -1,0 +1,77 @@
+"""The run helpers of the object layer: loop error against ground truth, alignment of objects, map embedding."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from changing_slam_ros.commands.objects_options import (
+    LoopRecord, aligned_objects, loop_error, object_layer_setup, object_map_arrays, read_object_map_arrays,
+    trajectory_alignment,
+)
+from changing_slam_ros.commands.run import load_map_arrays, save_map
+from changing_slam_ros.core.map_object import MapObject
+from changing_slam_ros.core.object_layer import ObjectLayer
+from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.slam_map import Atlas
+from changing_slam_ros.core.trajectory import Trajectory
+
+
+def _rot_z(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
+def _gt() -> Trajectory:
+    stamps = np.arange(10) * 0.1
+    poses = np.array([make_pose(_rot_z(10.0 * k), np.array([0.2 * k, 0.1 * k * k, 0.0])) for k in range(10)])
+    return Trajectory.from_poses(stamps, poses)
+
+
+def test_loop_error_is_the_relative_pose_error_of_the_two_keyframes() -> None:
+    gt = _gt()
+    poses = gt.poses()
+    exact = np.linalg.inv(poses[2]) @ poses[8]
+    rec = LoopRecord(int(0.8e9), int(0.2e9), exact)
+    t_m, r_deg = loop_error(gt, rec)  # type: ignore[misc]
+    assert t_m < 1e-9 and r_deg < 1e-6
+    off = exact @ make_pose(_rot_z(6.0), np.array([0.0, 0.12, 0.0]))
+    t_m, r_deg = loop_error(gt, LoopRecord(int(0.8e9), int(0.2e9), off))  # type: ignore[misc]
+    assert abs(t_m - 0.12) < 1e-9 and abs(r_deg - 6.0) < 1e-6
+    assert loop_error(gt, LoopRecord(int(5e9), int(0.2e9), exact)) is None  # no ground truth at that stamp
+
+
+def test_objects_are_moved_into_the_ground_truth_frame_with_the_trajectory_alignment() -> None:
+    gt = _gt()
+    T_est_gt = make_pose(_rot_z(35.0), np.array([1.0, -2.0, 0.5]))  # the estimate's frame differs from ground truth
+    est = Trajectory.from_poses(gt.stamps_s, np.array([T_est_gt @ p for p in gt.poses()]))
+    T = trajectory_alignment(gt, est)
+    assert T is not None
+    np.testing.assert_allclose(T @ T_est_gt, np.eye(4), atol=1e-9)
+    pts_gt = np.array([[1.0, 1.0, 0.2], [1.2, 1.0, 0.2], [1.0, 1.3, 0.9]])
+    pts_est = pts_gt @ T_est_gt[:3, :3].T + T_est_gt[:3, 3]
+    obj = MapObject(3, 56, (0, 0, 1, 1), (0, 0, 1, 1), 0, 0, point_ids=np.arange(3), points_w=pts_est)
+    (moved,) = aligned_objects([obj], T)
+    np.testing.assert_allclose(moved.centroid_w, pts_gt.mean(axis=0), atol=1e-9)
+    np.testing.assert_allclose(moved.box_size_m, [0.2, 0.3, 0.7], atol=1e-9)
+    np.testing.assert_allclose(obj.points_w, pts_est)  # the original is untouched
+
+
+def test_object_map_is_embedded_in_the_map_file(tmp_path: Path) -> None:
+    layer = object_layer_setup(argparse.Namespace(objects=None), {"objects": {"belief_threshold": 0.7}}, "test")
+    assert layer.enabled and layer.config.association.belief_threshold == 0.7
+    assert not object_layer_setup(argparse.Namespace(objects=False), {}, "test").enabled
+    obj = MapObject(4, 62, (1, 2, 30, 40), (3, 4, 33, 44), 2, 9, belief=0.83, active=True,
+                    point_ids=np.array([5, -2, -3]), points_w=np.array([[0.0, 1, 2], [0.1, 1, 2], [0.0, 1.2, 2]]))
+    layer.association(0).add_object(obj)
+    path = tmp_path / "map.npz"
+    save_map(path, Atlas(), object_map_arrays(layer))
+    arrays = load_map_arrays(path)
+    (back,) = read_object_map_arrays(arrays, 0, str(path))
+    assert (back.id, back.class_id, back.belief, back.active, back.last_seen_keyframe) == (4, 62, 0.83, True, 9)
+    np.testing.assert_array_equal(back.point_ids, obj.point_ids)
+    np.testing.assert_allclose(back.centroid_w, obj.centroid_w)
+    assert read_object_map_arrays(arrays, 1, str(path)) == []
+    assert isinstance(ObjectLayer().map_ids, list)
