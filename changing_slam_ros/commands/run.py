@@ -31,7 +31,9 @@ from typing import Any
 import numpy as np
 
 from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dynamic_setup
-from changing_slam_ros.commands.objects_options import LoopLog, add_object_arguments, object_layer_setup, write_object_outputs
+from changing_slam_ros.commands.objects_options import (
+    LoopLog, add_object_arguments, object_layer_setup, object_map_arrays, write_object_outputs,
+)
 from changing_slam_ros.config import find_config, load_yaml, section
 from changing_slam_ros.core.local_mapping import MappingConfig
 from changing_slam_ros.core.orb_features import FeatureConfig
@@ -94,7 +96,7 @@ def main(args: argparse.Namespace) -> int:
     write_tum_trajectory(out / "trajectory.txt", final)
     write_tum_trajectory(out / "trajectory_online.txt", online)
     write_tum_trajectory(out / "keyframes.txt", system.keyframe_trajectory())
-    save_map(out / "map.npz", system.atlas)
+    save_map(out / "map.npz", system.atlas, object_map_arrays(objects))
     timing = system.timing_summary()
     metrics: dict[str, Any] = {
         "source": str(args.source),
@@ -211,12 +213,13 @@ def _evaluate(gt: Any, final: Any, online: Any, out: Path, no_plot: bool) -> dic
     return result
 
 
-def save_map(path: Path, atlas: Atlas) -> None:
+def save_map(path: Path, atlas: Atlas, extra: dict[str, np.ndarray] | None = None) -> None:
     """Write the Atlas as one npz (atomic): per map, keyframes and usable points with observations.
 
     Arrays, prefixed `m{map_id}_`: `kf_ids` (K,), `kf_stamps_ns` (K,), `kf_poses` (K, 4, 4) camera-to-world,
     `point_ids` (P,), `point_positions` (P, 3), `point_descriptors` (P, 32), `point_active` (P,),
-    `obs` (E, 3) rows (point id, keyframe id, keypoint index). Top level: `format_version`, `map_ids`.
+    `obs` (E, 3) rows (point id, keyframe id, keypoint index). Top level: `format_version`, `map_ids`, and
+    the arrays of `extra` (e.g. `m{map_id}_objects_json`, the object map, from `objects_options.object_map_arrays`).
     """
     arrays: dict[str, Any] = {"format_version": np.array(MAP_FORMAT_VERSION), "map_ids": np.array([m.id for m in atlas.maps])}
     for m in atlas.maps:
@@ -232,6 +235,7 @@ def save_map(path: Path, atlas: Atlas) -> None:
         arrays[pre + "point_active"] = m.points.active[ids]
         obs = [(p, k, i) for p in ids.tolist() for k, i in m.points.observations[p].items()]
         arrays[pre + "obs"] = np.array(obs, np.int64).reshape(-1, 3)
+    arrays.update(extra or {})
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     atomic_write_bytes(path, buf.getvalue())
