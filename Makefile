@@ -40,6 +40,8 @@ $(STAMPS)/interfaces: $(STAMPS)/venv tools/build_interfaces.sh $(MSG_SOURCES) | 
 
 $(STAMPS)/package: $(STAMPS)/venv setup.py setup.cfg | $(STAMPS)
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e . 2> $(STAMPS)/pip-package.log || { cat $(STAMPS)/pip-package.log; exit 1; }
+	@# setup.cfg puts executables where `ros2 run` looks (lib/changing_slam_ros/); link them onto the venv's PATH too.
+	@for s in $(VENV)/lib/changing_slam_ros/*; do ln -sf "../lib/changing_slam_ros/$$(basename "$$s")" $(VENV)/bin/; done
 	@touch $@
 
 run: setup
