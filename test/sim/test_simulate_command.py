@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -12,6 +13,7 @@ from changing_slam_ros.cli import main
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 from changing_slam_ros.sim.bag import sim_frames, write_sim_mcap
+from changing_slam_ros.sim.scenarios import build_scenario
 
 
 def test_list_names_every_scenario(capsys: pytest.CaptureFixture[str]) -> None:
@@ -38,6 +40,17 @@ def test_simulate_writes_a_tum_folder_and_an_mcap_that_reads_back(tmp_path: Path
     rgb_files = sorted((out / "rgb").glob("*.png"))
     assert len(rgb_files) == 4 and cv2.imread(str(rgb_files[0])).shape == (72, 96, 3)
     assert len(list((out / "masks").glob("*.png"))) == 4
+    doc = json.loads((out / "objects.json").read_text())
+    scenario = build_scenario("shift", 2)
+    assert [(c["t_s"], c["object"], c["kind"]) for c in doc["changes"]] == [
+        (c.t_s, c.actor, c.kind.value) for c in scenario.changes]
+    for c in doc["changes"]:
+        assert doc["objects"][c["object_id"] - 1]["name"] == c["object"]
+        assert c["stamp_ns"] == doc["stamps_ns"][0] + round(c["t_s"] * 1e9)
+    chair = next(o for o in doc["objects"] if o["name"] == "chair")
+    T0 = scenario.actors[scenario.actor_index("chair")].track.pose_at(0.0)
+    assert np.allclose(chair["poses"][0][:3], T0[:3, 3], atol=1e-9)
+    assert chair["class_id"] == 56 and chair["class_name"] == "chair"
     n = write_sim_mcap(out, bag, compress=False)
     assert n == 4
     gt = read_tum_trajectory(out / "groundtruth.txt").poses()
