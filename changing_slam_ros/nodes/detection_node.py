@@ -17,7 +17,7 @@ from typing import Any
 
 import rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CompressedImage, Image
 
@@ -46,8 +46,10 @@ class DetectionNode(LifecycleNode):
             ("intra_op_threads", -1, "onnxruntime threads; < 0 = from the config (2)"),
             ("compressed", False, "subscribe sensor_msgs/CompressedImage on image/compressed instead"),
             ("autostart", True, "configure and activate at start (main() only)"),
+            ("reliable_images", False, "reliable image subscription (keep last 1) instead of sensor-data best effort"),
         ])  # fmt: skip
-        self._image_qos = image_qos
+        self._image_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE) if self.params["reliable_images"] \
+            else image_qos  # fmt: skip
         self._detections_qos = detections_qos
         self.detector: Detector | None = None
         self.detector_config = self._detector_config()

@@ -114,7 +114,11 @@ class TrackingNode(Node):
             ("detections_required", False, "wait for detections from the first frame (a detection node is started)"),
             ("debug_image", True, "publish ~/debug_image (keypoints by class, detection boxes)"),
             ("output_dir", "", "write trajectories, semantic map and stats here on shutdown; empty = none"),
+            ("reliable_images", False, "reliable image subscriptions (keep last 2) instead of sensor-data best effort: "
+                                       "large images across processes on Fast DDS arrive only this way"),
         ])  # fmt: skip
+        if p["reliable_images"]:
+            image_qos = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
         slop_ns = round(p["sync_slop_s"] * 1e9)
         self.pairer: ApproximatePairer[Any, Any] = ApproximatePairer(slop_ns)
         self.camera: CameraIntrinsics | None = None  # from camera_info, as received
@@ -125,6 +129,7 @@ class TrackingNode(Node):
         self.frames_without_detections = 0
         self.latency_ms: list[float] = []
         self.process_ms: list[float] = []
+        self.detection_delay_ms: list[float] = []  # colour received -> its detections received
         self.published_poses = 0
         self._warned: set[str] = set()
         self._received_s: dict[int, float] = {}
@@ -207,6 +212,9 @@ class TrackingNode(Node):
     def on_detections(self, msg: DetectionArray) -> None:
         ds = detections_from_msg(msg)
         self._detections_seen = True
+        if ds.stamp_ns in self._received_s or any(f.stamp_ns == ds.stamp_ns for f in self._pending):
+            received = self._received_s.get(ds.stamp_ns) or next(f.received_s for f in self._pending if f.stamp_ns == ds.stamp_ns)
+            self.detection_delay_ms.append((time.monotonic() - received) * 1e3)
         self.detections[ds.stamp_ns] = ds
         while len(self.detections) > 30:
             del self.detections[next(iter(self.detections))]
@@ -358,6 +366,7 @@ class TrackingNode(Node):
             "latency_ms_median": float(np.median(lat)) if lat.size else None,
             "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
             "process_ms_median": float(np.median(proc)) if proc.size else None,
+            "detection_delay_ms_median": float(np.median(self.detection_delay_ms)) if self.detection_delay_ms else None,
             "latency_ms": [round(float(v), 2) for v in lat],
         }  # fmt: skip
 

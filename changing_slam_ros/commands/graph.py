@@ -1,0 +1,374 @@
+"""`changing-slam graph BAG --out DIR`: the ROS 2 node graph over a bag, as separate processes, without ros2 launch.
+
+    changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
+        [--[no-]object-map] [--detections-wait S] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
+
+Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
+`tracking` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node --ros-args ...` processes on a
+ROS domain of their own (a random ROS_DOMAIN_ID unless ROS_DOMAIN_ID is set, discovery limited to this
+machine), waits until each node says it is up, plays the bag, waits for the player to finish, asks tracking to
+write its outputs (SIGINT, then waits), stops the rest (SIGINT, then SIGTERM, then SIGKILL), evaluates the
+trajectory against the bag's ground truth and prints a summary. A node that dies before the end is restarted
+(at most --max-restarts times per node); `--kill object_map@5` kills a node on purpose after 5 s (fault test).
+
+INTERIM: tracking runs local mapping, the object layer and loop closing in its own process
+(`in_process_backend`, see `nodes/slam_backend.py`); the `local_mapping` and `loop_closing` processes are not
+started because they would only receive keyframes (map-update replication is open).
+
+DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, semantic_map.json,
+tracking_stats.json (from tracking), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
+process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts).
+Drops: colour frames in the bag that did not become a pose (not received, not paired, or not tracked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from changing_slam_ros.errors import ConfigError, SlamError
+from changing_slam_ros.io.atomic import atomic_write_text
+
+READY_MARKERS = {
+    "object_map": "object_map: started",
+    "detection": "detection: active",
+    "tracking": "tracking: started",
+}
+ACK_TOPIC = "/bag_player/ack"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", metavar="BAG", help="ROS 1 bag, ROS 2 bag folder or mcap file to replay")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    parser.add_argument("--config", default="", metavar="NAME|FILE", help="config YAML (as for `changing-slam run`)")
+    parser.add_argument("--rate", type=float, default=1.0, metavar="R", help="playback speed factor (default 1)")
+    parser.add_argument("--lossless", action="store_true",
+                        help="the player waits for tracking's ack of each colour frame (no drops; not real time)")
+    parser.add_argument("--detection", action=argparse.BooleanOptionalAction, default=None,
+                        help="start the detection node (default: when the config's dynamic filter uses detections)")
+    parser.add_argument("--object-map", action=argparse.BooleanOptionalAction, default=True,
+                        help="start the object_map node (default on)")
+    parser.add_argument("--detections-wait", type=float, default=None, metavar="S",
+                        help="longest wait of tracking for a frame's detections (default 0.1 s; lossless 10 s)")
+    parser.add_argument("--max-restarts", type=int, default=2, metavar="N", help="restarts per node (default 2)")
+    parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
+    parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
+                        help="fault injection: SIGKILL NODE S seconds after playback starts (repeatable)")
+
+
+@dataclass
+class NodeProcess:
+    """One node of the graph: its command, the running process and its restarts."""
+
+    name: str
+    argv: list[str]
+    log_dir: Path
+    starts: int = 0
+    proc: subprocess.Popen[bytes] | None = None
+    log_path: Path | None = None
+    exit_codes: list[int] = field(default_factory=list)
+
+    def start(self, env: dict[str, str]) -> None:
+        suffix = "" if self.starts == 0 else f".{self.starts}"
+        self.log_path = self.log_dir / f"{self.name}{suffix}.log"
+        log = open(self.log_path, "wb")  # noqa: SIM115 - the child keeps writing it
+        try:
+            self.proc = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        finally:
+            log.close()
+        self.starts += 1
+
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def log_text(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace") if self.log_path else ""
+        except OSError:
+            return ""
+
+    def stop(self, sig: int, wait_s: float) -> int | None:
+        """Send `sig`, wait up to `wait_s`; returns the exit code or None while it still runs."""
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            try:
+                self.proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+            try:
+                self.proc.wait(wait_s)
+            except subprocess.TimeoutExpired:
+                return None
+        return self.proc.returncode
+
+
+def _node_argv(module: str, params: dict[str, Any], remaps: dict[str, str] | None = None,
+               positional: list[str] | None = None) -> list[str]:  # fmt: skip
+    argv = [sys.executable, "-m", f"changing_slam_ros.nodes.{module}", *(positional or []), "--ros-args"]
+    for key, value in params.items():
+        if isinstance(value, bool):
+            text = "true" if value else "false"
+        elif isinstance(value, list):
+            text = "[" + ", ".join(f"'{v}'" for v in value) + "]"
+        elif isinstance(value, str):
+            text = f"'{value}'"  # YAML string, also for values that look like numbers or are empty
+        else:
+            text = str(value)
+        argv += ["-p", f"{key}:={text}"]
+    for src, dst in (remaps or {}).items():
+        argv += ["-r", f"{src}:={dst}"]
+    return argv
+
+
+@dataclass(frozen=True)
+class BagInfo:
+    colour_topic: str
+    compressed: bool
+    colour_frames: int
+    duration_s: float
+
+
+def inspect_bag(path: str) -> BagInfo:
+    """Which colour topic the bag has (raw or compressed TUM names) and how many frames."""
+    from changing_slam_ros.io.bag_messages import BagMessages
+
+    with BagMessages(path) as bag:
+        topics = bag.topics
+        duration_s = (bag.end_ns - bag.start_ns) / 1e9
+    for name, compressed in (("/camera/rgb/image_color", False), ("/camera/rgb/image_color/compressed", True)):
+        if name in topics:
+            return BagInfo(name, compressed, topics[name].msgcount, duration_s)
+    raise ConfigError(f"{path}: no /camera/rgb/image_color[/compressed] topic (has {', '.join(sorted(topics))})")
+
+
+def _uses_detections(config: str) -> bool:
+    from changing_slam_ros.config import section
+    from changing_slam_ros.core.dynamic_filter import DynamicConfig
+    from changing_slam_ros.nodes.slam_backend import load_backend_config
+
+    cfg = load_backend_config(config)
+    dyn = section(DynamicConfig, cfg.data.get("dynamic"), f"{cfg.where}: dynamic")
+    return dyn.enabled and dyn.detection_filtering
+
+
+def _parse_kills(specs: list[str]) -> list[tuple[str, float]]:
+    out = []
+    for spec in specs:
+        name, _, seconds = spec.partition("@")
+        try:
+            out.append((name, float(seconds)))
+        except ValueError as err:
+            raise ConfigError(f"--kill {spec}: expected NODE@SECONDS, e.g. object_map@5") from err
+    return out
+
+
+class Graph:
+    """The processes of one run; `run()` returns the summary dict."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.out = Path(args.out).resolve()
+        self.logs = self.out / "logs"
+        self.logs.mkdir(parents=True, exist_ok=True)
+        self.bag = str(Path(args.bag).resolve())
+        self.info = inspect_bag(self.bag)
+        self.config = str(Path(args.config).resolve()) if args.config and Path(args.config).is_file() else args.config
+        self.detection = _uses_detections(self.config) if args.detection is None else args.detection
+        self.kills = _parse_kills(args.kill)
+        domain = os.environ.get("ROS_DOMAIN_ID") or str(random.SystemRandom().randint(1, 99))
+        self.env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                        PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0",
+                        ROS_LOG_DIR=str(self.logs / "ros"))  # fmt: skip
+        self.nodes: dict[str, NodeProcess] = {}
+        self.restarts: dict[str, int] = {}
+        self._build()
+
+    def _build(self) -> None:
+        a, info = self.args, self.info
+        wait = a.detections_wait if a.detections_wait is not None else (10.0 if a.lossless else 0.1)
+        if a.object_map:
+            self.nodes["object_map"] = NodeProcess("object_map", _node_argv("object_map_node", {
+                "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}), self.logs)  # fmt: skip
+        if self.detection:
+            remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
+            self.nodes["detection"] = NodeProcess("detection", _node_argv("detection_node", {
+                "config": self.config, "compressed": info.compressed, "reliable_images": True}, remaps), self.logs)  # fmt: skip
+        self.nodes["tracking"] = NodeProcess("tracking", _node_argv("tracking_node", {
+            "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
+            "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
+            "in_process_backend": True, "reliable_images": True,
+        }), self.logs)  # fmt: skip
+        player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
+                  "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
+                  "min_subscribers": 2 if self.detection else 1}  # fmt: skip
+        self.player = NodeProcess("bag_player", _node_argv("bag_player_node", player), self.logs)
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def _start(self, node: NodeProcess, timeout_s: float) -> None:
+        node.start(self.env)
+        self._wait_ready(node, timeout_s)
+
+    def _wait_ready(self, node: NodeProcess, timeout_s: float) -> None:
+        marker = READY_MARKERS.get(node.name)
+        deadline = time.monotonic() + timeout_s
+        while marker and marker not in node.log_text():
+            if not node.running():
+                raise SlamError(f"graph: {node.name} exited with {node.proc.returncode if node.proc else '?'} "
+                                f"while starting; see {node.log_path}")  # fmt: skip
+            if time.monotonic() > deadline:
+                raise SlamError(f"graph: {node.name} not up after {timeout_s:.0f} s; see {node.log_path}")
+            time.sleep(0.1)
+
+    def _supervise(self, started_s: float) -> None:
+        """Restart nodes that died (bounded), carry out --kill, until the player ends or the timeout."""
+        pending_kills = list(self.kills)
+        deadline = started_s + self.args.timeout
+        while self.player.running():
+            now = time.monotonic()
+            if now > deadline:
+                raise SlamError(f"graph: still playing after --timeout {self.args.timeout:.0f} s; stopped")
+            for name, at_s in list(pending_kills):
+                if now - started_s >= at_s and name in self.nodes and self.nodes[name].running():
+                    print(f"graph: --kill: SIGKILL {name} at {now - started_s:.1f} s", flush=True)
+                    self.nodes[name].stop(signal.SIGKILL, 5.0)
+                    pending_kills.remove((name, at_s))
+            for node in self.nodes.values():
+                if node.running():
+                    continue
+                code = node.proc.returncode if node.proc is not None else -1
+                node.exit_codes.append(code)
+                if self.restarts.get(node.name, 0) >= self.args.max_restarts:
+                    raise SlamError(f"graph: {node.name} died (exit {code}) and was restarted "
+                                    f"{self.args.max_restarts} times; see {node.log_path}")  # fmt: skip
+                self.restarts[node.name] = self.restarts.get(node.name, 0) + 1
+                print(f"graph: {node.name} died (exit {code}); restarting ({self.restarts[node.name]})", flush=True)
+                self._start(node, 180.0)
+            time.sleep(0.2)
+
+    def shutdown(self) -> dict[str, int | None]:
+        """Tracking first (SIGINT: it writes its outputs), then the others; escalate to SIGTERM, SIGKILL."""
+        codes: dict[str, int | None] = {}
+        order = [n for n in ("tracking", "detection", "object_map") if n in self.nodes] + ["bag_player"]
+        for name in order:
+            node = self.player if name == "bag_player" else self.nodes[name]
+            code = node.stop(signal.SIGINT, 120.0 if name == "tracking" else 15.0)
+            if code is None:
+                code = node.stop(signal.SIGTERM, 10.0)
+            if code is None:
+                code = node.stop(signal.SIGKILL, 5.0)
+            codes[name] = code
+        return codes
+
+    def run(self) -> dict[str, Any]:
+        t0 = time.monotonic()
+        try:
+            for node in self.nodes.values():  # all at once: imports (gtsam, onnxruntime) take a while
+                node.start(self.env)
+            for node in self.nodes.values():
+                self._wait_ready(node, 300.0)
+            up_s = time.monotonic() - t0
+            print(f"graph: {', '.join(self.nodes)} up after {up_s:.1f} s (ROS_DOMAIN_ID {self.env['ROS_DOMAIN_ID']}); "
+                  f"playing {self.bag} at {self.args.rate}x{' lossless' if self.args.lossless else ''}", flush=True)
+            t_play = time.monotonic()
+            self.player.start(self.env)
+            self._supervise(t_play)
+            play_s = time.monotonic() - t_play
+            if self.player.proc is not None and self.player.proc.returncode != 0:
+                raise SlamError(f"graph: bag_player failed (exit {self.player.proc.returncode}); see {self.player.log_path}")
+            if not self.args.lossless:
+                time.sleep(1.0)  # frames still in flight at the end of the bag
+        finally:
+            codes = self.shutdown()
+        return self._summary(play_s, up_s, codes)
+
+    # -- results --------------------------------------------------------------------------------
+    def _summary(self, play_s: float, up_s: float, codes: dict[str, int | None]) -> dict[str, Any]:
+        stats_path = self.out / "tracking_stats.json"
+        stats = json.loads(stats_path.read_text()) if stats_path.is_file() else {}
+        poses = int(stats.get("poses_published", 0))
+        summary: dict[str, Any] = {
+            "bag": self.bag, "config": self.config or "defaults", "rate": self.args.rate, "lossless": self.args.lossless,
+            "colour_frames_in_bag": self.info.colour_frames, "colour_received": stats.get("colour_received"),
+            "frames_processed": stats.get("frames_processed"), "frames_tracked": stats.get("frames_tracked"),
+            "poses_published": poses, "drops": self.info.colour_frames - poses,
+            "latency_ms_median": stats.get("latency_ms_median"), "latency_ms_p90": stats.get("latency_ms_p90"),
+            "process_ms_median": stats.get("process_ms_median"), "keyframes": stats.get("keyframes"),
+            "detection_delay_ms_median": stats.get("detection_delay_ms_median"),
+            "loops_closed": stats.get("loops_closed"), "play_wall_s": play_s, "startup_s": up_s,
+            "bag_duration_s": self.info.duration_s, "detection_node": self.detection,
+            "frames_without_detections": stats.get("frames_without_detections"),
+            "restarts": dict(self.restarts), "exit_codes": codes,
+            "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
+        }  # fmt: skip
+        summary.update(_evaluate(self.bag, self.config, self.out))
+        atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
+        return summary
+
+
+def _detection_median_ms(node: NodeProcess | None) -> float | None:
+    """The last 'median X ms per frame' the detection node logged (every 100 frames), if any."""
+    if node is None:
+        return None
+    import re
+
+    found = re.findall(r"median ([0-9.]+) ms per frame", node.log_text())
+    return float(found[-1]) if found else None
+
+
+def _evaluate(bag: str, config: str, out: Path) -> dict[str, Any]:
+    """ATE RMSE of trajectory.txt and trajectory_online.txt against the bag's ground truth (SE(3) aligned)."""
+    from changing_slam_ros.eval.ate import ate
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+    result: dict[str, Any] = {}
+    try:
+        gt = open_dataset(bag, config or None).groundtruth
+    except SlamError as err:
+        return {"evaluation_error": str(err)}
+    if gt is None:
+        return {"evaluation_error": f"{bag}: no ground truth"}
+    for key, name in (("ate_rmse_m", "trajectory.txt"), ("ate_online_rmse_m", "trajectory_online.txt")):
+        path = out / name
+        if not path.is_file():
+            result.setdefault("evaluation_error", f"{path}: not written")
+            continue
+        try:
+            result[key] = float(ate(gt, read_tum_trajectory(path), est_name=name).stats.rmse)
+        except SlamError as err:
+            result.setdefault("evaluation_error", str(err))
+    return result
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def main(args: argparse.Namespace) -> int:
+    graph = Graph(args)
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)  # `timeout`/kill: still stop the children
+    try:
+        s = graph.run()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    ate_text = f"ATE RMSE {s['ate_rmse_m'] * 100:.2f} cm (online {s.get('ate_online_rmse_m', float('nan')) * 100:.2f} cm)" \
+        if "ate_rmse_m" in s else f"no ATE ({s.get('evaluation_error', 'no ground truth')})"  # fmt: skip
+    lat = s["latency_ms_median"]
+    print(
+        f"{s['poses_published']}/{s['colour_frames_in_bag']} frames with a pose ({s['drops']} dropped), "
+        f"{s['keyframes']} keyframes, {s['loops_closed']} loops, {ate_text}, image-to-pose latency median "
+        + (f"{lat:.0f} ms" if lat is not None else "n/a")
+        + (f", restarts {s['restarts']}" if s["restarts"] else "")
+    )
+    print(f"results in {graph.out}")
+    return 0
