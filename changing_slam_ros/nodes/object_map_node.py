@@ -109,16 +109,27 @@ def semantic_map_to_msg(smap: SemanticMap, header: Header) -> MapObjectArray:
     return MapObjectArray(header=header, objects=[semantic_object_to_msg(o) for o in smap.objects])
 
 
+def _config_belief_threshold(config: str) -> float:
+    from changing_slam_ros.core.object_layer import object_layer_config
+    from changing_slam_ros.nodes.slam_backend import load_backend_config
+
+    cfg = load_backend_config(config)
+    return float(object_layer_config(cfg.data.get("objects"), f"{cfg.where}: objects").association.belief_threshold)
+
+
 class ObjectMapNode(Node):
     def __init__(self, output_qos: QoSProfile | int = 10, **node_kwargs: Any) -> None:
         super().__init__("object_map", **node_kwargs)
         self.params = declare_parameters(self, [
             ("config", "tum_fr1", "config name or YAML path (objects section: thresholds of the paper)"),
             ("map_frame", "map", "frame of the semantic map"),
-            ("belief_threshold", 0.5, "BeliefThreshold: objects below are inactive (Changing-SLAM §4.7)"),
+            ("belief_threshold", -1.0, "BeliefThreshold: objects below are inactive (Changing-SLAM §4.7); "
+                                       "< 0 = the config's objects section"),
             ("map_file", "", "semantic map loaded at start, saved after every update and on SaveMap without a "
                              "path; empty = none"),
         ])  # fmt: skip
+        if self.params["belief_threshold"] < 0:
+            self.params["belief_threshold"] = _config_belief_threshold(self.params["config"])
         self.objects: dict[int, MapObject] = {}
         self.updates_in = 0
         self.create_subscription(MapObjectArray, "/tracking/semantic_map", self.on_semantic_map, LATCHED)
