@@ -44,7 +44,7 @@ class MappingConfig:
     ba_window: int = 10
     ba_max_fixed: int = 10
     ba_iterations: int = 5
-    ba_max_points: int = 600
+    ba_max_points: int = 3000
     keyframe_culling: bool = True
     redundancy: float = 0.9
     fuse_neighbours: int = 10

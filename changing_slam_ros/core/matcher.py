@@ -61,7 +61,7 @@ def search_by_projection(
     ratio: float = 0.8,
     skip_matched: bool = True,
     bf_m_px: float = 0.0,
-    k_nearest: int = 12,
+    k_nearest: int = 8,
 ) -> ProjectionResult:
     """Project map points into `frame` with pose `T_cam_world` (4, 4) and match them to nearby keypoints.
 

@@ -146,7 +146,7 @@ def optimize_pose(
     obs: PoseObservations,
     cam: PinholeStereo,
     rounds: int = 4,
-    iterations: int = 10,
+    iterations: int = 6,
     robust_rounds: int = 2,
 ) -> PoseResult:
     """Refine T_cam_world (4, 4) from N matches; return the pose, an inlier mask (N,) and chi2 (N,)."""
@@ -180,7 +180,7 @@ def optimize_pose(
             except np.linalg.LinAlgError:
                 break
             T = se3_exp_left(step) @ T
-            if step @ step < 1e-12:
+            if step @ step < 1e-10:
                 break
         _, _, chi2 = residuals(T, obs, cam)
         inliers = chi2 <= th

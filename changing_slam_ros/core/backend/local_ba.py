@@ -35,7 +35,7 @@ class LocalBAConfig:
     n_window: int = 10
     max_fixed: int = 10
     iterations: int = 5
-    max_points: int = 600
+    max_points: int = 3000
     bf_m_px: float = 40.0
     level_scales: tuple[float, ...] = tuple(1.2**i for i in range(8))
 
@@ -172,7 +172,6 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
     # 4. Optimise.
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.iterations)
-    params.setRelativeErrorTol(1e-3)  # stop once an iteration gains < 0.1 %
     try:
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
     except RuntimeError:
