@@ -84,6 +84,7 @@ class BagPlayerNode(Node):
             remap=parse_remaps(p["remap"]),
         )
         self.lossless: bool = p["lossless"]
+        self._wait_subscribers: bool = p["lossless"] or p["wait_subscribers"]
         self._clock_period_ns = round(NS_PER_S / p["clock_hz"]) if p["publish_clock"] else None
         self._progress_period_ns = round(p["progress_period_s"] * NS_PER_S)
         self._wait_topics: list[str] = p["wait_for_topics"]
@@ -127,6 +128,7 @@ class BagPlayerNode(Node):
             ("qos_depth", 10, "publisher history depth (ignored in lossless mode: KEEP_ALL)"),
             ("progress_period_s", 2.0, "seconds between progress log lines"),
             ("lossless", False, "wait for subscribers and acknowledgements instead of dropping"),
+            ("wait_subscribers", False, "also without lossless: wait for subscribers (as in step 1) before playing"),
             ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = ack_topics or all"),
             ("min_subscribers", 1, "lossless: subscriptions each waited-for topic needs before playing"),
             ("wait_subscribers_timeout_s", 60.0, "lossless: give up (error) after this long without subscribers"),
@@ -183,9 +185,9 @@ class BagPlayerNode(Node):
         """Publish the bag on schedule, spinning `executor` while waiting; returns at the end of the bag."""
         result = PlaybackResult()
         t_start = time.monotonic()
-        if self.lossless and not self._wait_for_subscribers(executor):
+        if self._wait_subscribers and not self._wait_for_subscribers(executor):
             result.wall_s = time.monotonic() - t_start
-            result.error = "lossless: no subscribers"
+            result.error = "no subscribers"
             return result
         start_bag_ns = first_bag_ns(self.bag, self.options)
         span_ns = self.bag.end_ns - start_bag_ns
