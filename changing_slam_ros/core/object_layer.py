@@ -55,6 +55,7 @@ from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
+MIN_DEPTH_BAND_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,8 @@ class ObjectLayerConfig:
 
     - `enabled`: the layer's switch (off = every map point stays active).
     - `depth_samples`: depth pixels sampled per candidate box (on a regular grid); 0 = map points only.
-    - `depth_band_m`: samples farther than this from the box's median depth are background and left out.
+    - `depth_band_m`: samples farther than this from the box's median depth are background and left out
+      (smaller boxes use a narrower band, see `box_depth_samples`).
     """
 
     enabled: bool = True
@@ -298,7 +300,9 @@ class ObjectLayer:
 def box_depth_samples(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
                       n_samples: int, depth_band_m: float) -> F64:
     """Camera-frame points (M, 3), M <= about n_samples: the box's pixels on a regular grid with valid depth
-    within `depth_band_m` of their median depth (the object, not the background seen past it)."""
+    near their median depth (the object, not the background seen past it). The band is half the box's smaller
+    side in metres at that depth, within [MIN_DEPTH_BAND_M, depth_band_m]: a cup keeps 5 cm, not the table
+    top behind it; a chair keeps about its own depth."""
     h, w = depth_m.shape[:2]
     x0, y0 = max(0, int(np.floor(box_xyxy[0]))), max(0, int(np.floor(box_xyxy[1])))
     x1, y1 = min(w, int(np.ceil(box_xyxy[2]))), min(h, int(np.ceil(box_xyxy[3])))
@@ -310,7 +314,10 @@ def box_depth_samples(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, came
     ok = d > 0
     if ok.sum() < 3:
         return np.zeros((0, 3))
-    ok &= np.abs(d - np.median(d[ok])) < depth_band_m
+    median_m = float(np.median(d[ok]))
+    width_m = min(x1 - x0, y1 - y0) * median_m / camera.fx  # the object's smaller visible side
+    band_m = float(np.clip(0.5 * width_m, MIN_DEPTH_BAND_M, depth_band_m))
+    ok &= np.abs(d - median_m) < band_m
     px = np.c_[uu[ok], vv[ok]].astype(float)
     pts: F64 = camera.backproject(px, d[ok])
     return pts

@@ -138,3 +138,11 @@ def test_config_section() -> None:
         object_layer_config({"bogus": 1})
     with pytest.raises(ConfigError, match="depth_band_m"):
         object_layer_config({"depth_band_m": 0.0})
+
+
+def test_small_box_uses_a_narrow_depth_band() -> None:
+    """A 12-pixel cup at 2.5 m (11 cm) in front of a wall 0.2 m behind it: the wall is left out."""
+    d = np.full((240, 320), 2.7, np.float32)
+    d[100:112, 150:160] = 2.5  # the cup covers most of its box; the box's right part shows the wall
+    pts = box_depth_samples(d, (150.0, 100.0, 164.0, 112.0), CAM, 100, 0.35)
+    assert len(pts) == 30 and np.allclose(pts[:, 2], 2.5)  # a 7 x 6 grid, 5 x 6 on the cup
