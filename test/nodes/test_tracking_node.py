@@ -19,6 +19,9 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
+from sensor_msgs.msg import Image  # noqa: E402
+
+from changing_slam_msgs.msg import Detection, DetectionArray  # noqa: E402
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg  # noqa: E402
 from changing_slam_ros.core.trajectory import Trajectory  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
@@ -93,3 +96,59 @@ def test_tracking_node_poses_on_the_fr1_bag_match_ground_truth_and_follow_rep105
     assert '"poses_published": 9' in stats and '"latency_ms_median"' in stats
     player.destroy_node()
     probe.destroy_node()
+
+
+def test_tracking_node_uses_the_detections_stamped_for_each_frame(ros_context, tmp_path):
+    """A stand-in detection node answers every colour image with a person box over its left third, a little
+    later; tracking waits for it (detections_required), drops the keypoints inside and still tracks."""
+    from helpers import REPO, require
+
+    bag = require(REPO / "bags" / "tum_fr1_xyz_first10.mcap")
+    tracking = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("ack_topic", value="/bag_player/ack"),
+        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=30.0),
+    ])  # fmt: skip
+    player = BagPlayerNode(context=ros_context, parameter_overrides=[
+        Parameter("bag", value=str(bag)), Parameter("rate", value=2.0), Parameter("lossless", value=True),
+        Parameter("ack_topics", value=["/camera/rgb/image_color"]), Parameter("ack_timeout_s", value=60.0),
+    ])  # fmt: skip
+    detector = Node("fake_detection", context=ros_context)
+    det_pub = detector.create_publisher(DetectionArray, "/detection/detections", 10)
+    waiting: list[Image] = []
+    detector.create_subscription(Image, "/camera/rgb/image_color", waiting.append, 10)
+    debug: list[Image] = []
+    poses: list[PoseStamped] = []
+    detector.create_subscription(Image, "/tracking/debug_image", debug.append, 10)
+    detector.create_subscription(PoseStamped, "/tracking/pose", poses.append, 100)
+
+    def answer() -> None:  # one detection message per colour image, published from a timer (later than the image)
+        while waiting:
+            img = waiting.pop(0)
+            msg = DetectionArray(header=img.header, width=img.width, height=img.height)
+            msg.detections.append(Detection(x=0.0, y=0.0, w=img.width / 3.0, h=float(img.height), class_id=0, score=0.9))
+            det_pub.publish(msg)
+
+    detector.create_timer(0.05, answer)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (tracking, detector, player):
+        executor.add_node(node)
+    assert spin_until(executor, lambda: tracking.debug_pub.get_subscription_count() > 0)
+    result = player.play(executor)
+    assert result.completed and result.ack_timeouts == 0
+    spin_until(executor, lambda: len(poses) >= 9 and len(debug) >= 9, 5.0)
+    assert tracking.frames_without_detections == 0 and len(tracking.detection_delay_ms) == 9
+    # About a third of the keypoints lay inside the person box and were not used.
+    kept = tracking.backend.dynamic.kept_fraction()
+    assert 0.45 < kept < 0.85
+    gt = open_dataset(bag, "tum_fr1").groundtruth
+    stamps = np.array([cv.stamp_to_ns(p.header.stamp) * 1e-9 for p in poses])
+    est = Trajectory.from_poses(stamps, np.array([cv.pose_to_matrix(p.pose) for p in poses]))
+    assert len(poses) == 9 and ate(gt, est).stats.rmse < 0.015
+    # Debug image: the box edge in red, used keypoints (static class) in green, none inside the box.
+    img = cv.image_to_rgb(debug[-1])
+    green = (img[:, :, 0] == 0) & (img[:, :, 1] == 220) & (img[:, :, 2] == 0)
+    assert green[:, 640 // 3 + 3:].sum() > 200 and green[:, : 640 // 3 - 3].sum() < 0.05 * green.sum()
+    assert (img[:, 640 // 3, 0] == 255).sum() > 400  # the box's right edge (x = 213), red
+    executor.shutdown()
+    for node in (tracking, detector, player):
+        node.destroy_node()
