@@ -210,7 +210,8 @@ class Graph:
         }), self.logs)  # fmt: skip
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
-                  "min_subscribers": 2 if self.detection else 1, "wait_subscribers": True}  # fmt: skip
+                  "min_subscribers": 2 if self.detection else 1, "wait_subscribers": True,
+                  "dds_ack_wait": False}  # fmt: skip
         self.player = NodeProcess("bag_player", _node_argv("bag_player_node", player), self.logs)
 
     # -- lifecycle ------------------------------------------------------------------------------
