@@ -17,7 +17,7 @@ and before loop closing, so that loop closing already sees the points this keyfr
 3. Algorithm 1 (`LongTermAssociation.process_keyframe`) merges, creates and belief-updates objects and
    runs the vicinity search with the keyframe's depth image;
 4. the map points take their object's id and class, and their active flag follows the object's belief
-   (`apply_to_point_store`): tracking, local BA, map fusion and place recognition skip inactive points
+   (`apply_to_point_store`; a point held by two objects follows the one it was last associated with): tracking, local BA, map fusion and place recognition skip inactive points
    through `PointStore.usable()` and the loop closer's active masks.
 
 Object points outlive metric culling. Inactive points are never matched again, so ORB-SLAM's recent-point
@@ -203,6 +203,7 @@ class ObjectLayer:
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m)
         self._anchor(mo, kf, cands, res)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
+        self._settle_shared(mo, slam_map, res)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
         return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands), int((res.activated_point_ids >= 0).sum()),
@@ -239,6 +240,21 @@ class ObjectLayer:
             cand = ObjectCandidate(int(o.class_id), box, ids, pts_w, box_truncated(box, kf.camera))  # type: ignore[arg-type]
             out.append((cand, pts_c))
         return out
+
+    @staticmethod
+    def _settle_shared(mo: _MapObjects, slam_map: SlamMap, res: AssociationResult) -> None:
+        """A map point seen inside the boxes of two objects (a wall point behind both places of a moved chair)
+        belongs to both; its flag follows the object it was last associated with (`PointStore.object_id`),
+        not whichever object changed state last."""
+        ids = np.concatenate([res.activated_point_ids, res.deactivated_point_ids])
+        pts = slam_map.points
+        ids = ids[(ids >= 0) & (ids < pts.size)]
+        if len(ids) == 0:
+            return
+        owner = pts.object_id[ids]
+        objects = mo.lta.objects
+        known = np.array([int(o) in objects for o in owner.tolist()], bool)
+        pts.active[ids[known]] = [objects[int(o)].active for o in owner[known].tolist()]
 
     @staticmethod
     def _anchor(mo: _MapObjects, kf: Keyframe, cands: Sequence[tuple[ObjectCandidate, F64]],

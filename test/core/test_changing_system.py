@@ -83,9 +83,9 @@ def test_moved_chair_old_place_inactive_and_no_wrong_loop(one_chair: Path) -> No
     points = system.atlas.current.points
     for obj in near_old:
         assert obj.belief < layer.config.association.belief_threshold and not obj.active, (obj.id, obj.belief)
-        alive = obj.point_ids[(obj.point_ids < points.size)]
-        alive = alive[~points.bad[alive]]
-        assert not points.active[alive].any()  # every remaining map point of it is out of tracking / BA / loops
+        own = np.flatnonzero(points.object_id[: points.size] == obj.id)
+        own = own[~points.bad[own]]
+        assert not points.active[own].any()  # its remaining map points are out of tracking / BA / loops
     # the chair at its new place is a different object, not merged into the old one
     near_new = [o for o in objects if o.class_id == CHAIR and np.linalg.norm(in_gt[o.id].centroid_w - new_gt) < 0.3]
     assert near_new and not {o.id for o in near_new} & {o.id for o in near_old}
