@@ -8,7 +8,8 @@ Config section read: `objects:` (`core.object_layer.ObjectLayerConfig`: `enabled
 Outputs written into the run's folder when the layer is on:
 - `semantic_map.json`  the §4.8 semantic map (objects with belief >= the belief threshold), map frame;
 - `object_map.json`    every MapObject of the main map (points, beliefs; `io.semantic_map_file` object-map layout);
-- `semantic_map.png`   its top view over the final trajectory (low-belief objects drawn dashed);
+- `semantic_map.png`   top view of every object over the final trajectory (low-belief objects dashed), seen
+                       along the first camera's down axis (a levelled start is assumed);
 - `objects.json` metrics (when the source folder holds the simulator's `objects.json`): the estimated
   objects, moved into the ground-truth frame with the SE(3) alignment of the final trajectory, matched to
   the objects present at the last frame (`eval.object_metrics.evaluate_objects`).
@@ -35,6 +36,8 @@ from changing_slam_ros.core.semantic_map import build_semantic_map
 from changing_slam_ros.core.trajectory import Trajectory
 
 F64 = npt.NDArray[np.float64]
+# the map frame is the first camera's optical frame (x right, y down, z forward); the top view looks down its -y
+T_LEVEL_MAP = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 WRONG_LOOP_M = 0.10
 WRONG_LOOP_DEG = 5.0
 MAX_STAMP_GAP_S = 0.02
@@ -192,9 +195,12 @@ def write_object_outputs(out: Path, layer: ObjectLayer, final: Trajectory, gt: T
         from changing_slam_ros.errors import EvalError
         from changing_slam_ros.eval.semantic_map_plot import plot_semantic_map
 
+        levelled = aligned_objects(layer.objects(map_id), T_LEVEL_MAP)
+        traj = final.positions @ T_LEVEL_MAP[:3, :3].T if len(final) else None
         try:
-            plot_semantic_map(out / "semantic_map.png", layer.semantic_map(map_id, include_inactive=True),
-                              final.positions if len(final) else None)
+            plot_semantic_map(out / "semantic_map.png",
+                              build_semantic_map(levelled, layer.config.association, include_inactive=True), traj,
+                              title="semantic map (x right, y ahead of the first camera)")
         except EvalError as err:
             result["plot_error"] = str(err)
     gt_path = find_objects_ground_truth(source)
