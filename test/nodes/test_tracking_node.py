@@ -152,3 +152,51 @@ def test_tracking_node_uses_the_detections_stamped_for_each_frame(ros_context, t
     executor.shutdown()
     for node in (tracking, detector, player):
         node.destroy_node()
+
+
+def test_tracking_node_rejects_malformed_images_and_survives_nan_depth(ros_context):
+    import cv2
+    from helpers import FR1_XYZ_10, require
+
+    from changing_slam_ros.io.image_codec import depth_image_fields, rgb_image_fields
+
+    root = require(FR1_XYZ_10)
+    row = next(ln.split() for ln in (root / "associations.txt").read_text().splitlines() if ln and ln[0] != "#")
+    rgb = np.ascontiguousarray(cv2.imread(str(root / row[1]), cv2.IMREAD_COLOR)[:, :, ::-1])
+    depth = cv2.imread(str(root / row[3]), cv2.IMREAD_UNCHANGED).astype(np.float32) / 5000
+    depth[100:200, 100:300] = np.nan  # NaN = no reading, not a crash
+    tracking = TrackingNode(context=ros_context, parameter_overrides=[Parameter("config", value="tum_fr1")])
+    assert tracking.intrinsics_from == "config"  # TUM bags carry ROS default intrinsics; the config's are used
+    probe = Node("probe", context=ros_context)
+    colour_pub = probe.create_publisher(Image, "/camera/rgb/image_color", 10)
+    depth_pub = probe.create_publisher(Image, "/camera/depth/image", 10)
+    poses: list[PoseStamped] = []
+    probe.create_subscription(PoseStamped, "/tracking/pose", poses.append, 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(tracking)
+    executor.add_node(probe)
+    assert spin_until(executor, lambda: colour_pub.get_subscription_count() > 0 and depth_pub.get_subscription_count() > 0)
+
+    def send(i: int, colour: Image, depth_msg: Image) -> None:
+        stamp = cv.ns_to_stamp(1_000_000_000 * (i + 1))
+        colour.header.stamp = stamp
+        depth_msg.header.stamp = stamp
+        colour_pub.publish(colour)
+        depth_pub.publish(depth_msg)
+        spin_until(executor, lambda: tracking.frames_in + tracking.frames_rejected > i, 20.0)
+
+    good_depth = cv.depth_to_image(depth, 0, "cam")
+    send(0, cv.rgb_to_image(rgb, 0, "cam"), good_depth)
+    bad_encoding = cv.rgb_to_image(rgb, 0, "cam")
+    bad_encoding.encoding = "yuv422_weird"
+    send(1, bad_encoding, cv.depth_to_image(depth, 0, "cam"))
+    truncated = cv.rgb_to_image(rgb, 0, "cam")
+    truncated.data = truncated.data[: len(truncated.data) // 2]
+    send(2, truncated, cv.depth_to_image(depth, 0, "cam"))
+    small_depth = cv.depth_to_image(np.ascontiguousarray(depth[::2, ::2]), 0, "cam")
+    send(3, cv.rgb_to_image(rgb, 0, "cam"), small_depth)  # colour and depth sizes differ
+    assert (tracking.frames_in, tracking.frames_rejected) == (1, 3)
+    assert spin_until(executor, lambda: poses) and len(poses) == 1  # the NaN-depth frame initialised the map
+    executor.shutdown()
+    tracking.destroy_node()
+    probe.destroy_node()
