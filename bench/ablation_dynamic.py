@@ -45,6 +45,7 @@ ROWS: dict[str, DynamicConfig | None] = {
     "+ekf_doc": DynamicConfig(repopulation=True, ekf_doc=True, segmentation=False),
     "+segmentation": DynamicConfig(repopulation=True, ekf_doc=True, segmentation=True),
     # Beyond the paper: +ekf_doc with missed person boxes held for 10 frames (for the real detector).
+    "+segmentation+spread25": DynamicConfig(segmentation=True, segmentation_spread_px=25.0),
     "+ekf_doc+hold10": DynamicConfig(repopulation=True, ekf_doc=True, segmentation=False, detection_hold_frames=10),
 }
 

@@ -66,6 +66,9 @@ class DynamicConfig:
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
       are left out).
     - `segmentation_min_matches`: fewer matches = no segmentation in that frame.
+    - `segmentation_spread_px` / `segmentation_spread_depth_m`: a keypoint within this image distance and
+      depth difference of a flagged one is flagged too (only matched keypoints can be flagged, about half
+      of a walking person's; 0 = off).
     - `detection_hold_frames`: a box of a `hold_class_ids` class that the detector stops reporting is kept
       for this many frames, grown by `detection_hold_grow_px` per side per missed frame (a real detector
       misses a person in single frames; 0 = off, the paper's behaviour).
@@ -82,6 +85,8 @@ class DynamicConfig:
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
     segmentation_min_matches: int = 30
+    segmentation_spread_px: float = 0.0
+    segmentation_spread_depth_m: float = 0.3
     detection_hold_frames: int = 0
     detection_hold_grow_px: float = 8.0
     hold_class_ids: tuple[int, ...] = (0,)
@@ -271,6 +276,8 @@ class DynamicFilter:
         window = CorrelationWindow.from_pixels(np.arange(len(q)), pixels, depths, poses, camera)
         result = segment(window, cfg.correlation)
         moving[q[result.dynamic_mask]] = True
+        if cfg.segmentation_spread_px > 0.0 and moving.any():
+            moving = _spread(moving, features, cfg.segmentation_spread_px, cfg.segmentation_spread_depth_m)
         return moving
 
 
@@ -282,3 +289,18 @@ def _iou(a: Detection, b: Detection) -> float:
     inter = iw * ih
     union = a.area_px + b.area_px - inter
     return inter / union if union > 0 else 0.0
+
+
+def _spread(moving: BoolArr, features: Features, radius_px: float, depth_tol_m: float) -> BoolArr:
+    """(N,) `moving` plus keypoints within `radius_px` and `depth_tol_m` of a flagged keypoint with depth."""
+    from scipy.spatial import cKDTree  # type: ignore[import-untyped]
+
+    src = np.flatnonzero(moving & (features.depths_m > 0))
+    if len(src) == 0:
+        return moving
+    out = moving.copy()
+    tree = cKDTree(features.keypoints_px[src])
+    for i, near in enumerate(tree.query_ball_point(features.keypoints_px, radius_px)):
+        if not out[i] and near and features.depths_m[i] > 0:
+            out[i] = bool(np.any(np.abs(features.depths_m[src[near]] - features.depths_m[i]) <= depth_tol_m))
+    return out

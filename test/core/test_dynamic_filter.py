@@ -147,3 +147,29 @@ def test_a_person_box_the_detector_misses_is_held_for_the_configured_frames() ->
     plain.before_tracking(rgbd, feats, DETS)
     plain.after_tracking(np.eye(4))
     assert plain.before_tracking(dataclasses.replace(rgbd, stamp_ns=FRAME_NS), feats, ()).keep[r["person"]].all()
+
+
+def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_similar_depth() -> None:
+    """As above, plus 20 box points whose descriptors never match (a deforming person): only spread flags them."""
+    rng = np.random.default_rng(4)
+    static = np.column_stack([rng.uniform(-2, 2, 400), rng.uniform(-1.5, 1.5, 400), rng.uniform(3.0, 5.0, 400)])
+    box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (60, 3))
+    desc = rng.integers(0, 256, (460, 32), dtype=np.uint8)
+    flagged = {}
+    for spread in (0.0, 25.0):
+        flt = DynamicFilter(DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
+                                          segmentation_spread_px=spread))
+        rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
+        for k in range(4):
+            T_world_cam = np.eye(4)
+            T_world_cam[:3, 3] = [0.02 * k, 0.0, 0.0]
+            world = np.vstack([static, box0 + np.array([0.08 * k, 0.0, 0.0])])
+            cam = transform_points(invert(T_world_cam), world)
+            d = desc.copy()
+            d[440:] = rng.integers(0, 256, (20, 32), dtype=np.uint8)  # new descriptors every frame
+            res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), _features(CAM.project(cam), cam[:, 2], d), None)
+            flt.after_tracking(T_world_cam)
+        flagged[spread] = res.moving
+    assert not flagged[0.0][440:].any() and flagged[0.0][400:440].mean() >= 0.9
+    assert flagged[25.0][400:].mean() >= 0.9
+    assert flagged[25.0][:400].mean() <= 0.02
