@@ -1,7 +1,7 @@
 """`changing-slam graph BAG --out DIR`: the ROS 2 node graph over a bag, as separate processes, without ros2 launch.
 
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
-        [--[no-]object-map] [--detections-wait S] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
+        [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
 `tracking` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node --ros-args ...` processes on a
@@ -59,6 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="start the object_map node (default on)")
     parser.add_argument("--detections-wait", type=float, default=None, metavar="S",
                         help="longest wait of tracking for a frame's detections (default 0.1 s; lossless 10 s)")
+    parser.add_argument("--queue-depth", type=int, default=2, metavar="N",
+                        help="colour/depth frames tracking queues while busy (default 2)")
     parser.add_argument("--max-restarts", type=int, default=2, metavar="N", help="restarts per node (default 2)")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
     parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
@@ -206,7 +208,7 @@ class Graph:
         self.nodes["tracking"] = NodeProcess("tracking", _node_argv("tracking_node", {
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
-            "in_process_backend": True, "reliable_images": True,
+            "in_process_backend": True, "reliable_images": True, "image_queue_depth": a.queue_depth,
         }), self.logs)  # fmt: skip
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,

@@ -114,11 +114,13 @@ class TrackingNode(Node):
             ("detections_required", False, "wait for detections from the first frame (a detection node is started)"),
             ("debug_image", True, "publish ~/debug_image (keypoints by class, detection boxes)"),
             ("output_dir", "", "write trajectories, semantic map and stats here on shutdown; empty = none"),
-            ("reliable_images", False, "reliable image subscriptions (keep last 2) instead of sensor-data best effort: "
-                                       "large images across processes on Fast DDS arrive only this way"),
+            ("reliable_images", False, "reliable image subscriptions (keep last image_queue_depth) instead of "
+                                       "sensor-data best effort: large images across processes on Fast DDS arrive only this way"),
+            ("image_queue_depth", 2, "reliable_images: frames queued while one is processed (more = fewer drops "
+                                     "after slow keyframes, more latency)"),
         ])  # fmt: skip
         if p["reliable_images"]:
-            image_qos = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
+            image_qos = QoSProfile(depth=max(1, p["image_queue_depth"]), reliability=ReliabilityPolicy.RELIABLE)
         slop_ns = round(p["sync_slop_s"] * 1e9)
         self.pairer: ApproximatePairer[Any, Any] = ApproximatePairer(slop_ns)
         self.camera: CameraIntrinsics | None = None  # from camera_info, as received
