@@ -39,3 +39,25 @@ def test_graph_replays_the_fr1_bag_losslessly_within_offline_accuracy_and_restar
     assert s["exit_codes"] == {"tracking": 0, "detection": 0, "object_map": 0, "bag_player": 0}
     for name in ("trajectory.txt", "trajectory_online.txt", "keyframes.txt", "tracking_stats.json", "semantic_map.json"):
         assert (out / name).is_file(), name
+
+
+def test_graph_without_detections_reproduces_the_offline_runner_byte_for_byte(tmp_path):
+    """Same code, two transports: lossless replay through the processes gives the offline trajectory exactly."""
+    from helpers import REPO, require
+
+    bag = require(REPO / "bags" / "tum_fr1_xyz_first10.mcap")
+    offline, graph = tmp_path / "offline", tmp_path / "graph"
+    run = subprocess.run(
+        [sys.executable, "-m", "changing_slam_ros", "run", str(bag), "--out", str(offline), "--config", "tum_fr1",
+         "--detections", "none", "--no-plot", "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    proc = subprocess.run(
+        [sys.executable, "-m", "changing_slam_ros", "graph", str(bag), "--out", str(graph), "--config", "tum_fr1",
+         "--lossless", "--no-detection", "--no-object-map"], cwd=REPO, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    for name in ("trajectory.txt", "trajectory_online.txt", "keyframes.txt"):
+        text = (graph / name).read_text()
+        assert len(text.splitlines()) >= 2 and text == (offline / name).read_text(), name
+    assert json.loads((graph / "graph_summary.json").read_text())["poses_published"] == 9
