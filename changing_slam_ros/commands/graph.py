@@ -16,7 +16,8 @@ INTERIM: tracking runs local mapping, the object layer and loop closing in its o
 started because they would only receive keyframes (map-update replication is open).
 
 DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, semantic_map.json,
-tracking_stats.json (from tracking), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
+tracking_stats.json (from tracking), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
+for evo and Foxglove, written after the run), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
 process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts).
 Drops: colour frames in the bag that did not become a pose (not received, not paired, or not tracked).
 """
@@ -314,6 +315,7 @@ class Graph:
             "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
         }  # fmt: skip
         summary.update(_evaluate(self.bag, self.config, self.out))
+        summary["outputs_mcap"] = _write_outputs_mcap(self.bag, self.config, self.out)
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
 
@@ -326,6 +328,44 @@ def _detection_median_ms(node: NodeProcess | None) -> float | None:
 
     found = re.findall(r"median ([0-9.]+) ms per frame", node.log_text())
     return float(found[-1]) if found else None
+
+
+def _write_outputs_mcap(bag: str, config: str, out: Path) -> str | None:
+    """outputs.mcap: /tracking/pose (final), /tracking/pose_online (PoseStamped, `map`) and the bag's ground truth
+    (/ground_truth/pose, `world`), written from the trajectory files after the run (not a live recording), so
+    that `evo_ape bag2 outputs.mcap /ground_truth/pose /tracking/pose -a` and Foxglove read them."""
+    from changing_slam_ros.core.se3 import rot_to_quat
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
+    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+    final = out / "trajectory.txt"
+    if not final.is_file():
+        return None
+    try:
+        gt = open_dataset(bag, config or None).groundtruth
+    except SlamError:
+        gt = None
+    path = out / "outputs.mcap"
+    with RgbdMcapWriter(path) as writer:
+        t = writer.typestore.types
+        for topic, name in (("/tracking/pose", "trajectory.txt"), ("/tracking/pose_online", "trajectory_online.txt")):
+            if not (out / name).is_file():
+                continue
+            traj = read_tum_trajectory(out / name)
+            for stamp_s, T in zip(traj.stamps_s, traj.poses(), strict=True):
+                stamp_ns = round(float(stamp_s) * 1e9)
+                q = rot_to_quat(T[:3, :3])
+                sec, nsec = divmod(stamp_ns, 1_000_000_000)
+                header = t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](sec, nsec), "map")
+                pose = t["geometry_msgs/msg/Pose"](t["geometry_msgs/msg/Point"](*(float(v) for v in T[:3, 3])),
+                                                   t["geometry_msgs/msg/Quaternion"](*(float(v) for v in q)))  # fmt: skip
+                writer.write_message(topic, "geometry_msgs/msg/PoseStamped",
+                                     t["geometry_msgs/msg/PoseStamped"](header, pose), stamp_ns)  # fmt: skip
+        if gt is not None:
+            for stamp_s, T in zip(gt.stamps_s, gt.poses(), strict=True):
+                writer.write_pose(round(float(stamp_s) * 1e9), T)
+    return str(path)
 
 
 def _evaluate(bag: str, config: str, out: Path) -> dict[str, Any]:

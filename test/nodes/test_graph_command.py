@@ -39,6 +39,11 @@ def test_graph_replays_the_fr1_bag_losslessly_within_offline_accuracy_and_restar
     assert s["exit_codes"] == {"tracking": 0, "detection": 0, "object_map": 0, "bag_player": 0}
     for name in ("trajectory.txt", "trajectory_online.txt", "keyframes.txt", "tracking_stats.json", "semantic_map.json"):
         assert (out / name).is_file(), name
+    from changing_slam_ros.io.bag_messages import BagMessages
+
+    with BagMessages(out / "outputs.mcap") as recorded:  # for evo_ape bag2 / Foxglove
+        counts = {k: v.msgcount for k, v in recorded.topics.items()}
+    assert counts["/tracking/pose"] == 9 and counts["/ground_truth/pose"] >= 9
 
 
 def test_graph_without_detections_reproduces_the_offline_runner_byte_for_byte(tmp_path):
