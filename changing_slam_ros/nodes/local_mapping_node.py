@@ -3,6 +3,8 @@
 SKELETON (issue 7): topics, parameters, QoS and the keyframe conversion are real; the call into the core
 local-mapping component (`core.local_mapping.LocalMapper`, which owns the metric map as ORB-SLAM3's Atlas
 does) is one TODO line in `on_keyframe`, so no map updates are published yet. It says so at start.
+Until the core can replicate map updates between processes, this work runs inside the tracking node
+(`in_process_backend`, nodes/slam_backend.py) and `changing-slam graph` does not start this node.
 
 Inputs: /tracking/keyframes (reliable, deep queue: keyframes must not be lost), /loop_closing/loop_corrections,
   /object_map/object_states

@@ -3,6 +3,8 @@
 SKELETON (issue 7): topics, parameters, QoS, the keyframe conversion and the LoopCorrection message are
 real; the call into the core component (`core.loop_closing.LoopCloser`: place recognition, geometric
 verification, gtsam pose graph) is one TODO line in `on_keyframe`. It says so at start.
+Until the core can replicate map updates between processes, this work runs inside the tracking node
+(`in_process_backend`, nodes/slam_backend.py) and `changing-slam graph` does not start this node.
 
 Inputs: /tracking/keyframes, /local_mapping/map_updates, /object_map/object_states
 Output: ~/loop_corrections (LoopCorrection, reliable)
