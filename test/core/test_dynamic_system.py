@@ -2,9 +2,11 @@
 
 The test renders walking_xyz itself (seed 0, 320x240, 15 fps, the first 8 s: two people cross the view
 and fill up to a fifth of the image) and runs the engine with the simulator's oracle detections and
-without dynamic handling. Measured when written (shared 2-core machine): dynamic 0.75 cm ATE with every
-frame tracked, 67 % of keypoints kept and no pose inlier on a person; plain 19.5 cm (26x worse) with 7.3 %
-of its pose inliers on the people. The bounds leave about 2x margin.
+without dynamic handling. Measured with the frontend of d150c23 (robuster local BA / pose optimiser):
+dynamic 0.72 cm ATE with every frame tracked, 67 % of keypoints kept and no pose inlier on a person; plain
+1.29 cm with 1.5 % of its pose inliers on the people. (Before d150c23 plain gave 19.5 cm here: on this
+short sequence the frontend's outlier rejection now copes on its own, so the ATE gap is only 1.8x; the
+10 s, 640x480 figures are in docs/dynamic_integration.md.) Bounds leave about 2x margin where possible.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ def _run(folder: Path, flt: DynamicFilter | None) -> tuple[SlamSystem, list[Trac
     return system, states, rmse, on_movers / max(used, 1)
 
 
-def test_dynamic_filter_tracks_walking_xyz_within_1_5_cm_and_plain_is_over_10x_worse(walking: Path) -> None:
+def test_dynamic_filter_tracks_walking_xyz_within_1_5_cm_and_plain_is_worse_and_tracks_on_people(walking: Path) -> None:
     flt = DynamicFilter(DynamicConfig())
     system, states, dyn_ate, dyn_leak = _run(walking, flt)
     assert len(states) == 120 and all(s == TrackingState.OK for s in states)
@@ -73,6 +75,5 @@ def test_dynamic_filter_tracks_walking_xyz_within_1_5_cm_and_plain_is_over_10x_w
     assert all(len(kf.kp_classes) == len(kf) for kf in kfs)
 
     _, _, plain_ate, plain_leak = _run(walking, None)
-    assert plain_ate >= 0.05
-    assert plain_ate >= 10 * dyn_ate
-    assert plain_leak >= 0.03  # the plain engine tracks on the people
+    assert plain_ate >= 1.3 * dyn_ate
+    assert plain_leak >= 0.005  # the plain engine tracks on the people
