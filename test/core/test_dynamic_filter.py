@@ -173,3 +173,14 @@ def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_s
     assert not flagged[0.0][440:].any() and flagged[0.0][400:440].mean() >= 0.9
     assert flagged[25.0][400:].mean() >= 0.9
     assert flagged[25.0][:400].mean() <= 0.02
+
+
+def test_boxes_of_fixed_furniture_classes_are_background_unless_configured_movable() -> None:
+    """A 'dining table' box over the chair's keypoints: kept as static by default, filtered as the paper does with []."""
+    table = (Detection((215.0, 145.0, 295.0, 225.0), 60, 0.8),)
+    rgbd, feats, r = _scene()
+    default = DynamicFilter(DynamicConfig()).before_tracking(rgbd, feats, table)
+    assert default.keep[r["chair"]].all() and (default.kp_classes[r["chair"]] == KeypointClass.STATIC).all()
+    paper = DynamicFilter(DynamicConfig(fixed_class_ids=())).before_tracking(rgbd, feats, table)
+    assert not paper.keep[r["chair"]].any()  # a new movable object: filtered a priori
+    assert paper.keep[r["elsewhere"]].all() and default.keep[r["elsewhere"]].all()
