@@ -22,12 +22,11 @@ import numpy as np
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.errors import BagError, SlamError
 from changing_slam_ros.io.bag_messages import BagConnection, BagMessages, RawMessage
 from changing_slam_ros.io.camera_info import intrinsics_from_camera_info
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig, TopicSet
-from changing_slam_ros.io.groundtruth import GroundTruth
+from changing_slam_ros.io.groundtruth import GroundTruth, GroundTruthAccess
 from changing_slam_ros.io.image_codec import decode_any_depth, decode_any_rgb
 from changing_slam_ros.io.tf_chain import TfBuffer, transform_matrix
 from changing_slam_ros.io.tum_folder import associate
@@ -70,7 +69,7 @@ def _present(topics: dict[str, BagConnection], name: str, suffixes: tuple[str, .
     return ""
 
 
-class BagRgbdReader:
+class BagRgbdReader(GroundTruthAccess):
     """RgbdSource over one bag file or folder."""
 
     def __init__(self, path: str | Path, config: DatasetConfig, camera: CameraConfig | None = None) -> None:
@@ -89,15 +88,6 @@ class BagRgbdReader:
         )
 
     # -- RgbdSource ----------------------------------------------------------------------------
-    @property
-    def groundtruth(self) -> Trajectory | None:
-        return self._gt.trajectory() if self._gt is not None else None
-
-    @property
-    def groundtruth_stamped(self) -> GroundTruth | None:
-        """Ground truth with exact integer stamps."""
-        return self._gt
-
     def __len__(self) -> int:
         return len(self._pairs)
 

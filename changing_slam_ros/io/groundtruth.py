@@ -61,3 +61,18 @@ def pose_matrix(position: F64, quat_xyzw: F64) -> F64:
     ]
     T[:3, 3] = position
     return T
+
+
+class GroundTruthAccess:
+    """The two ground-truth accessors of an `RgbdSource`, for readers that keep theirs in `self._gt`."""
+
+    _gt: GroundTruth | None
+
+    @property
+    def groundtruth(self) -> Trajectory | None:
+        return self._gt.trajectory() if self._gt is not None else None
+
+    @property
+    def groundtruth_stamped(self) -> GroundTruth | None:
+        """Ground truth with exact integer stamps."""
+        return self._gt

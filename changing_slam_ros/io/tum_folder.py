@@ -23,11 +23,10 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.trajectory import Trajectory
 from changing_slam_ros.errors import DatasetError, SlamError
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
-from changing_slam_ros.io.groundtruth import GroundTruth
+from changing_slam_ros.io.groundtruth import GroundTruth, GroundTruthAccess
 
 
 def parse_stamp_ns(text: str) -> int:
@@ -161,7 +160,7 @@ class FramePair:
     depth_path: Path
 
 
-class TumFolder:
+class TumFolder(GroundTruthAccess):
     """RgbdSource over a TUM-layout folder; images are loaded lazily, one frame at a time."""
 
     def __init__(self, root: str | Path, config: DatasetConfig, camera: CameraConfig | None = None) -> None:
@@ -179,15 +178,6 @@ class TumFolder:
         )
 
     # -- RgbdSource ----------------------------------------------------------------------------
-    @property
-    def groundtruth(self) -> Trajectory | None:
-        return self._gt.trajectory() if self._gt is not None else None
-
-    @property
-    def groundtruth_stamped(self) -> GroundTruth | None:
-        """Ground truth with exact integer stamps."""
-        return self._gt
-
     def __len__(self) -> int:
         return len(self.pairs)
 
