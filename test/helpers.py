@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -22,3 +24,11 @@ def require(path: Path) -> Path:
     if not path.exists():
         pytest.skip(f"workspace data not available: {path}")
     return path
+
+
+def spin_until(executor, condition: Callable[[], object], timeout_s: float = 10.0) -> bool:  # noqa: ANN001
+    """Spin an rclpy executor in bounded steps until `condition()` holds or `timeout_s` passes."""
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+    return bool(condition())

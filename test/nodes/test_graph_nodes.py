@@ -3,7 +3,6 @@ its SLAM backend is tested in test_tracking_node.py)."""
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -32,13 +31,7 @@ from changing_slam_ros.nodes.local_mapping_node import LocalMappingNode  # noqa:
 from changing_slam_ros.nodes.loop_closing_node import LoopClosingNode  # noqa: E402
 from changing_slam_ros.nodes.object_map_node import ObjectMapNode  # noqa: E402
 from changing_slam_ros.nodes.tracking_node import TrackingNode  # noqa: E402
-
-
-def spin_until(executor, condition, timeout_s: float = 10.0) -> bool:  # noqa: ANN001
-    deadline = time.monotonic() + timeout_s
-    while not condition() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-    return bool(condition())
+from helpers import spin_until  # noqa: E402
 
 
 def test_tracking_pairs_every_bag_frame_and_acks_it_for_a_lossless_bag_player(ros_context, tmp_path, fr1_bag_writer):

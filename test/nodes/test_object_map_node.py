@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 
 import pytest
 
@@ -22,13 +21,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from changing_slam_msgs.msg import MapObject, MapObjectArray, ObjectStateArray  # noqa: E402
 from changing_slam_msgs.srv import LoadMap, QueryObjects, SaveMap  # noqa: E402
 from changing_slam_ros.nodes.object_map_node import LATCHED, ObjectMapNode  # noqa: E402
-
-
-def spin_until(executor, condition, timeout_s: float = 10.0) -> bool:  # noqa: ANN001
-    deadline = time.monotonic() + timeout_s
-    while not condition() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-    return bool(condition())
+from helpers import spin_until  # noqa: E402
 
 
 def _obj(i: int, class_id: int, name: str, x: float, belief: float) -> MapObject:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -30,13 +29,7 @@ from changing_slam_ros.io.tum_trajectory import read_tum_trajectory  # noqa: E40
 from changing_slam_ros.nodes import conversions as cv  # noqa: E402
 from changing_slam_ros.nodes.bag_player_node import BagPlayerNode  # noqa: E402
 from changing_slam_ros.nodes.tracking_node import TrackingNode  # noqa: E402
-
-
-def spin_until(executor, condition, timeout_s: float = 10.0) -> bool:  # noqa: ANN001
-    deadline = time.monotonic() + timeout_s
-    while not condition() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-    return bool(condition())
+from helpers import spin_until  # noqa: E402
 
 
 def test_tracking_node_poses_on_the_fr1_bag_match_ground_truth_and_follow_rep105(ros_context, tmp_path):
