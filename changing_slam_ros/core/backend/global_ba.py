@@ -15,8 +15,12 @@ import numpy as np
 import numpy.typing as npt
 from gtsam.symbol_shorthand import L, X
 
-from changing_slam_ros.core.backend.local_ba import Observations, gather_observations, reprojection_chi2
-from changing_slam_ros.core.pose_optimizer import CHI2_MONO, CHI2_STEREO
+from changing_slam_ros.core.backend.local_ba import (
+    Observations,
+    add_reprojection_factors,
+    gather_observations,
+    reprojection_chi2,
+)
 from changing_slam_ros.core.slam_map import SlamMap
 
 F64 = npt.NDArray[np.float64]
@@ -73,19 +77,7 @@ def global_bundle_adjust(slam_map: SlamMap, cfg: GlobalBAConfig = GlobalBAConfig
     origin = slam_map.origin_kf_id if slam_map.origin_kf_id in slam_map.keyframes else kf_ids[0]
     graph.add(gtsam.NonlinearEqualityPose3(X(origin), gtsam.Pose3(poses[origin])))
     # 4. Measurements: (u_l, u_r, v) or (u, v) in pixels, sigma = pyramid level scale, Huber kernels.
-    k_stereo = gtsam.Cal3_S2Stereo(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, cfg.bf_m_px / cam.fx)
-    k_mono = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
-    huber_s = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_STEREO)))
-    huber_m = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO)))
-    noise_s = [gtsam.noiseModel.Robust.Create(huber_s, gtsam.noiseModel.Isotropic.Sigma(3, float(s))) for s in scales]
-    noise_m = [gtsam.noiseModel.Robust.Create(huber_m, gtsam.noiseModel.Isotropic.Sigma(2, float(s))) for s in scales]
-    for k, p, (u, v), ur, lv in zip(
-        obs.kf_ids.tolist(), obs.point_ids.tolist(), obs.uv.tolist(), obs.u_right.tolist(), obs.level.tolist()
-    ):
-        if ur >= 0:
-            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), noise_s[lv], X(k), L(p), k_stereo))
-        else:
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise_m[lv], X(k), L(p), k_mono))
+    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales)
     # 5. Levenberg-Marquardt; on failure (cheirality, indeterminate system) the map stays as it was.
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.iterations)

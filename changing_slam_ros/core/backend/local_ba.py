@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 from gtsam.symbol_shorthand import L, X
 
+from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.pose_optimizer import CHI2_MONO, CHI2_STEREO
 from changing_slam_ros.core.slam_map import SlamMap
 
@@ -106,6 +107,30 @@ def reprojection_chi2(
     return e2, chi2
 
 
+def add_reprojection_factors(
+    graph: gtsam.NonlinearFactorGraph, obs: Observations, cam: CameraIntrinsics, bf_m_px: float, scales: npt.ArrayLike
+) -> None:
+    """Add one robust reprojection factor X(k)-L(p) per observation to `graph` (local and global BA).
+
+    Keypoints with depth give a stereo factor on (u_l, u_r, v), the others a monocular one on (u, v);
+    sigma = the keypoint's pyramid level scale (`scales[level]`) in pixels; Huber kernels at the chi-square
+    95 % thresholds of the pose optimiser (`CHI2_STEREO`, `CHI2_MONO`).
+    """
+    k_stereo = gtsam.Cal3_S2Stereo(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, bf_m_px / cam.fx)
+    k_mono = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
+    huber_s = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_STEREO)))
+    huber_m = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO)))
+    noise_s = [gtsam.noiseModel.Robust.Create(huber_s, gtsam.noiseModel.Isotropic.Sigma(3, float(s))) for s in np.asarray(scales)]
+    noise_m = [gtsam.noiseModel.Robust.Create(huber_m, gtsam.noiseModel.Isotropic.Sigma(2, float(s))) for s in np.asarray(scales)]
+    for k, p, (u, v), ur, lv in zip(
+        obs.kf_ids.tolist(), obs.point_ids.tolist(), obs.uv.tolist(), obs.u_right.tolist(), obs.level.tolist()
+    ):
+        if ur >= 0:
+            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), noise_s[lv], X(k), L(p), k_stereo))
+        else:
+            graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise_m[lv], X(k), L(p), k_mono))
+
+
 def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> LocalBAResult:
     """Optimise the window around keyframe `kf_id` in place; erase outlier observations."""
     scales = np.asarray(cfg.level_scales)
@@ -156,18 +181,7 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
         graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(poses[k]), fixed_noise))
     for pid in keep_pts.tolist():
         values.insert(L(pid), slam_map.points.positions[pid])
-    k_stereo = gtsam.Cal3_S2Stereo(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, cfg.bf_m_px / cam.fx)
-    k_mono = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
-    huber_s = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_STEREO)))
-    huber_m = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO)))
-    # Noise per pyramid level: sigma = level scale in pixels, on (u_l, u_r, v) or (u, v).
-    noise_s = [gtsam.noiseModel.Robust.Create(huber_s, gtsam.noiseModel.Isotropic.Sigma(3, float(s))) for s in scales]
-    noise_m = [gtsam.noiseModel.Robust.Create(huber_m, gtsam.noiseModel.Isotropic.Sigma(2, float(s))) for s in scales]
-    for k, p, (u, v), ur, lv in zip(obs.kf_ids.tolist(), obs.point_ids.tolist(), obs.uv.tolist(), obs.u_right.tolist(), obs.level.tolist()):
-        if ur >= 0:
-            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), noise_s[lv], X(k), L(p), k_stereo))
-        else:
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise_m[lv], X(k), L(p), k_mono))
+    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales)
 
     # 4. Optimise.
     params = gtsam.LevenbergMarquardtParams()
