@@ -16,7 +16,6 @@ import numpy.typing as npt
 from gtsam.symbol_shorthand import L, X
 
 from changing_slam_ros.core.backend.local_ba import (
-    Observations,
     add_reprojection_factors,
     gather_observations,
     reprojection_chi2,
@@ -57,8 +56,7 @@ def global_bundle_adjust(slam_map: SlamMap, cfg: GlobalBAConfig = GlobalBAConfig
     # 1. Points seen by one keyframe only carry no constraint between poses: leave them out.
     n_per_point = np.bincount(np.searchsorted(point_ids, obs.point_ids), minlength=len(point_ids))
     keep_pts = point_ids[n_per_point >= 2]
-    keep = np.isin(obs.point_ids, keep_pts)
-    obs = Observations(*(getattr(obs, f)[keep] for f in ("kf_ids", "point_ids", "uv", "u_right", "level", "kp_index")))
+    obs = obs.of_points(keep_pts)
     if len(keep_pts) == 0:
         return GlobalBAResult(len(kf_ids), 0, 0, 0.0, 0.0)
     cam = slam_map.keyframes[kf_ids[0]].camera

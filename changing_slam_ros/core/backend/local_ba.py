@@ -52,6 +52,12 @@ class Observations:
     level: npt.NDArray[np.int64]
     kp_index: npt.NDArray[np.int64]
 
+    def of_points(self, point_ids: npt.NDArray[np.int64]) -> "Observations":
+        """The observations of the given points only."""
+        keep = np.isin(self.point_ids, point_ids)
+        return Observations(self.kf_ids[keep], self.point_ids[keep], self.uv[keep], self.u_right[keep],
+                            self.level[keep], self.kp_index[keep])
+
 
 @dataclass(frozen=True)
 class LocalBAResult:
@@ -162,8 +168,7 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
         counts_kept = n_per_point[n_per_point >= 2]
         order = np.lexsort((keep_pts, -counts_kept))[: cfg.max_points]
         keep_pts = np.sort(keep_pts[order])
-    keep_obs = np.isin(obs.point_ids, keep_pts)
-    obs = Observations(*(getattr(obs, f)[keep_obs] for f in ("kf_ids", "point_ids", "uv", "u_right", "level", "kp_index")))
+    obs = obs.of_points(keep_pts)
     if len(keep_pts) == 0:
         return LocalBAResult(len(local), len(fixed), 0, 0, 0.0, 0.0, 0)
     poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
