@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -98,14 +99,8 @@ def semantic_map_from_dict(doc: Any, where: str) -> SemanticMap:
         raise MapFileError(f"{where}: version: expected {VERSION}, got {version!r} (file from a newer release?)")
     frame_id = _field(doc, "frame_id", str, where)
     threshold = _number(doc, "belief_threshold", where)
-    raw = doc.get("objects")
-    if not isinstance(raw, list):
-        raise MapFileError(f"{where}: objects: expected a list, got {type(raw).__name__}")
     objects = []
-    for i, item in enumerate(raw):
-        w = f"{where}: objects[{i}]"
-        if not isinstance(item, dict):
-            raise MapFileError(f"{w}: expected a mapping, got {type(item).__name__}")
+    for w, item in _object_entries(doc, where):
         objects.append(SemanticObject(
             id=_field(item, "id", int, w), class_id=_field(item, "class_id", int, w),
             class_name=_field(item, "class_name", str, w), centroid_w=_vec3(item, "centroid_m", w),
@@ -151,14 +146,8 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
         raise MapFileError(f"{where}: format: expected {OBJECT_MAP_FORMAT!r}, got {doc.get('format')!r}")
     if doc.get("version") != OBJECT_MAP_VERSION:
         raise MapFileError(f"{where}: version: expected {OBJECT_MAP_VERSION}, got {doc.get('version')!r}")
-    raw = doc.get("objects")
-    if not isinstance(raw, list):
-        raise MapFileError(f"{where}: objects: expected a list, got {type(raw).__name__}")
     out = []
-    for i, item in enumerate(raw):
-        w = f"{where}: objects[{i}]"
-        if not isinstance(item, dict):
-            raise MapFileError(f"{w}: expected a mapping, got {type(item).__name__}")
+    for w, item in _object_entries(doc, where):
         pts = item.get("points")
         if (not isinstance(pts, list) or any(not isinstance(p, list) or len(p) != 4 for p in pts)
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
@@ -235,3 +224,15 @@ def _vec3(d: dict[str, Any], key: str, where: str) -> tuple[float, float, float]
             or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in v)):
         raise MapFileError(f"{where}.{key}: expected 3 finite numbers, got {v!r}")
     return float(v[0]), float(v[1]), float(v[2])
+
+
+def _object_entries(doc: dict[str, Any], where: str) -> Iterator[tuple[str, dict[str, Any]]]:
+    """The mappings of `doc["objects"]`, each with its place for messages ("FILE: objects[i]")."""
+    raw = doc.get("objects")
+    if not isinstance(raw, list):
+        raise MapFileError(f"{where}: objects: expected a list, got {type(raw).__name__}")
+    for i, item in enumerate(raw):
+        w = f"{where}: objects[{i}]"
+        if not isinstance(item, dict):
+            raise MapFileError(f"{w}: expected a mapping, got {type(item).__name__}")
+        yield w, item
