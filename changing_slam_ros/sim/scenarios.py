@@ -7,7 +7,8 @@ wheeled robot (0.07 m/s, turning 30 deg/s in place) drives 7 or 8 sides of a 0.8
 walls in turn so that each changed place is seen before and after its change (101 or 115 s, 15 Hz);
 objects are moved, removed, replaced or added while the robot faces away, and every change is checked
 to be out of view when it happens. `office_xyz` is `walking_xyz` without people (its control). Dai-like
-`unknown_mover`: a box of no COCO class carried by hand in front of a nearly still camera.
+`unknown_mover`: a box of no COCO class carried by hand in front of a nearly still camera
+(`unknown_mover_control`: the same scene and camera path, the box left on the table).
 `walking_changing`: a short panning shot with a walker and an out-of-view move (the sample bag).
 
 A seed jitters placements, walking paths, speeds and motion phases; the same seed gives the same scenario.
@@ -302,7 +303,8 @@ def _replacing_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
     ]
 
 
-def _unknown_mover(seed: int) -> Scenario:
+def _unknown_mover(seed: int, carried: bool = True) -> Scenario:
+    """`carried` False: the control, the same scene and camera path with the box left resting on the table."""
     rng = np.random.default_rng(seed)
     duration_s = 24.0
     actors = _office(rng)
@@ -314,8 +316,14 @@ def _unknown_mover(seed: int) -> Scenario:
     centre = eye + np.array([0.0, 1.0, -0.15])
     box = carried_by_hand(rest_from, rest_to, centre, duration_s, pick_s=3.0, put_s=duration_s - 4.0,
                           phase=float(rng.uniform(0, 2 * np.pi)))
-    actors.append(Actor("parcel", -1, cat.unknown_object_parts(), box, moving=True))
+    if not carried:
+        box = Track.static(rest_from)
+    actors.append(Actor("parcel", -1, cat.unknown_object_parts(), box, moving=carried))
     hand = HandHeld(tuple(eye), (0.0, 1.9, 0.85), phase=float(rng.uniform(0, 2 * np.pi)))
+    if not carried:
+        return Scenario("unknown_mover_control", "unknown_mover without the motion: the box stays on the table "
+                        "(the control for unknown_mover)", default_room(), tuple(actors),
+                        nearly_static(hand, duration_s), (), duration_s, 30.0, preview_t_s=8.0)
     return Scenario("unknown_mover", "a box of no COCO class picked up from the table, carried and turned "
                     "in front of a nearly still camera, and put down elsewhere (Dai et al.)", default_room(),
                     tuple(actors), nearly_static(hand, duration_s), (), duration_s, 30.0,
@@ -406,6 +414,8 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                       {"plant_new": (58, cat.potted_plant_parts())}, n_sides=8),
     "unknown_mover": ScenarioInfo("a box of no COCO class carried by hand in front of the camera (Dai et al.)",
                                   _unknown_mover),
+    "unknown_mover_control": ScenarioInfo("unknown_mover with the box left on the table (its control)",
+                                          lambda seed: _unknown_mover(seed, carried=False)),
     "walking_changing": ScenarioInfo("15 s pan with a walker and an out-of-view move (the sample bag)",
                                      _walking_changing),
 }

@@ -164,6 +164,15 @@ def test_unknown_mover_is_an_object_of_no_class_carried_around() -> None:
     assert np.min(in_front) > 0.4
 
 
+
+def test_unknown_mover_control_has_the_same_camera_path_and_a_resting_box() -> None:
+    s, c = build_scenario("unknown_mover", 0), build_scenario("unknown_mover_control", 0)
+    box = c.actors[c.actor_index("parcel")]
+    assert not box.moving and [a.name for a in s.actors] == [a.name for a in c.actors]
+    for t in np.arange(0.0, s.duration_s, 0.5):
+        assert np.array_equal(s.camera.pose_at(t), c.camera.pose_at(t))
+        assert np.array_equal(box.track.pose_at(t), s.actors[s.actor_index("parcel")].track.pose_at(0.0))
+
 def test_track_interpolates_and_jumps() -> None:
     a, b = pose_xyz_rpy(0.0, 0.0, 0.0), pose_xyz_rpy(2.0, 0.0, 0.0, yaw=np.pi / 2)
     tr = Track([PoseKey(0.0, a), PoseKey(2.0, b)])
