@@ -136,3 +136,26 @@ class PointStore:
             self.normals[i].copy(), float(self.min_dist[i]), float(self.max_dist[i]),
             int(self.class_id[i]), int(self.object_id[i]), bool(self.active[i]), bool(self.bad[i]),
         )
+
+    # Serialisation (a saved map, `io.map_file`) ------------------------------------------------------
+    COLUMNS = _COLUMNS
+
+    def column_arrays(self) -> dict[str, npt.NDArray[np.generic]]:
+        """Every column cut to `size` rows (copies), by column name (`COLUMNS`)."""
+        return {name: getattr(self, name)[: self.size].copy() for name in self._COLUMNS}
+
+    @classmethod
+    def from_columns(cls, columns: dict[str, npt.NDArray[np.generic]], observations: list[dict[int, int]]) -> PointStore:
+        """A store holding `columns` (every name of `COLUMNS`, same row count) and `observations` (one dict per
+        row: keyframe id -> keypoint index). Raises ValueError naming the column whose shape is wrong."""
+        size = len(observations)
+        store = cls(max(size, 16))
+        for name in cls._COLUMNS:
+            col = np.asarray(columns[name])
+            want = getattr(store, name)
+            if col.shape != (size,) + want.shape[1:]:
+                raise ValueError(f"column {name}: expected shape {(size,) + want.shape[1:]}, got {col.shape}")
+            want[:size] = col.astype(want.dtype, copy=False)
+        store.observations = [dict(o) for o in observations]
+        store.size = size
+        return store

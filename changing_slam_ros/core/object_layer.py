@@ -158,6 +158,19 @@ class _MapObjects:
     next_sample_id: int = -2
 
 
+@dataclass
+class SavedObjectMap:
+    """The object map of one SlamMap as a saved map holds it (multi-session): the MapObjects with beliefs, the
+    anchors of their points (ids (M,), keyframe ids (M,), camera-frame positions (M, 3)) and the next
+    depth-sample id (negative)."""
+
+    objects: list[MapObject]
+    anchor_ids: I64
+    anchor_kf_ids: I64
+    anchor_points_cam: F64
+    next_sample_id: int = -2
+
+
 class ObjectLayer:
     """MapObjects and persistence beliefs for every map of the Atlas; one instance per run."""
 
@@ -188,6 +201,26 @@ class ObjectLayer:
         if map_id not in self._maps:
             self._maps[map_id] = _MapObjects(LongTermAssociation(self.config.association))
         return self._maps[map_id]
+
+    # --- saved maps (multi-session) ---
+    def saved_objects(self, map_id: int) -> SavedObjectMap:
+        """The object map of `map_id` in the form a map file stores."""
+        mo = self._for(map_id)
+        ids, kfs, pts = mo.anchors.arrays()
+        return SavedObjectMap(self.objects(map_id), ids.copy(), kfs.copy(), pts.copy(), mo.next_sample_id)
+
+    def load_objects(self, map_id: int, saved: SavedObjectMap, first_keyframe_id: int) -> None:
+        """Start `map_id`'s object map from a loaded one (its objects keep their beliefs); the new session's
+        keyframes start at `first_keyframe_id`, and every object counts as long unseen
+        (`LongTermAssociation.new_session`): its first sighting, or expected miss, updates its belief."""
+        mo = _MapObjects(LongTermAssociation(self.config.association), next_sample_id=saved.next_sample_id)
+        for obj in saved.objects:
+            mo.lta.add_object(obj)
+        for kf_id in np.unique(saved.anchor_kf_ids).tolist():
+            sel = saved.anchor_kf_ids == kf_id
+            mo.anchors.add(int(kf_id), saved.anchor_ids[sel], saved.anchor_points_cam[sel])
+        mo.lta.new_session(first_keyframe_id)
+        self._maps[map_id] = mo
 
     # --- per keyframe ---
     def after_keyframe(self, kf: Keyframe, slam_map: SlamMap, depth_m: npt.NDArray[np.floating] | None,
