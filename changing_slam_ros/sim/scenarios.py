@@ -154,6 +154,36 @@ ROBOT_LOOP = RobotLoop()
 T_FACING_W1, T_FACING_S1, T_FACING_E2, T_FACING_N2 = 34.0, 49.0, 63.0, 78.0
 
 
+def _printed_chair(seat: str, back: str) -> tuple[cat.Part, ...]:
+    """A chair whose seat cushion and backrest carry prints (a photo stretched once over each face), as real
+    office chairs with patterned covers or a poster taped to the back do: enough texture for place recognition
+    to latch onto the chair itself, which is what makes a moved chair dangerous for loop closing."""
+    plain = cat.chair_parts()
+    legs = plain[:4]
+    seat_part, back_part = plain[4], plain[5]
+    return legs + (cat.Part(seat_part.half_size_m, seat_part.offset_m, seat, None),
+                   cat.Part(back_part.half_size_m, back_part.offset_m, back, None))
+
+
+def _printed_suitcase(print_texture: str) -> tuple[cat.Part, ...]:
+    """A suitcase whose shell carries a large print (stretched once over each face)."""
+    body, handle = cat.suitcase_parts()
+    return (cat.Part(body.half_size_m, body.offset_m, print_texture, None), handle)
+
+
+def _printed_plant(pot: str) -> tuple[cat.Part, ...]:
+    """A potted plant in a printed pot."""
+    pot_part, leaves = cat.potted_plant_parts()
+    return (cat.Part(pot_part.half_size_m, pot_part.offset_m, pot, None, pot_part.shape), leaves)
+
+
+# the movable objects of the PUC-USP-like scenes carry prints (see `_printed_chair`); the TUM-like office does not
+PUC_CHAIR = _printed_chair("coffee", "retina")
+PUC_CHAIR_2 = _printed_chair("clock", "ihc")
+PUC_SUITCASE = _printed_suitcase("coins")
+PUC_PLANT_NEW = _printed_plant("coffee")
+
+
 def _puc_objects(rng: np.random.Generator) -> dict[str, tuple[int, tuple[cat.Part, ...], F64]]:
     """The initial PUC-USP-like layout: name -> (class, parts, pose)."""
     east = ZONE_EAST @ pose_xyz_rpy(_jit(rng, 0.1), _jit(rng, 0.15), 0.0, yaw=_jit(rng, 0.3))
@@ -161,15 +191,15 @@ def _puc_objects(rng: np.random.Generator) -> dict[str, tuple[int, tuple[cat.Par
     south = ZONE_SOUTH @ pose_xyz_rpy(_jit(rng, 0.1), _jit(rng, 0.15), 0.0, yaw=_jit(rng, 0.3))
     table = pose_xyz_rpy(_jit(rng, 0.1), 1.9, 0.0)
     return {
-        "chair": (56, cat.chair_parts(), east),
+        "chair": (56, PUC_CHAIR, east),
         "teddy_bear": (77, cat.teddy_bear_parts(), _on(east, 0.5, 0.02)),
         "table": (60, cat.table_parts(), table),
         "monitor": (62, cat.tv_parts("rocket"), _on(table, 0.77, -0.05, -0.3, -np.pi / 2)),
         "cup": (41, cat.cup_parts(), _on(table, 0.77, -0.2, 0.35)),
-        "suitcase": (28, cat.suitcase_parts(), west),
+        "suitcase": (28, PUC_SUITCASE, west),
         "monitor_2": (62, cat.tv_parts("hubble"), _on(west, 0.73, 0.0, -0.06)),
         "cup_2": (41, cat.cup_parts(), _on(west, 0.73, 0.0, 0.17)),
-        "chair_2": (56, cat.chair_parts("wood"), south),
+        "chair_2": (56, PUC_CHAIR_2, south),
         "book": (73, cat.book_parts(), _on(south, 0.5, 0.0, 0.0, 0.4)),
         "plant": (58, cat.potted_plant_parts(), pose_xyz_rpy(2.55, 2.1, 0.0)),
     }
@@ -406,12 +436,12 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                       ALL_PUC, _vanishing_plan, n_sides=8),
     "changing": _puc("changing", "robot loop; the teddy bear changes chair, objects are removed, replaced, added",
                      ALL_PUC, _changing_plan,
-                     {"suitcase_new": (28, cat.suitcase_parts()), "plant_new": (58, cat.potted_plant_parts())}),
+                     {"suitcase_new": (28, _printed_suitcase("hubble")), "plant_new": (58, PUC_PLANT_NEW)}),
     "shift": _puc("shift", "robot loop; chair, monitor and the suitcase group are moved out of view", ALL_PUC,
                   _shift_plan),
     "replacing": _puc("replacing", "robot loop; the chair with the teddy bear is replaced by a plant, then the "
                       "other chair is removed", ALL_PUC, _replacing_plan,
-                      {"plant_new": (58, cat.potted_plant_parts())}, n_sides=8),
+                      {"plant_new": (58, PUC_PLANT_NEW)}, n_sides=8),
     "unknown_mover": ScenarioInfo("a box of no COCO class carried by hand in front of the camera (Dai et al.)",
                                   _unknown_mover),
     "unknown_mover_control": ScenarioInfo("unknown_mover with the box left on the table (its control)",
