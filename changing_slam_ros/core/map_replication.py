@@ -1,0 +1,468 @@
+"""Map replication between processes: one owner of the metric map, replicas fed by deltas.
+
+The split graph (issue 7) has one writer of the map, `local_mapping`. `tracking` and `loop_closing` keep
+replicas. Three packets cross processes (mirrored by the messages Keyframe, MapUpdate, LoopCorrection):
+
+- `KeyframePacket` (tracking -> local_mapping, loop_closing): the new keyframe, the point counters tracking
+  incremented since its last packet (`n_visible` / `n_found` drive recent-point culling), and for the object
+  layer the keyframe's depth image and the dynamic stage's short-term objects.
+- `MapUpdate` (local_mapping -> tracking, loop_closing): the `MapDelta` that local mapping (and the object
+  layer) made to the map for one keyframe, or the delta of applying a loop correction.
+- `LoopResult` (loop_closing -> local_mapping, tracking): one per keyframe, closed or not; when closed, the
+  delta the correction made to loop closing's replica and the `core.loop_closing.LoopCorrection` itself.
+
+A `MapDelta` is found by diffing the map before and after a step (`snapshot` then `diff`), so it does not
+depend on what the step does inside: every keyframe whose pose, point ids, labels, covisibility links,
+spanning-tree parent/children or loop edges changed, every keyframe removed, and every point row that is new
+or changed in any column or in its observations (in insertion order, which later iteration depends on).
+Applying a delta (`apply_delta`) overwrites those rows in place (Keyframe objects keep their identity: the
+keyframe database holds them), so a replica fed every delta in order equals the owner bit for bit.
+
+Ids: keyframe ids are allocated by tracking only (`Tracker.next_kf_id`) and map point ids by the map owner
+only (`PointStore.add` rows); replicas never create either, so ids cannot collide between processes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.dynamic_objects import ObjectMotion, ObjectState
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.map_point import PointStore
+from changing_slam_ros.core.slam_map import Atlas, RemovedKeyframe, SlamMap
+from changing_slam_ros.errors import SlamError
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+# PointStore columns a delta carries, with their per-row shape and dtype (the store's own names).
+POINT_COLUMNS: tuple[tuple[str, tuple[int, ...], Any], ...] = (
+    ("positions", (3,), np.float64), ("descriptors", (32,), np.uint8), ("normals", (3,), np.float64),
+    ("min_dist", (), np.float64), ("max_dist", (), np.float64), ("n_visible", (), np.int64),
+    ("n_found", (), np.int64), ("first_kf", (), np.int64), ("ref_kf", (), np.int64), ("class_id", (), np.int64),
+    ("object_id", (), np.int64), ("active", (), np.bool_), ("bad", (), np.bool_), ("last_seen_frame", (), np.int64),
+)  # fmt: skip
+
+
+class ReplicationError(SlamError):
+    """A delta or packet does not fit the replica it is applied to (missing keyframe, wrong map)."""
+
+
+def _i64(values: Any = ()) -> I64:
+    return np.asarray(values, dtype=np.int64).reshape(-1)
+
+
+def _ragged(lists: list[list[int]]) -> tuple[I64, I64]:
+    """Lists of ints -> (counts (K,), concatenated values)."""
+    counts = _i64([len(v) for v in lists])
+    flat = _i64([x for v in lists for x in v])
+    return counts, flat
+
+
+def _split(counts: I64, flat: npt.NDArray[Any]) -> list[npt.NDArray[Any]]:
+    return np.split(flat, np.cumsum(counts)[:-1]) if len(counts) else []
+
+
+# -- packets -------------------------------------------------------------------------------------------
+@dataclass
+class PointRows:
+    """Full state of M map points: `ids` (M,), one array per `POINT_COLUMNS` entry (M, ...), and the
+    observations flattened in insertion order: `obs_counts` (M,), `obs_kf_ids`, `obs_kp_indices` (sum,)."""
+
+    ids: I64
+    columns: dict[str, npt.NDArray[Any]]
+    obs_counts: I64
+    obs_kf_ids: I64
+    obs_kp_indices: I64
+
+    @staticmethod
+    def empty() -> PointRows:
+        cols = {name: np.zeros((0,) + shape, dtype) for name, shape, dtype in POINT_COLUMNS}
+        return PointRows(_i64(), cols, _i64(), _i64(), _i64())
+
+    @staticmethod
+    def of(points: PointStore, ids: I64) -> PointRows:
+        cols = {name: getattr(points, name)[ids].copy() for name, _, _ in POINT_COLUMNS}
+        obs = [points.observations[i] for i in ids.tolist()]
+        return PointRows(ids.copy(), cols, _i64([len(o) for o in obs]),
+                         _i64([k for o in obs for k in o]), _i64([v for o in obs for v in o.values()]))  # fmt: skip
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass
+class KeyframeRows:
+    """Full replicated state of K keyframes (their features do not change and are not carried).
+
+    `poses` (K, 4, 4) T_world_cam; `n_keypoints` (K,) and, concatenated over keyframes, `point_ids`,
+    `kp_classes` (int8), `object_ids`; covisibility links in order (`cov_counts` (K,), `cov_ids`,
+    `cov_weights`); `parents` (K,) (-1 none); `child_counts`/`child_ids`; `loop_counts`/`loop_ids`.
+    """
+
+    ids: I64
+    poses: F64
+    n_keypoints: I64
+    point_ids: I64
+    kp_classes: npt.NDArray[np.int8]
+    object_ids: I64
+    cov_counts: I64
+    cov_ids: I64
+    cov_weights: I64
+    parents: I64
+    child_counts: I64
+    child_ids: I64
+    loop_counts: I64
+    loop_ids: I64
+
+    @staticmethod
+    def of(m: SlamMap, ids: list[int]) -> KeyframeRows:
+        kfs = [m.keyframes[k] for k in ids]
+        cov = [list(m.covisibility.get(k, {}).items()) for k in ids]
+        cc, cids = _ragged([[a for a, _ in c] for c in cov])
+        _, cw = _ragged([[w for _, w in c] for c in cov])
+        chc, chi = _ragged([sorted(m.children.get(k, set())) for k in ids])
+        lc, li = _ragged([sorted(m.loop_edges.get(k, set())) for k in ids])
+        cat = (lambda arrs, dt: np.concatenate(arrs).astype(dt) if arrs else np.zeros(0, dt))  # noqa: E731
+        return KeyframeRows(
+            _i64(ids), np.array([kf.T_world_cam for kf in kfs], np.float64).reshape(-1, 4, 4),
+            _i64([len(kf) for kf in kfs]), cat([kf.point_ids for kf in kfs], np.int64),
+            cat([kf.kp_classes for kf in kfs], np.int8), cat([kf.object_ids for kf in kfs], np.int64),
+            cc, cids, cw, _i64([m.parent.get(k, -1) for k in ids]), chc, chi, lc, li,
+        )  # fmt: skip
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass
+class RemovedRows:
+    """Keyframes culled: `ids` (R,), `parents` (R,), `T_parent_kf` (R, 4, 4) (see `slam_map.RemovedKeyframe`)."""
+
+    ids: I64
+    parents: I64
+    T_parent_kf: F64
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass
+class MapDelta:
+    """What changed in map `map_id`; `n_points` is the owner's point-store size after the change."""
+
+    map_id: int
+    origin_kf_id: int
+    n_points: int
+    keyframes: KeyframeRows
+    removed: RemovedRows
+    points: PointRows
+
+    @property
+    def empty(self) -> bool:
+        return len(self.keyframes) == 0 and len(self.removed) == 0 and len(self.points) == 0
+
+
+@dataclass
+class PointCounters:
+    """Tracking's increments since its last packet: `ids` (M,), `n_visible` / `n_found` deltas (M,) and the
+    absolute `last_seen_frame` (M,)."""
+
+    ids: I64 = field(default_factory=_i64)
+    n_visible: I64 = field(default_factory=_i64)
+    n_found: I64 = field(default_factory=_i64)
+    last_seen_frame: I64 = field(default_factory=_i64)
+
+
+@dataclass
+class KeyframePacket:
+    """tracking -> local_mapping / loop_closing. `depth_m` (H, W) metres (0 = none) and `objects` feed the
+    object layer; both may be empty when it is off."""
+
+    keyframe: Keyframe
+    counters: PointCounters = field(default_factory=PointCounters)
+    depth_m: npt.NDArray[np.float32] | None = None
+    objects: tuple[ObjectState, ...] = ()
+
+
+@dataclass
+class MapUpdate:
+    """local_mapping -> tracking / loop_closing. `keyframe_id`: the keyframe this update maps (-1 for the delta
+    of a loop correction, then `loop_query_kf_id` names the correction's query keyframe)."""
+
+    keyframe_id: int
+    delta: MapDelta
+    culled_keyframes: I64 = field(default_factory=_i64)
+    active_flags_changed: bool = False
+    objects_ran: bool = False
+    loop_query_kf_id: int = -1
+
+
+@dataclass
+class LoopResult:
+    """loop_closing's verdict on one keyframe; when `closed`, the delta on its replica and the correction."""
+
+    query_kf_id: int
+    closed: bool
+    delta: MapDelta | None = None
+    correction: Any | None = None  # core.loop_closing.LoopCorrection
+
+
+# -- diffing ---------------------------------------------------------------------------------------------
+@dataclass
+class MapSnapshot:
+    """The replicated state of one map at a moment (`snapshot`), to diff against later."""
+
+    map_id: int
+    origin_kf_id: int
+    keyframes: dict[int, tuple[Any, ...]]
+    removed: frozenset[int]
+    n_points: int
+    columns: dict[str, npt.NDArray[Any]]
+    observations: list[tuple[tuple[int, int], ...]]
+
+
+def _kf_state(m: SlamMap, k: int) -> tuple[Any, ...]:
+    kf = m.keyframes[k]
+    return (kf.T_world_cam.copy(), kf.point_ids.copy(), kf.kp_classes.copy(), kf.object_ids.copy(),
+            tuple(m.covisibility.get(k, {}).items()), m.parent.get(k, -1), frozenset(m.children.get(k, set())),
+            frozenset(m.loop_edges.get(k, set())))  # fmt: skip
+
+
+def _kf_equal(a: tuple[Any, ...], b: tuple[Any, ...]) -> bool:
+    return (np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+            and np.array_equal(a[3], b[3]) and a[4:] == b[4:])  # fmt: skip
+
+
+def snapshot(m: SlamMap) -> MapSnapshot:
+    n = m.points.size
+    return MapSnapshot(
+        m.id, m.origin_kf_id, {k: _kf_state(m, k) for k in m.keyframes}, frozenset(m.removed), n,
+        {name: getattr(m.points, name)[:n].copy() for name, _, _ in POINT_COLUMNS},
+        [tuple(o.items()) for o in m.points.observations[:n]],
+    )
+
+
+def diff(before: MapSnapshot, m: SlamMap) -> MapDelta:
+    """The delta that turns a replica equal to `before` into `m` (the same map, later)."""
+    if before.map_id != m.id:
+        raise ReplicationError(f"diff: snapshot of map {before.map_id} compared with map {m.id}")
+    kf_ids = [k for k in m.keyframes if k not in before.keyframes or not _kf_equal(before.keyframes[k], _kf_state(m, k))]
+    new_removed = [k for k in m.removed if k not in before.removed]
+    pts = m.points
+    n0, n1 = before.n_points, pts.size
+    changed = np.zeros(n0, bool)
+    for name, _, _ in POINT_COLUMNS:
+        a, b = before.columns[name], getattr(pts, name)[:n0]
+        ne = a != b
+        changed |= ne.any(axis=1) if ne.ndim > 1 else ne
+    obs = pts.observations
+    for i in np.flatnonzero(~changed).tolist():
+        o = obs[i]
+        if len(o) != len(before.observations[i]) or tuple(o.items()) != before.observations[i]:
+            changed[i] = True
+    ids = np.concatenate([np.flatnonzero(changed), np.arange(n0, n1)]).astype(np.int64)
+    rem = [m.removed[k] for k in new_removed]
+    return MapDelta(
+        m.id, m.origin_kf_id, n1, KeyframeRows.of(m, kf_ids),
+        RemovedRows(_i64(new_removed), _i64([r.parent_id for r in rem]),
+                    np.array([r.T_parent_kf for r in rem], np.float64).reshape(-1, 4, 4)),
+        PointRows.of(pts, ids),
+    )  # fmt: skip
+
+
+# -- applying ------------------------------------------------------------------------------------------
+def ensure_map(atlas: Atlas, map_id: int) -> SlamMap:
+    """The atlas's map `map_id`, creating maps up to it (ids are dense, as `Atlas.new_map` makes them)."""
+    if map_id < 0:
+        raise ReplicationError(f"map id {map_id} is negative")
+    current = atlas.current
+    while len(atlas.maps) <= map_id:
+        atlas.new_map()
+    atlas.current = current
+    return atlas.maps[map_id]
+
+
+def insert_keyframe(atlas: Atlas, kf: Keyframe) -> SlamMap:
+    """A replica receives a new keyframe (before the owner's delta for it): inserted with its tracked points'
+    observations, as `SlamMap.add_keyframe` does in the owner. Makes its map the current one."""
+    m = ensure_map(atlas, kf.map_id)
+    atlas.current = m
+    if kf.id not in m.keyframes:
+        m.add_keyframe(kf)
+    return m
+
+
+def _ensure_rows(points: PointStore, n: int) -> None:
+    if n > points.size:
+        points._grow(n)  # noqa: SLF001 - the replica fills rows the owner allocated
+        points.observations.extend({} for _ in range(n - points.size))
+        points.size = n
+
+
+def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
+    """Write a delta into the replica's map `delta.map_id`, in place. Keyframes it names must be there."""
+    m = ensure_map(atlas, delta.map_id)
+    m.origin_kf_id = delta.origin_kf_id
+    # 1. Points: every column, then observations in the owner's order.
+    pts = m.points
+    _ensure_rows(pts, delta.n_points)
+    pr = delta.points
+    if len(pr):
+        for name, _, _ in POINT_COLUMNS:
+            getattr(pts, name)[pr.ids] = pr.columns[name]
+        for pid, kfs, kps in zip(pr.ids.tolist(), _split(pr.obs_counts, pr.obs_kf_ids),
+                                 _split(pr.obs_counts, pr.obs_kp_indices), strict=True):  # fmt: skip
+            pts.observations[pid] = dict(zip(kfs.tolist(), kps.tolist(), strict=True))
+    # 2. Keyframes: pose, per-keypoint ids and labels, links.
+    kr = delta.keyframes
+    offsets = np.concatenate([[0], np.cumsum(kr.n_keypoints)]).astype(np.int64)
+    cov = zip(_split(kr.cov_counts, kr.cov_ids), _split(kr.cov_counts, kr.cov_weights), strict=True)
+    children = _split(kr.child_counts, kr.child_ids)
+    loops = _split(kr.loop_counts, kr.loop_ids)
+    for j, (k, (cid, cw)) in enumerate(zip(kr.ids.tolist(), cov, strict=True)):
+        kf = m.keyframes.get(k)
+        if kf is None:
+            raise ReplicationError(f"map update for map {m.id}: keyframe {k} is not in the replica "
+                                   "(its keyframe packet was not applied first)")  # fmt: skip
+        if len(kf) != int(kr.n_keypoints[j]):
+            raise ReplicationError(f"map update: keyframe {k} has {len(kf)} keypoints, the update {kr.n_keypoints[j]}")
+        s = slice(int(offsets[j]), int(offsets[j + 1]))
+        kf.T_world_cam = kr.poses[j].copy()
+        kf.point_ids = kr.point_ids[s].copy()
+        kf.kp_classes = kr.kp_classes[s].copy()
+        kf.object_ids = kr.object_ids[s].copy()
+        m.covisibility[k] = dict(zip(cid.tolist(), cw.tolist(), strict=True))
+        if kr.parents[j] >= 0:
+            m.parent[k] = int(kr.parents[j])
+        else:
+            m.parent.pop(k, None)
+        m.children[k] = set(children[j].tolist())
+        if len(loops[j]):
+            m.loop_edges[k] = set(loops[j].tolist())
+        else:
+            m.loop_edges.pop(k, None)
+    # 3. Culled keyframes.
+    rr = delta.removed
+    for k, par, T in zip(rr.ids.tolist(), rr.parents.tolist(), rr.T_parent_kf, strict=True):
+        m.removed[k] = RemovedKeyframe(par, T.copy())
+        m.keyframes.pop(k, None)
+        m.covisibility.pop(k, None)
+        m.children.pop(k, None)
+        m.parent.pop(k, None)
+    return m
+
+
+# -- tracking's counters ------------------------------------------------------------------------------
+class CounterTracker:
+    """Tracking's side of the point counters: what it added to `n_visible` / `n_found` since the last packet.
+
+    The owner's delta overwrites counter columns with the owner's values; `after_update` keeps the
+    increments tracking made in between on top of them, so that nothing is lost or counted twice.
+    """
+
+    def __init__(self) -> None:
+        self.base_visible = np.zeros(0, np.int64)
+        self.base_found = np.zeros(0, np.int64)
+        self.base_seen = np.zeros(0, np.int64)
+
+    def _sized(self, points: PointStore) -> None:
+        n = points.size
+        if len(self.base_visible) < n:
+            grow = n - len(self.base_visible)
+            self.base_visible = np.concatenate([self.base_visible, points.n_visible[len(self.base_visible):n]])
+            self.base_found = np.concatenate([self.base_found, points.n_found[len(self.base_found):n]])
+            self.base_seen = np.concatenate([self.base_seen, points.last_seen_frame[len(self.base_seen):n]])
+            assert len(self.base_seen) == n, grow
+
+    def take(self, points: PointStore) -> PointCounters:
+        """The increments since the last call (or update), and reset the base to now."""
+        self._sized(points)
+        n = points.size
+        dv = points.n_visible[:n] - self.base_visible
+        df = points.n_found[:n] - self.base_found
+        seen = points.last_seen_frame[:n]
+        ids = np.flatnonzero((dv != 0) | (df != 0) | (seen != self.base_seen)).astype(np.int64)
+        out = PointCounters(ids, dv[ids].copy(), df[ids].copy(), seen[ids].copy())
+        self.base_visible = points.n_visible[:n].copy()
+        self.base_found = points.n_found[:n].copy()
+        self.base_seen = seen.copy()
+        return out
+
+    def apply_keeping_increments(self, atlas: Atlas, delta: MapDelta) -> SlamMap:
+        """`apply_delta`, then re-add the increments tracking made to the delta's rows since its last packet."""
+        m = atlas.maps[delta.map_id] if delta.map_id < len(atlas.maps) else None
+        ids = delta.points.ids
+        pending = None
+        if m is not None and len(ids):
+            self._sized(m.points)
+            old = ids[ids < len(self.base_visible)]
+            pending = (old, m.points.n_visible[old] - self.base_visible[old], m.points.n_found[old] - self.base_found[old])
+        m = apply_delta(atlas, delta)
+        self._sized(m.points)
+        if len(ids):
+            self.base_visible[ids] = m.points.n_visible[ids]
+            self.base_found[ids] = m.points.n_found[ids]
+            self.base_seen[ids] = m.points.last_seen_frame[ids]
+        if pending is not None:
+            old, dv, df = pending
+            m.points.n_visible[old] += dv
+            m.points.n_found[old] += df
+        return m
+
+
+def apply_counters(points: PointStore, counters: PointCounters) -> None:
+    """The owner adds tracking's increments (ids it knows; newer ones cannot exist)."""
+    ids = counters.ids
+    if len(ids) and int(ids.max()) >= points.size:
+        raise ReplicationError(f"point counters name point {int(ids.max())}; the map has {points.size}")
+    np.add.at(points.n_visible, ids, counters.n_visible)
+    np.add.at(points.n_found, ids, counters.n_found)
+    points.last_seen_frame[ids] = np.maximum(points.last_seen_frame[ids], counters.last_seen_frame)
+
+
+# -- short-term objects as flat arrays (for the Keyframe message) --------------------------------------
+@dataclass
+class ObjectRows:
+    """`ObjectState`s as columns: ids, class_ids, boxes (K, 4), positions, velocities (K, 3), speeds, motion,
+    n_updates, is_new, covariances (K, 36)."""
+
+    ids: I64
+    class_ids: I64
+    boxes: F64
+    positions: F64
+    velocities: F64
+    speeds: F64
+    motion: I64
+    n_updates: I64
+    is_new: npt.NDArray[np.bool_]
+    covariances: F64
+
+    @staticmethod
+    def of(objects: tuple[ObjectState, ...] | list[ObjectState]) -> ObjectRows:
+        o = list(objects)
+        f = lambda get, width: np.array([get(s) for s in o], np.float64).reshape(len(o), width)  # noqa: E731
+        return ObjectRows(
+            _i64([s.object_id for s in o]), _i64([s.class_id for s in o]), f(lambda s: s.box_xyxy, 4),
+            f(lambda s: s.position_world, 3), f(lambda s: s.velocity_world, 3), f(lambda s: s.speed_mps, 1)[:, 0],
+            _i64([int(s.motion) for s in o]), _i64([s.n_updates for s in o]), np.array([s.is_new for s in o], bool),
+            f(lambda s: s.covariance, 36),
+        )  # fmt: skip
+
+    def states(self) -> tuple[ObjectState, ...]:
+        return tuple(
+            ObjectState(int(self.ids[i]), int(self.class_ids[i]), tuple(float(v) for v in self.boxes[i]),  # type: ignore[arg-type]
+                        self.positions[i].copy(), self.velocities[i].copy(), float(self.speeds[i]),
+                        ObjectMotion(int(self.motion[i])), int(self.n_updates[i]), bool(self.is_new[i]),
+                        self.covariances[i].reshape(6, 6).copy())  # fmt: skip
+            for i in range(len(self.ids))
+        )
+
+
+def dataclass_arrays(obj: Any) -> dict[str, Any]:
+    """Field name -> value of a packet dataclass (for the message conversions)."""
+    return {f.name: getattr(obj, f.name) for f in fields(obj)}

@@ -1,0 +1,263 @@
+"""The SLAM system split over three processes, ROS-free: tracking, the map owner (local mapping), loop closing.
+
+Each side is what one node runs; the nodes only convert messages (`core.map_replication` packets) and call
+these. Chained synchronously (`feed` order below, as `changing-slam graph` does in lossless mode), they give
+the offline `SlamSystem`'s trajectory, because every step runs on the same state in the same order:
+
+    tracking  : frame -> SlamSystem (no local mapping / loop closing in it) -> KeyframePacket
+    map owner : packet -> LocalMapper.process (+ object layer) -> MapUpdate (the map's delta)
+    loop side : packet + update -> keyframe database, LoopCloser -> LoopResult (closed: its replica's delta)
+    map owner : LoopResult -> applies it -> MapUpdate (the delta of applying it; tracking and loop side follow)
+
+The map owner is the only writer of the map; tracking and the loop side keep replicas fed by its MapUpdates.
+Loop closing corrects its own replica first (`SlamMapLoopClosing.process`), and the owner applies that delta
+exactly when the owner has mapped nothing since (lossless mode); otherwise (real time: keyframes mapped while
+the loop was verified) it applies the correction itself (`core.loop_closing.apply_correction`: poses, point
+positions, fusion) to its newer map. Either way the owner's delta of that step reaches every replica.
+
+The object layer runs in the map owner: it needs the mapped keyframe's points (before loop closing, as in
+`SlamSystem`), the keyframe's depth and the dynamic stage's objects, which the keyframe packet carries.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.local_mapping import LocalMapper, MappingStats
+from changing_slam_ros.core.map_replication import (
+    CounterTracker,
+    KeyframePacket,
+    LoopResult,
+    MapUpdate,
+    ReplicationError,
+    apply_counters,
+    apply_delta,
+    diff,
+    ensure_map,
+    insert_keyframe,
+    snapshot,
+)
+from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.system import FrameOutput, SlamSystem
+from changing_slam_ros.nodes.slam_backend import Backend, BackendConfig, build_backend
+
+
+class _ReplicaInsert:
+    """Stands in for `SlamSystem.mapper` in the tracking process: a new keyframe goes into the replica only;
+    the map owner maps it and sends the result back."""
+
+    def __init__(self, atlas: Atlas) -> None:
+        self.atlas = atlas
+
+    def process(self, kf: Keyframe) -> MappingStats:
+        insert_keyframe(self.atlas, kf)
+        return MappingStats()
+
+
+@dataclass
+class TrackingSide:
+    """Features, dynamic filter and tracking against a replica of the map (tracking node)."""
+
+    backend: Backend
+    counters: CounterTracker = field(default_factory=CounterTracker)
+    index: Any | None = None  # its own keyframe database (relocalisation), fed like the loop side's
+    n_updates: int = 0
+    n_loops: int = 0
+
+    @staticmethod
+    def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config") -> TrackingSide:
+        backend = build_backend(cfg, loop=loop, dynamic=dynamic, objects="off")
+        system = backend.system
+        index = backend.loop_closing  # same class as the loop side's: relocalisation candidates only here
+        system.loop_closer = None
+        system.keyframe_index = None
+        system.object_layer = None
+        system.mapper = _ReplicaInsert(system.atlas)  # type: ignore[assignment]
+        if index is not None:
+            system.tracker.candidates = index
+        backend.loop_closing = None
+        return TrackingSide(backend, index=index)
+
+    @property
+    def system(self) -> SlamSystem:
+        return self.backend.system
+
+    def process(self, rgbd: RgbdFrame, detections: Any = None) -> tuple[FrameOutput, KeyframePacket | None]:
+        out = self.system.process(rgbd, detections)
+        if out.keyframe is None:
+            return out, None
+        kf = out.keyframe
+        counters = self.counters.take(self.system.atlas.maps[kf.map_id].points)
+        objects = tuple(out.dynamic.objects) if out.dynamic is not None else ()
+        return out, KeyframePacket(kf, counters, rgbd.depth_m, objects)
+
+    def apply_update(self, update: MapUpdate) -> None:
+        """The owner's delta into the replica (keeping tracking's newer counter increments), the keyframe
+        database as `SlamSystem` feeds it, then the last frame re-anchored on its moved reference keyframe."""
+        m = self.counters.apply_keeping_increments(self.system.atlas, update.delta)
+        if self.index is not None:
+            for k in update.culled_keyframes.tolist():
+                self.index.erase(k)
+            kf = m.keyframes.get(update.keyframe_id)  # a keyframe is never culled in its own mapping step
+            if kf is not None:
+                self.index.add(kf)
+            if update.active_flags_changed:
+                self.index.refresh_active_points(m)
+        self.n_updates += 1
+        if self.system.records:
+            self.system._reanchor_last_frame()  # noqa: SLF001 - SlamSystem's own re-anchoring, reused
+
+
+@dataclass
+class MapOwner:
+    """Owns the metric map: applies keyframe packets, runs `LocalMapper` and the object layer (local_mapping)."""
+
+    backend: Backend
+    mapper: LocalMapper
+    last_kf_id: int = -1
+    timings_ms: dict[str, list[float]] = field(default_factory=lambda: {"mapping": [], "objects": [], "diff": []})
+    last_objects: Any | None = None
+
+    @staticmethod
+    def build(cfg: BackendConfig, objects: str = "config") -> MapOwner:
+        backend = build_backend(cfg, loop=False, dynamic="off", objects=objects)
+        return MapOwner(backend, backend.system.mapper)
+
+    @property
+    def atlas(self) -> Atlas:
+        return self.backend.system.atlas
+
+    def on_keyframe(self, packet: KeyframePacket) -> MapUpdate:
+        kf = packet.keyframe
+        m = ensure_map(self.atlas, kf.map_id)
+        self.atlas.current = m
+        apply_counters(m.points, packet.counters)
+        before = snapshot(m)
+        t0 = time.perf_counter()
+        stats = self.mapper.process(kf)
+        t1 = time.perf_counter()
+        active_changed, ran = False, False
+        layer = self.backend.objects
+        self.last_objects = None
+        if layer is not None and kf.id in m.keyframes:
+            res = layer.after_keyframe(kf, m, packet.depth_m, packet.objects)
+            active_changed, ran = bool(res.active_flags_changed), True
+            self.last_objects = res
+        t2 = time.perf_counter()
+        delta = diff(before, m)
+        t3 = time.perf_counter()
+        self.timings_ms["mapping"].append((t1 - t0) * 1e3)
+        self.timings_ms["objects"].append((t2 - t1) * 1e3)
+        self.timings_ms["diff"].append((t3 - t2) * 1e3)
+        self.last_kf_id = kf.id
+        culled = np.asarray(stats.culled_keyframes, np.int64)
+        return MapUpdate(kf.id, delta, culled, active_changed, ran)
+
+    def on_loop(self, result: LoopResult) -> MapUpdate | None:
+        """Apply a closed loop; returns the delta of doing so for the replicas (None when nothing to apply)."""
+        if not result.closed or result.delta is None:
+            return None
+        m = ensure_map(self.atlas, result.delta.map_id)
+        before = snapshot(m)
+        if result.query_kf_id == self.last_kf_id:
+            apply_delta(self.atlas, result.delta)  # the loop side corrected the very map we hold
+        elif result.correction is not None:
+            from changing_slam_ros.core.loop_closing import apply_correction
+
+            apply_correction(m, result.correction)  # keyframes were mapped meanwhile: correct our newer map
+        else:
+            raise ReplicationError(f"loop result for keyframe {result.query_kf_id}: stale and without a correction")
+        return MapUpdate(-1, diff(before, m), loop_query_kf_id=result.query_kf_id)
+
+
+@dataclass
+class LoopSide:
+    """Keyframe database, verification and pose graph on a replica of the map (loop_closing node)."""
+
+    closing: Any  # core.loop_closing.SlamMapLoopClosing
+    atlas: Atlas = field(default_factory=Atlas)
+    pending: dict[int, Keyframe] = field(default_factory=dict)
+    n_loops: int = 0
+    timings_ms: list[float] = field(default_factory=list)
+
+    @staticmethod
+    def build(cfg: BackendConfig) -> LoopSide | None:
+        """None when the config's loop section is disabled."""
+        backend = build_backend(cfg, loop=True, dynamic="off", objects="off")
+        return None if backend.loop_closing is None else LoopSide(backend.loop_closing)
+
+    def on_keyframe(self, packet: KeyframePacket) -> None:
+        kf = packet.keyframe
+        insert_keyframe(self.atlas, kf)
+        self.pending[kf.id] = kf
+
+    def on_update(self, update: MapUpdate) -> LoopResult | None:
+        """Apply the owner's delta; for a mapped keyframe, run loop closing on it (as `SlamSystem` does after
+        local mapping and the object layer) and return the verdict."""
+        m = apply_delta(self.atlas, update.delta)
+        if update.keyframe_id < 0:
+            return None
+        kf = self.pending.pop(update.keyframe_id, None)
+        if kf is None:
+            raise ReplicationError(f"loop_closing: map update for keyframe {update.keyframe_id} before its keyframe")
+        for k in update.culled_keyframes.tolist():
+            self.closing.erase(k)
+        self.closing.add(kf)
+        if update.active_flags_changed:
+            self.closing.refresh_active_points(m)
+        if kf.id not in m.keyframes:
+            return LoopResult(kf.id, False)
+        return self._close(kf, m)
+
+    def _close(self, kf: Keyframe, m: SlamMap) -> LoopResult:
+        before = snapshot(m)
+        t0 = time.perf_counter()
+        closed = bool(self.closing.process(kf, m))
+        self.timings_ms.append((time.perf_counter() - t0) * 1e3)
+        if not closed:
+            return LoopResult(kf.id, False)
+        self.n_loops += 1
+        return LoopResult(kf.id, True, diff(before, m), self.closing.last_correction)
+
+
+def copy_packet(packet: KeyframePacket) -> KeyframePacket:
+    """What a receiver gets over the wire: its own copy (in-process chains must not share Keyframe objects)."""
+    return copy.deepcopy(packet)
+
+
+@dataclass
+class ChainedGraph:
+    """The three sides called in the graph's lossless order in one process (tests, benchmarks)."""
+
+    tracking: TrackingSide
+    owner: MapOwner
+    loop: LoopSide | None
+
+    @staticmethod
+    def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config", objects: str = "config") -> ChainedGraph:
+        return ChainedGraph(TrackingSide.build(cfg, loop, dynamic), MapOwner.build(cfg, objects),
+                            LoopSide.build(cfg) if loop else None)  # fmt: skip
+
+    def process(self, rgbd: RgbdFrame, detections: Any = None) -> FrameOutput:
+        out, packet = self.tracking.process(rgbd, detections)
+        if packet is None:
+            return out
+        update = self.owner.on_keyframe(copy_packet(packet))
+        if self.loop is not None:
+            self.loop.on_keyframe(copy_packet(packet))
+        self.tracking.apply_update(copy.deepcopy(update))
+        if self.loop is not None:
+            result = self.loop.on_update(copy.deepcopy(update))
+            relay = self.owner.on_loop(copy.deepcopy(result)) if result is not None else None
+            if relay is not None:
+                self.tracking.apply_update(copy.deepcopy(relay))
+                self.loop.on_update(copy.deepcopy(relay))
+                self.tracking.n_loops += 1
+        return out
