@@ -49,6 +49,8 @@ class TrackingConfig:
     - `close_tracked_min`, `close_untracked_min`: ORB-SLAM's "need close points" rule (100 / 70).
     - `max_time_gap_s`: a larger (or negative) stamp step invalidates the motion model.
     - `n_reloc_candidates`: keyframes tried per relocalisation; `lost_frames_new_map`: failures before a new map.
+    - `loaded_map_grace_s`: a session started from a saved map (`Tracker.start_from_map`) tries relocalisation
+      against it on every frame for this long (seconds from the first frame) before it starts a new map.
     """
 
     min_init_points: int = 300
@@ -67,6 +69,7 @@ class TrackingConfig:
     max_time_gap_s: float = 0.5
     n_reloc_candidates: int = 6
     lost_frames_new_map: int = 30
+    loaded_map_grace_s: float = 2.0
 
 
 class KeyframeCandidates(Protocol):
@@ -122,10 +125,32 @@ class Tracker:
         self.n_lost = 0
         self.next_kf_id = 0
         self.last_good_pose: F64 = np.eye(4)
+        self.awaiting_loaded_map = False  # a loaded map: relocalise against it before starting a new one
+        self._grace_start_ns: int | None = None
+        self.loaded_map_relocalised_index = -1  # the frame that relocalised in the loaded map, -1 = not (yet)
 
     @property
     def map(self) -> SlamMap:
         return self.atlas.current
+
+    def start_from_map(self, next_keyframe_id: int) -> None:
+        """Begin a session on a loaded Atlas (multi-session): every frame tries relocalisation against
+        `atlas.current` for `loaded_map_grace_s` seconds before a new map is started; new keyframes take ids
+        from `next_keyframe_id` on."""
+        self.state = TrackingState.LOST
+        self.n_lost = 0
+        self.next_kf_id = max(self.next_kf_id, int(next_keyframe_id))
+        self.awaiting_loaded_map = True
+        self._grace_start_ns = None
+
+    def _within_grace(self, frame: Frame) -> bool:
+        """Still waiting to relocalise in the loaded map (False once the grace period is over)."""
+        if self._grace_start_ns is None:
+            self._grace_start_ns = frame.stamp_ns
+        if (frame.stamp_ns - self._grace_start_ns) * 1e-9 < self.cfg.loaded_map_grace_s:
+            return True
+        self.awaiting_loaded_map = False
+        return False
 
     # 0. Entry point -------------------------------------------------------------------------------
     def track(self, frame: Frame) -> TrackResult:
@@ -145,12 +170,19 @@ class Tracker:
             self.state = TrackingState.OK
             self.n_lost = 0
             self.last_reloc_index = frame.index
+            if self.awaiting_loaded_map:
+                self.awaiting_loaded_map = False
+                self.loaded_map_relocalised_index = frame.index
             res = self._accept(frame)
             res.relocalised = True
             return res
         self.n_lost += 1
         self.last_frame = frame
         self.velocity = None
+        if self.awaiting_loaded_map:
+            if self._within_grace(frame):
+                return TrackResult(TrackingState.LOST, None, 0, None)
+            return self._initialise(frame, self.last_good_pose, new_map=True)
         if self.n_lost >= self.cfg.lost_frames_new_map:
             res = self._initialise(frame, self.last_good_pose, new_map=True)
             return res
