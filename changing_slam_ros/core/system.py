@@ -26,7 +26,7 @@ from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
 from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig, MappingStats
-from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerResult
+from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
 from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.se3 import invert
@@ -118,6 +118,27 @@ class SlamSystem:
         self.records: list[FrameRecord] = []
         self.timings_ms: dict[str, list[float]] = defaultdict(list)
         self.n_loops = 0
+
+    def start_from_map(self, atlas: Atlas, next_keyframe_id: int,
+                       objects: dict[int, SavedObjectMap] | None = None) -> None:
+        """Multi-session: continue a saved Atlas (`io.map_file.load_map`) before the first frame. The keyframe
+        index gets every loaded keyframe (bag-of-words rebuilt from its descriptors, inactive points masked),
+        tracking relocalises against `atlas.current` first (`TrackingConfig.loaded_map_grace_s`), and the object
+        layer starts from the saved objects and beliefs. Poses stay in the loaded map's frame."""
+        if self.records:
+            raise RuntimeError("start_from_map must be called before the first frame")
+        self.atlas.maps, self.atlas.current = atlas.maps, atlas.current
+        refresh = getattr(self.loop_closer, "refresh_active_points", None)
+        for m in self.atlas.maps:
+            if self.keyframe_index is not None:
+                for kf_id in sorted(m.keyframes):
+                    self.keyframe_index.add(m.keyframes[kf_id])
+            if refresh is not None:
+                refresh(m)
+        if self.object_layer is not None and self.object_layer.enabled:
+            for map_id, saved in (objects or {}).items():
+                self.object_layer.load_objects(map_id, saved, next_keyframe_id)
+        self.tracker.start_from_map(next_keyframe_id)
 
     def _extractor_for(self, camera: CameraIntrinsics) -> OrbExtractor:
         if self._extractor is None or camera != self._camera:
