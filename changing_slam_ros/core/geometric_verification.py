@@ -7,8 +7,10 @@ Steps (the RGB-D counterpart of ORB-SLAM's Sim3 solver + guided search, scale fi
    scale) in *both* images;
 3. refine: re-estimate from all inliers (depth-weighted Kabsch), then search by projection for more matches
    (keypoints of b projected into a, nearest descriptor within a radius) and re-estimate once more;
-4. accept only with `min_inliers` inliers. A candidate from another place yields few consistent pairs and
-   is rejected.
+4. accept only with `min_inliers` inliers spread over the image: they must fall in at least
+   `min_inlier_cells` cells of a `spread_grid` grid in *both* views. A candidate from another place yields few
+   consistent pairs and is rejected; a few dozen pairs bunched on one patch (a repeated wallpaper motif, one
+   printed object) do not describe a place and are rejected too.
 """
 
 from __future__ import annotations
@@ -51,6 +53,8 @@ class VerificationConfig:
     scale_factor: float = 1.2  # pyramid scale, for the per-octave threshold
     min_ransac_inliers: int = 15
     min_inliers: int = 40  # ORB-SLAM accepts a loop with >= 40 matched points
+    spread_grid: tuple[int, int] = (8, 6)  # (columns, rows) of the image grid for the spread test
+    min_inlier_cells: int = 8  # inliers must occupy at least this many grid cells in each view (1/6 of 8 x 6)
     min_depth_m: float = 0.1
     max_depth_m: float = 8.0
     seed: int = 0
@@ -113,9 +117,21 @@ def verify(
     matches = matches[keep]
     if len(matches) < config.min_inliers:
         return None
+    if min(inlier_cells(a, matches[:, 0], config.spread_grid), inlier_cells(b, matches[:, 1], config.spread_grid)) \
+            < config.min_inlier_cells:
+        return None
     pred = a.camera.project(_apply(T, pb[matches[:, 1]]))
     rmse = float(np.sqrt(np.mean(np.sum((pred - a.keypoints_px[matches[:, 0]]) ** 2, axis=1))))
     return Verification(T, matches.astype(np.int64), rmse)
+
+
+def inlier_cells(view: FeatureView, indices: I64, grid: tuple[int, int]) -> int:
+    """How many cells of a (columns, rows) grid over the image the keypoints `indices` of `view` occupy."""
+    cols, rows = grid
+    kp = np.asarray(view.keypoints_px, np.float64)[np.asarray(indices, np.int64)]
+    cx = np.clip((kp[:, 0] * cols / view.camera.width).astype(np.int64), 0, cols - 1)
+    cy = np.clip((kp[:, 1] * rows / view.camera.height).astype(np.int64), 0, rows - 1)
+    return int(len(np.unique(cy * cols + cx)))
 
 
 def match_descriptors(

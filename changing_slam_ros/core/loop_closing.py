@@ -5,7 +5,9 @@ For every new keyframe, `LoopCloser.process`:
 2. after `min_keyframes_in_map` keyframes and `min_keyframes_between_loops` since the last loop, asks the
    database for loop candidates scoring at least as well as the keyframe's worst covisible neighbour;
 3. keeps candidates whose covisibility group stays consistent over `consistency_threshold` keyframes;
-4. verifies them geometrically with depth (`geometric_verification.verify`); the first that passes is the loop;
+4. verifies them geometrically with depth (`geometric_verification.verify`) and checks the correction against
+   the drift expected over the path between the two keyframes (`place_recognition.check_drift`); the first
+   that passes both is the loop;
 5. moves the keyframe and its covisible neighbours by the loop correction (initial guess), optimises the
    essential graph (spanning tree + strong covisibility + past loop edges + this loop's connections between
    the two neighbourhoods) with GTSAM, and moves every map point with its reference keyframe.
@@ -42,9 +44,13 @@ from changing_slam_ros.core.keyframe_database import Covisibility, KeyframeDatab
 from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.place_recognition import (
     ConsistencyChecker,
+    DriftCheck,
+    DriftGateConfig,
     Relocalisation,
     RelocalisationConfig,
+    check_drift,
     neighbours,
+    path_travelled,
     relocalise,
 )
 from changing_slam_ros.core.se3 import invert
@@ -66,6 +72,7 @@ class LoopConfig:
     min_score_floor: float = 0.0  # lower bound on the candidate score (ORB-SLAM uses the covisible minimum only)
     max_verified_candidates: int = 5
     verification: VerificationConfig = field(default_factory=VerificationConfig)
+    drift_gate: DriftGateConfig = field(default_factory=DriftGateConfig)  # verified loop vs odometry drift
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     relocalisation: RelocalisationConfig = field(default_factory=RelocalisationConfig)
 
@@ -106,6 +113,7 @@ class LoopStats:
     with_candidates: int = 0
     verified: int = 0
     rejected: int = 0
+    rejected_drift: int = 0  # verified, but the correction is implausible for the path travelled (DriftGate)
     loops: int = 0
 
 
@@ -142,6 +150,7 @@ class LoopCloser:
         self._loop_edges: list[tuple[int, int]] = []  # (match, query) pairs of accepted loops
         self._last_loop_kf_id = -(10**9)
         self.stats = LoopStats()
+        self.last_drift_check: DriftCheck | None = None  # of the latest verified candidate
 
     # ------------------------------------------------------------------ bookkeeping
     @property
@@ -231,6 +240,12 @@ class LoopCloser:
                 continue
             v = verify(match, keyframe, cfg.verification, self._masks[match.id], self._masks[keyframe.id])
             self.stats.verified += 1
+            if v is not None:
+                drift = self._drift_check(match, keyframe, v)
+                self.last_drift_check = drift
+                if not drift.accepted:
+                    self.stats.rejected_drift += 1
+                    v = None
             self.stats.rejected += int(v is None)
             if v is not None:
                 self.stats.loops += 1
@@ -241,6 +256,16 @@ class LoopCloser:
                 self._consistency.reset()
                 return correction
         return None
+
+    def _drift_check(self, match: Keyframe, query: Keyframe, v: Verification) -> DriftCheck:
+        """The verified loop against the drift expected over the path from `match` to `query` (held keyframes of
+        their map, in id order: the trajectory between them as currently estimated)."""
+        lo, hi = sorted((match.id, query.id))
+        chain = [self._keyframes[k].T_world_cam for k in sorted(self._keyframes)
+                 if lo <= k <= hi and self._keyframes[k].map_id == query.map_id]
+        path_m, turn_deg = path_travelled(chain)
+        T_est = invert(match.T_world_cam) @ query.T_world_cam
+        return check_drift(T_est, v.T_a_b, path_m, turn_deg, self.config.drift_gate)
 
     def _correct(
         self,

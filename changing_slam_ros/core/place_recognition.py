@@ -4,6 +4,13 @@
   candidate with its covisible keyframes; a group is consistent with a group of the previous query when they
   share a keyframe, and a candidate is accepted once its group has been consistent over
   `threshold` consecutive keyframes. A single lucky BoW match therefore never triggers a loop.
+- `DriftGate` checks a verified loop against the odometry: the correction it implies (the verified relative
+  pose of the two keyframes against their current estimate) must be a plausible drift for the path travelled
+  between them. Drift is modelled as zero-mean with a standard deviation growing linearly with the distance
+  and the angle travelled (`sigma_floor_m + sigma_per_m * path`, `sigma_floor_deg + sigma_per_deg * turn`);
+  the correction's squared normalised translation plus rotation must stay under `chi2_max` (chi2 with 2
+  dof). A repeated texture (a wallpaper motif a tile away) can pass RANSAC with a pose a whole period off a
+  few seconds after the robot left that place; no odometry drifts a metre in a metre of travel.
 - `relocalise` recovers the pose of a lost frame: candidates from the database, descriptor matching against
   the map points of each candidate and its covisible keyframes, `cv2.solvePnPRansac`, then a refinement on
   the inliers. The first candidate with enough inliers wins.
@@ -70,6 +77,60 @@ class ConsistencyChecker:
                 current.append((group, 0))
         self._groups = current
         return accepted
+
+
+@dataclass(frozen=True)
+class DriftGateConfig:
+    """YAML section `loop.drift_gate`. The defaults are loose (10 % of the path, 10 % of the turn): they only
+    refuse corrections no odometry could need, and let through the synthetic tests' 1 deg per keyframe bias."""
+
+    enabled: bool = True
+    sigma_floor_m: float = 0.05
+    sigma_per_m: float = 0.1  # translation drift std per metre travelled between the two keyframes
+    sigma_floor_deg: float = 1.0
+    sigma_per_deg: float = 0.1  # rotation drift std per degree turned between the two keyframes
+    chi2_max: float = 9.21  # chi2(2 dof) at 99 %
+
+
+@dataclass(frozen=True)
+class DriftCheck:
+    """The loop correction against the expected drift: correction size, path travelled, chi2, verdict."""
+
+    correction_m: float
+    correction_deg: float
+    path_m: float
+    turn_deg: float
+    chi2: float
+    accepted: bool
+
+
+def path_travelled(poses: Iterable[F64]) -> tuple[float, float]:
+    """Distance (m) and total rotation (deg) along consecutive T_world_cam (4, 4) poses."""
+    dist, turn = 0.0, 0.0
+    prev: F64 | None = None
+    for T in poses:
+        if prev is not None:
+            rel = invert(prev) @ T
+            dist += float(np.linalg.norm(rel[:3, 3]))
+            turn += _angle_deg(rel)
+        prev = T
+    return dist, turn
+
+
+def check_drift(T_est_a_b: F64, T_loop_a_b: F64, path_m: float, turn_deg: float, config: DriftGateConfig) -> DriftCheck:
+    """Compare a verified relative pose `T_loop_a_b` (4, 4) with the current estimate `T_est_a_b` (4, 4) of the same
+    two keyframes, `path_m` / `turn_deg` travelled between them (see `DriftGateConfig`)."""
+    d = invert(T_est_a_b) @ T_loop_a_b
+    dt = float(np.linalg.norm(d[:3, 3]))
+    dr = _angle_deg(d)
+    st = config.sigma_floor_m + config.sigma_per_m * path_m
+    sr = config.sigma_floor_deg + config.sigma_per_deg * turn_deg
+    chi2 = (dt / st) ** 2 + (dr / sr) ** 2
+    return DriftCheck(dt, dr, path_m, turn_deg, chi2, (not config.enabled) or chi2 <= config.chi2_max)
+
+
+def _angle_deg(T: F64) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 @dataclass(frozen=True)
