@@ -122,34 +122,6 @@ def loop_error(gt: Trajectory, rec: LoopRecord) -> tuple[float, float] | None:
     return float(np.linalg.norm(E[:3, 3])), float(np.degrees(rotation_angle_rad(E[:3, :3])))
 
 
-def object_map_arrays(layer: ObjectLayer) -> dict[str, np.ndarray]:
-    """Arrays to embed in map.npz: `m{map_id}_objects_json`, the object-map document (`io.semantic_map_file`
-    layout, version 1) of each map as one JSON string; read back with `read_object_map_arrays`."""
-    import json
-
-    from changing_slam_ros.io.semantic_map_file import object_map_to_dict
-
-    return {f"m{m}_objects_json": np.array(json.dumps(object_map_to_dict(layer.objects(m)), separators=(",", ":")))
-            for m in layer.map_ids}
-
-
-def read_object_map_arrays(arrays: dict[str, np.ndarray], map_id: int, where: str) -> list[MapObject]:
-    """The MapObjects embedded in a map file's arrays for `map_id` (empty when the map has none)."""
-    import json
-
-    from changing_slam_ros.errors import MapFileError
-    from changing_slam_ros.io.semantic_map_file import object_map_from_dict
-
-    key = f"m{map_id}_objects_json"
-    if key not in arrays:
-        return []
-    try:
-        doc = json.loads(str(arrays[key]))
-    except json.JSONDecodeError as err:
-        raise MapFileError(f"{where}: {key}: not valid JSON ({err})") from err
-    return object_map_from_dict(doc, f"{where}: {key}")
-
-
 def find_objects_ground_truth(source: str | Path) -> Path | None:
     """The simulator's objects.json inside a TUM folder SOURCE, or beside a file SOURCE."""
     p = Path(source)

@@ -1,7 +1,8 @@
 """`changing-slam run SOURCE --out DIR [--config YAML]`: the SLAM pipeline offline, every frame processed.
 
     changing-slam run SOURCE --out DIR [--config NAME|FILE] [--max-frames N] [--no-loop] [--no-plot] [--quiet]
-        [--detections none|model|oracle] [--detections-file FILE] [--no-dynamic] [ablation switches]
+        [--map-in PREVIOUS/map.npz] [--detections none|model|oracle] [--detections-file FILE] [--no-dynamic]
+        [ablation switches]
 (dynamic-scene options: see `commands/dynamic_options.py`).
 
 SOURCE is anything `io.dataset.open_dataset` reads (TUM-layout folder, 7-Scenes, ROS 1/2 bag, mcap).
@@ -9,17 +10,21 @@ DIR receives:
 - `trajectory.txt`         final poses (TUM), each frame re-expressed from its reference keyframe;
 - `trajectory_online.txt`  poses as tracking estimated them live;
 - `keyframes.txt`          keyframe poses (TUM);
-- `map.npz`                the map (versioned, see `MAP_FORMAT_VERSION`);
+- `map.npz`                the map (versioned, `io.map_file`): every map of the Atlas with keyframes, points,
+                           graph and object map; `--map-in` starts a later run from it;
 - `metrics.json`           frames tracked, keyframes, loops, speed; ATE / RPE when ground truth exists;
 - `timing.json`            per-stage milliseconds (count, mean, p50, p90, p99, max);
 - `trajectory.png`         the final trajectory against ground truth (when it exists).
+Multi-session (`--map-in PREVIOUS/map.npz`): the run continues the saved Atlas; every frame first tries
+relocalisation against the saved current map (for `tracking.loaded_map_grace_s`, 2 s by default, then a new map
+is started), trajectories are in the saved map's frame, the object layer starts from the saved objects and
+beliefs, and metrics.json `multi_session` says when (frame index, seconds) the run relocalised.
 The run is deterministic for a given config (single-threaded OpenCV, seeded RNG, frames in order).
 """
 
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import queue
 import threading
@@ -32,21 +37,18 @@ import numpy as np
 
 from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dynamic_setup
 from changing_slam_ros.commands.objects_options import (
-    LoopLog, add_object_arguments, object_layer_setup, object_map_arrays, write_object_outputs,
+    LoopLog, add_object_arguments, object_layer_setup, write_object_outputs,
 )
 from changing_slam_ros.config import find_config, load_yaml, section
 from changing_slam_ros.core.local_mapping import MappingConfig
 from changing_slam_ros.core.orb_features import FeatureConfig
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.slam_map import Atlas
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.tracking import TrackingConfig
 from changing_slam_ros.errors import EvalError
-from changing_slam_ros.io.atomic import atomic_write_bytes, atomic_write_text
+from changing_slam_ros.io.atomic import atomic_write_text
+from changing_slam_ros.io.map_file import load_map, save_map
 from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
-
-MAP_FORMAT_VERSION = 1
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", metavar="SOURCE", help="TUM-layout folder, ROS 1/2 bag or mcap file")
@@ -56,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-loop", action="store_true", help="disable loop closing")
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--map-in", metavar="MAP", help="start from a map saved by an earlier run (its DIR/map.npz): "
+                        "relocalise in it first (tracking.loaded_map_grace_s), poses in its frame, objects and "
+                        "beliefs carried over")
     add_dynamic_arguments(parser)
     add_object_arguments(parser)
 
@@ -74,12 +79,15 @@ def main(args: argparse.Namespace) -> int:
     else:
         settings = load_dataset_settings(None)
     config = system_config_from_mapping(data, where)
+    loaded = load_map(args.map_in) if args.map_in else None  # a bad map fails before any frame is read
     source = open_dataset(args.source, settings)
     closing = None if args.no_loop else _loop_closing(data, where)
     dynamic = dynamic_setup(args, data, where)
     objects = object_layer_setup(args, data, where)
     system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=dynamic.filter,
                         object_layer=objects)
+    if loaded is not None:
+        system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
     loops = LoopLog()
 
     n_total = len(source) if not args.max_frames else min(args.max_frames, len(source))
@@ -96,7 +104,7 @@ def main(args: argparse.Namespace) -> int:
     write_tum_trajectory(out / "trajectory.txt", final)
     write_tum_trajectory(out / "trajectory_online.txt", online)
     write_tum_trajectory(out / "keyframes.txt", system.keyframe_trajectory())
-    save_map(out / "map.npz", system.atlas, object_map_arrays(objects))
+    save_map(out / "map.npz", system.atlas, objects, system.tracker.next_kf_id)
     timing = system.timing_summary()
     metrics: dict[str, Any] = {
         "source": str(args.source),
@@ -112,6 +120,8 @@ def main(args: argparse.Namespace) -> int:
         "tracking_ms_median": timing.get("tracking", {}).get("p50", 0.0),
         "dynamic": dynamic.summary(),
     }
+    if args.map_in:
+        metrics["multi_session"] = multi_session_summary(system, args.map_in)
     gt = source.groundtruth
     if gt is not None and len(final) >= 3:
         metrics.update(_evaluate(gt, final, online, out, args.no_plot))
@@ -128,6 +138,17 @@ def main(args: argparse.Namespace) -> int:
     print(line)
     print(f"results in {out}")
     return 0
+
+
+def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:
+    """metrics.json `multi_session`: the loaded map and when tracking relocalised in it (frame index, seconds after
+    the first frame; None when it never did and a new map was started)."""
+    i = system.tracker.loaded_map_relocalised_index
+    out: dict[str, Any] = {"map_in": str(map_in), "relocalised": i >= 0, "relocalised_frame": i if i >= 0 else None,
+                           "relocalised_after_s": None}
+    if i >= 0 and system.records:
+        out["relocalised_after_s"] = (system.records[i].stamp_ns - system.records[0].stamp_ns) * 1e-9
+    return out
 
 
 def system_config_from_mapping(data: dict[str, Any], where: str) -> SystemConfig:
@@ -211,47 +232,3 @@ def _evaluate(gt: Any, final: Any, online: Any, out: Path, no_plot: bool) -> dic
 
         plot_ate(ate(gt, final, est_name="trajectory.txt"), out / "trajectory.png", gt_full=gt, title="final trajectory")
     return result
-
-
-def save_map(path: Path, atlas: Atlas, extra: dict[str, np.ndarray] | None = None) -> None:
-    """Write the Atlas as one npz (atomic): per map, keyframes and usable points with observations.
-
-    Arrays, prefixed `m{map_id}_`: `kf_ids` (K,), `kf_stamps_ns` (K,), `kf_poses` (K, 4, 4) camera-to-world,
-    `point_ids` (P,), `point_positions` (P, 3), `point_descriptors` (P, 32), `point_active` (P,),
-    `obs` (E, 3) rows (point id, keyframe id, keypoint index). Top level: `format_version`, `map_ids`, and
-    the arrays of `extra` (e.g. `m{map_id}_objects_json`, the object map, from `objects_options.object_map_arrays`).
-    """
-    arrays: dict[str, Any] = {"format_version": np.array(MAP_FORMAT_VERSION), "map_ids": np.array([m.id for m in atlas.maps])}
-    for m in atlas.maps:
-        kfs = sorted(m.keyframes.values(), key=lambda k: k.id)
-        pre = f"m{m.id}_"
-        arrays[pre + "kf_ids"] = np.array([k.id for k in kfs], np.int64)
-        arrays[pre + "kf_stamps_ns"] = np.array([k.stamp_ns for k in kfs], np.int64)
-        arrays[pre + "kf_poses"] = np.array([k.T_world_cam for k in kfs]).reshape(-1, 4, 4)
-        ids = np.flatnonzero(~m.points.bad[: m.points.size])
-        arrays[pre + "point_ids"] = ids
-        arrays[pre + "point_positions"] = m.points.positions[ids]
-        arrays[pre + "point_descriptors"] = m.points.descriptors[ids]
-        arrays[pre + "point_active"] = m.points.active[ids]
-        obs = [(p, k, i) for p in ids.tolist() for k, i in m.points.observations[p].items()]
-        arrays[pre + "obs"] = np.array(obs, np.int64).reshape(-1, 3)
-    arrays.update(extra or {})
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    atomic_write_bytes(path, buf.getvalue())
-
-
-def load_map_arrays(path: Path) -> dict[str, np.ndarray]:
-    """Read a map written by `save_map`; raise MapFileError on a wrong or missing version."""
-    from changing_slam_ros.errors import MapFileError
-
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as err:
-        raise MapFileError(f"{path}: cannot read map ({err})") from err
-    if "format_version" not in arrays:
-        raise MapFileError(f"{path}: not a map file (no format_version)")
-    if int(arrays["format_version"]) != MAP_FORMAT_VERSION:
-        raise MapFileError(f"{path}: map format version {int(arrays['format_version'])}, expected {MAP_FORMAT_VERSION}")
-    return arrays

@@ -1,4 +1,4 @@
-"""The run helpers of the object layer: loop error against ground truth, alignment of objects, map embedding."""
+"""The run helpers of the object layer: loop error against ground truth, alignment of objects, the object map in the map file."""
 
 from __future__ import annotations
 
@@ -8,15 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from changing_slam_ros.commands.objects_options import (
-    LoopRecord, aligned_objects, loop_error, object_layer_setup, object_map_arrays, read_object_map_arrays,
-    trajectory_alignment,
+    LoopRecord, aligned_objects, loop_error, object_layer_setup, trajectory_alignment,
 )
-from changing_slam_ros.commands.run import load_map_arrays, save_map
 from changing_slam_ros.core.map_object import MapObject
 from changing_slam_ros.core.object_layer import ObjectLayer
 from changing_slam_ros.core.se3 import make_pose
 from changing_slam_ros.core.slam_map import Atlas
 from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.io.map_file import load_map, save_map
 
 
 def _rot_z(deg: float) -> np.ndarray:
@@ -59,7 +58,7 @@ def test_objects_are_moved_into_the_ground_truth_frame_with_the_trajectory_align
     np.testing.assert_allclose(obj.points_w, pts_est)  # the original is untouched
 
 
-def test_object_map_is_embedded_in_the_map_file(tmp_path: Path) -> None:
+def test_object_map_is_saved_in_the_map_file(tmp_path: Path) -> None:
     layer = object_layer_setup(argparse.Namespace(objects=None), {"objects": {"belief_threshold": 0.7}}, "test")
     assert layer.enabled and layer.config.association.belief_threshold == 0.7
     assert not object_layer_setup(argparse.Namespace(objects=False), {}, "test").enabled
@@ -67,11 +66,11 @@ def test_object_map_is_embedded_in_the_map_file(tmp_path: Path) -> None:
                     point_ids=np.array([5, -2, -3]), points_w=np.array([[0.0, 1, 2], [0.1, 1, 2], [0.0, 1.2, 2]]))
     layer.association(0).add_object(obj)
     path = tmp_path / "map.npz"
-    save_map(path, Atlas(), object_map_arrays(layer))
-    arrays = load_map_arrays(path)
-    (back,) = read_object_map_arrays(arrays, 0, str(path))
+    save_map(path, Atlas(), layer)
+    loaded = load_map(path)
+    (back,) = loaded.objects[0].objects
     assert (back.id, back.class_id, back.belief, back.active, back.last_seen_keyframe) == (4, 62, 0.83, True, 9)
     np.testing.assert_array_equal(back.point_ids, obj.point_ids)
     np.testing.assert_allclose(back.centroid_w, obj.centroid_w)
-    assert read_object_map_arrays(arrays, 1, str(path)) == []
+    assert set(loaded.objects) == {0}
     assert isinstance(ObjectLayer().map_ids, list)

@@ -9,7 +9,7 @@ import pytest
 from helpers import FR1_XYZ_10, require
 
 from changing_slam_ros.cli import main as cli_main
-from changing_slam_ros.commands.run import MAP_FORMAT_VERSION, load_map_arrays
+from changing_slam_ros.io.map_file import MAP_FORMAT_VERSION, load_map, read_map_arrays
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
@@ -27,22 +27,46 @@ def test_run_writes_every_output_and_meets_the_fr1_ate_bound(tmp_path) -> None:
     assert len(read_tum_trajectory(out / "trajectory.txt")) == 9
     timing = json.loads((out / "timing.json").read_text())
     assert timing["tracking"]["count"] == 9 and timing["tracking"]["p50"] > 0
-    arrays = load_map_arrays(out / "map.npz")
+    arrays = read_map_arrays(out / "map.npz")
     assert int(arrays["format_version"]) == MAP_FORMAT_VERSION
     assert len(arrays["m0_kf_ids"]) == metrics["keyframes"]
-    assert len(arrays["m0_point_positions"]) >= metrics["map_points"] > 300
+    usable = ~arrays["m0_pt_bad"] & arrays["m0_pt_active"]
+    assert usable.sum() == metrics["map_points"] > 300
     # Observations reference stored points and keyframes only.
-    assert np.isin(arrays["m0_obs"][:, 0], arrays["m0_point_ids"]).all()
-    assert np.isin(arrays["m0_obs"][:, 1], arrays["m0_kf_ids"]).all()
+    assert (arrays["m0_pt_obs"][:, 0] < int(arrays["m0_pt_size"])).all()
+    assert np.isin(arrays["m0_pt_obs"][:, 1], arrays["m0_kf_ids"]).all()
+
+
+@pytest.mark.slow
+def test_second_run_starts_from_the_saved_map(tmp_path, capsys) -> None:
+    """--map-in: the second run relocalises in the first run's map at its first frame, keeps its keyframes and
+    reports its trajectory in that map's frame (the same frames: poses within 2 cm of the first run's)."""
+    first, second = tmp_path / "first", tmp_path / "second"
+    data = str(require(FR1_XYZ_10))
+    assert cli_main(["run", data, "--out", str(first), "--config", "tum_fr1", "--quiet", "--no-plot"]) == 0
+    assert cli_main(["run", data, "--out", str(second), "--config", "tum_fr1", "--quiet", "--no-plot",
+                     "--map-in", str(first / "map.npz")]) == 0
+    m1 = json.loads((first / "metrics.json").read_text())
+    m2 = json.loads((second / "metrics.json").read_text())
+    assert m2["multi_session"]["relocalised"] and m2["multi_session"]["relocalised_frame"] == 0
+    assert m2["multi_session"]["relocalised_after_s"] == 0.0
+    assert m2["maps"] == 1 and m2["keyframes"] >= m1["keyframes"]
+    t1, t2 = read_tum_trajectory(first / "trajectory.txt"), read_tum_trajectory(second / "trajectory.txt")
+    assert len(t2) == len(t1) == 9
+    assert np.abs(t1.positions - t2.positions).max() < 0.02
+    assert len(load_map(second / "map.npz").atlas.maps[0].keyframes) == m2["keyframes"]
+    rc = cli_main(["run", data, "--out", str(tmp_path / "third"), "--config", "tum_fr1", "--quiet",
+                   "--map-in", str(tmp_path / "missing.npz")])
+    assert rc == 1 and "missing.npz: cannot read map" in capsys.readouterr().err
 
 
 def test_map_file_of_another_version_is_refused(tmp_path) -> None:
     path = tmp_path / "map.npz"
     np.savez(path, format_version=np.array(MAP_FORMAT_VERSION + 1))
     with pytest.raises(MapFileError, match="version"):
-        load_map_arrays(path)
+        read_map_arrays(path)
     with pytest.raises(MapFileError, match="cannot read"):
-        load_map_arrays(tmp_path / "missing.npz")
+        read_map_arrays(tmp_path / "missing.npz")
 
 
 def test_run_on_a_missing_source_fails_with_one_line(tmp_path, capsys) -> None:

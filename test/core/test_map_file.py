@@ -1,0 +1,144 @@
+"""The map file (`io.map_file`): a real map (3 s of the simulated `static` room, oracle boxes, object layer) saved,
+loaded and saved again gives the same bytes and equal fields; damaged files give errors naming file and field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from changing_slam_ros.core.dynamic_filter import DynamicFilter
+from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+from changing_slam_ros.core.object_layer import ObjectLayer
+from changing_slam_ros.core.system import SlamSystem
+from changing_slam_ros.core.vocabulary import Vocabulary
+from changing_slam_ros.errors import MapFileError
+from changing_slam_ros.io.map_file import load_map, npz_bytes, read_map_arrays, save_map
+
+FPS, FRAMES = 15.0, 45
+
+
+@pytest.fixture(scope="module")
+def mapped(tmp_path_factory: pytest.TempPathFactory) -> tuple[SlamSystem, Path]:
+    from changing_slam_ros.errors import SimError
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file
+    from changing_slam_ros.sim import renderer  # noqa: F401 - sets MUJOCO_GL before mujoco loads
+    from changing_slam_ros.sim.scenarios import build_scenario
+    from changing_slam_ros.sim.sequence import RenderOptions, simulate
+
+    root = tmp_path_factory.mktemp("map_file")
+    try:
+        simulate(build_scenario("static", 0), root / "static", RenderOptions(width=320, height=240, frames=FRAMES, fps=FPS), 0)
+    except SimError as err:
+        pytest.skip(f"no offscreen rendering here: {err}")
+    source = open_dataset(root / "static", "sim")
+    oracle = read_detections_file(find_detections_file(root / "static"))
+    closing = SlamMapLoopClosing(LoopCloser(LoopConfig(), Vocabulary.load()))
+    system = SlamSystem(loop_closer=closing, keyframe_index=closing, dynamic_filter=DynamicFilter(),
+                        object_layer=ObjectLayer())
+    for rgbd in source:
+        system.process(rgbd, oracle.for_stamp(rgbd.stamp_ns))
+    path = root / "map.npz"
+    save_map(path, system.atlas, system.object_layer, system.tracker.next_kf_id)
+    return system, path
+
+
+def test_save_load_save_is_byte_identical_and_field_equal(mapped: tuple[SlamSystem, Path], tmp_path: Path) -> None:
+    system, path = mapped
+    assert system.object_layer is not None
+    m0 = system.atlas.maps[0]
+    assert len(m0.keyframes) >= 3 and m0.points.size > 500 and len(system.object_layer.objects(0)) >= 2
+
+    loaded = load_map(path)
+    again = tmp_path / "again.npz"
+    save_map(again, loaded.atlas, loaded.objects, loaded.next_keyframe_id)
+    assert again.read_bytes() == path.read_bytes()
+
+    m1 = loaded.atlas.maps[0]
+    assert loaded.next_keyframe_id == system.tracker.next_kf_id and loaded.atlas.current.id == system.atlas.current.id
+    # keyframes: every feature array, pose and camera
+    assert sorted(m1.keyframes) == sorted(m0.keyframes)
+    for k, kf in m0.keyframes.items():
+        back = m1.keyframes[k]
+        assert (back.stamp_ns, back.camera, back.map_id) == (kf.stamp_ns, kf.camera, kf.map_id)
+        np.testing.assert_array_equal(back.T_world_cam, kf.T_world_cam)
+        for name in ("keypoints_px", "octaves", "descriptors", "depths_m", "point_ids", "kp_classes", "object_ids"):
+            a, b = getattr(kf, name), getattr(back, name)
+            assert a.dtype == b.dtype, name
+            np.testing.assert_array_equal(a, b, err_msg=name)
+    # points: every column, observations in order
+    assert m1.points.size == m0.points.size
+    for name, col in m0.points.column_arrays().items():
+        np.testing.assert_array_equal(m1.points.column_arrays()[name], col, err_msg=name)
+    assert [list(o.items()) for o in m1.points.observations] == [list(o.items()) for o in m0.points.observations[: m0.points.size]]
+    # graph
+    assert m1.covisibility == m0.covisibility and m1.parent == m0.parent and m1.children == m0.children
+    assert m1.loop_edges == m0.loop_edges and m1.origin_kf_id == m0.origin_kf_id
+    assert m1.removed.keys() == m0.removed.keys()
+    for k, r in m0.removed.items():
+        assert m1.removed[k].parent_id == r.parent_id
+        np.testing.assert_array_equal(m1.removed[k].T_parent_kf, r.T_parent_kf)
+    # object map: beliefs, points, anchors
+    saved = system.object_layer.saved_objects(0)
+    back_objects = loaded.objects[0]
+    assert [(o.id, o.class_id, o.belief, o.active, o.last_seen_keyframe) for o in back_objects.objects] == \
+           [(o.id, o.class_id, o.belief, o.active, o.last_seen_keyframe) for o in saved.objects]
+    for a, b in zip(saved.objects, back_objects.objects):
+        np.testing.assert_array_equal(a.point_ids, b.point_ids)
+        np.testing.assert_allclose(a.points_w, b.points_w, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(back_objects.anchor_ids, saved.anchor_ids)
+    np.testing.assert_array_equal(back_objects.anchor_kf_ids, saved.anchor_kf_ids)
+    np.testing.assert_array_equal(back_objects.anchor_points_cam, saved.anchor_points_cam)
+    assert back_objects.next_sample_id == saved.next_sample_id < -2
+
+
+def _rewrite(path: Path, out: Path, change) -> Path:  # noqa: ANN001 - test helper
+    arrays = read_map_arrays(path)
+    change(arrays)
+    out.write_bytes(npz_bytes(arrays))
+    return out
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (lambda a: a.pop("m0_kp_px"), "m0_kp_px: missing"),
+    (lambda a: a.pop("m0_objects_json"), None),  # a map without object layer is valid
+    (lambda a: a.__setitem__("m0_kf_poses", a["m0_kf_poses"][:-1]), "m0_kf_poses: expected shape"),
+    (lambda a: a.__setitem__("m0_pt_positions", a["m0_pt_positions"].astype(np.float32) * np.nan), "m0_pt_positions: holds non-finite"),
+    (lambda a: a.__setitem__("m0_kp_point_ids", a["m0_kp_point_ids"] + 10**6), "m0_kp_point_ids: ids outside"),
+    (lambda a: a.__setitem__("m0_pt_obs", a["m0_pt_obs"][1:]), "m0_kp_point_ids: keyframe"),
+    (lambda a: a.__setitem__("m0_pt_descriptors", a["m0_pt_descriptors"].astype(np.float64)), "m0_pt_descriptors: expected dtype"),
+    (lambda a: a.__setitem__("current_map_id", np.array(7)), "current_map_id: 7 is not one of"),
+    (lambda a: a.__setitem__("m0_objects_json", np.array("{not json")), "m0_objects_json: not valid JSON"),
+    (lambda a: a.__setitem__("m0_parent", np.array([[10**6, 0]])), "m0_parent: unknown keyframe ids"),
+    (lambda a: a.__setitem__("format_version", np.array(1)), "version 1, expected 2 .written before multi-session"),
+])
+def test_damaged_fields_are_named(mapped: tuple[SlamSystem, Path], tmp_path: Path, change, message) -> None:  # noqa: ANN001
+    _, path = mapped
+    bad = _rewrite(path, tmp_path / "bad.npz", change)
+    if message is None:
+        assert load_map(bad).objects == {}
+        return
+    with pytest.raises(MapFileError, match=message) as err:
+        load_map(bad)
+    assert str(bad) in str(err.value)
+
+
+def test_truncated_corrupt_and_foreign_files(mapped: tuple[SlamSystem, Path], tmp_path: Path) -> None:
+    _, path = mapped
+    data = path.read_bytes()
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(MapFileError, match=f"{cut}: cannot read map"):
+        load_map(cut)
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"\x00" * 1000)
+    with pytest.raises(MapFileError, match="cannot read map"):
+        load_map(junk)
+    foreign = tmp_path / "foreign.npz"
+    np.savez(foreign, x=np.arange(3))
+    with pytest.raises(MapFileError, match="not a map file"):
+        load_map(foreign)
+    with pytest.raises(MapFileError, match="no such file"):
+        load_map(tmp_path / "none.npz")
