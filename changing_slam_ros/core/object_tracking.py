@@ -61,6 +61,42 @@ class ObjectTrackingConfig:
             raise ConfigError(f"object_tracking.window_keyposes: expected >= 2, got {self.window_keyposes}")
 
 
+@dataclass(frozen=True)
+class MovingObjectTrack:
+    """A moving object and its trajectory, as the system exports and publishes it.
+
+    - `object_id`: unique within the run; `class_id`: COCO 0-based class, -1 for a class-agnostic target.
+    - `stamps_ns`: (N,) int64 ascending, the frames where the object's pose was estimated.
+    - `T_world_obj`: (N, 4, 4) object-to-world poses (map frame: the SLAM world), object frame origin at
+      the centre of its points when it was first segmented, axes the world's then.
+    - `n_points`: points of the object's model.
+    """
+
+    object_id: int
+    class_id: int
+    stamps_ns: I64
+    T_world_obj: F64
+    n_points: int
+
+    def __post_init__(self) -> None:
+        n = len(self.stamps_ns)
+        if self.T_world_obj.shape != (n, 4, 4):
+            raise ValueError(f"MovingObjectTrack {self.object_id}: {n} stamps need T_world_obj ({n}, 4, 4), got {self.T_world_obj.shape}")
+        if n and np.any(np.diff(self.stamps_ns) <= 0):
+            raise ValueError(f"MovingObjectTrack {self.object_id}: stamps_ns must be strictly increasing")
+
+    @property
+    def first_stamp_ns(self) -> int:
+        return int(self.stamps_ns[0])
+
+    @property
+    def last_stamp_ns(self) -> int:
+        return int(self.stamps_ns[-1])
+
+    def trajectory(self) -> Trajectory:
+        return Trajectory.from_poses(self.stamps_ns.astype(np.float64) * 1e-9, self.T_world_obj)
+
+
 @dataclass
 class MovingObject:
     """One object target.
@@ -116,6 +152,12 @@ class MovingObject:
         """Object-to-world poses over time (TUM convention: origin of the object frame, orientation)."""
         stamps = self.stamps_ns
         return Trajectory.from_poses(np.array(stamps, dtype=np.float64) * 1e-9, np.stack([self.poses[s] for s in stamps]))
+
+    def to_track(self, class_id: int = -1) -> MovingObjectTrack:
+        """The object's trajectory so far as an immutable `MovingObjectTrack`."""
+        stamps = self.stamps_ns
+        poses = np.stack([self.poses[s] for s in stamps]) if stamps else np.zeros((0, 4, 4))
+        return MovingObjectTrack(self.object_id, class_id, np.array(stamps, dtype=np.int64), poses, len(self.point_ids))
 
     def index_of(self, point_ids: I64) -> I64:
         """Indices (N,) into this object's points of `point_ids` (N,); -1 where a point is not the object's."""

@@ -1,0 +1,208 @@
+"""Class-agnostic movers against the simulator's ground truth (prints, never asserts).
+
+Two uses:
+
+    # run the system on a simulated folder (movers on) and score it: moving-keypoint precision/recall
+    # against the instance masks, each exported object's trajectory against the mover's, camera ATE
+    .venv/bin/python bench/eval_movers_sim.py SIM_DIR [--frames N] [--config YAML] [--out DIR]
+
+    # score an existing `changing-slam run` output (moving_objects.json) against SIM_DIR
+    .venv/bin/python bench/eval_movers_sim.py SIM_DIR --run-dir RUN_DIR
+
+Counting (the first use): every keypoint with depth of every frame while the mover is carried (its
+ground-truth pose changes between neighbouring frames) is positive when the instance mask under it is
+the mover's; "flagged" = `DynamicFrame.moving` (the keypoints camera tracking was not allowed to use
+because the mover tracker put them on a moving object). Precision = flagged on the mover / flagged;
+recall = flagged on the mover / on the mover.
+
+Object error: each exported object's poses E_k (SLAM world) are mapped to the ground-truth world by the
+SE(3) alignment S of the online camera trajectory (object BA used the online camera poses); the object
+frame differs from the simulator's by a constant rigid Y (our origin is the centre of the segmented
+points), estimated as the mean of G_k^-1 S E_k; error_k = |position of S E_k - position of G_k Y|.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from changing_slam_ros.core.object_tracking import MovingObjectTrack  # noqa: E402
+from changing_slam_ros.core.se3 import invert, make_pose, quat_to_rot  # noqa: E402
+from changing_slam_ros.core.trajectory import Trajectory  # noqa: E402
+
+
+def load_mover_truth(sim_dir: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """(stamps_ns (F,), T_world_obj (F, 4, 4) with NaN where absent, mask id) of the moving class -1 object."""
+    doc = json.loads((sim_dir / "objects.json").read_text())
+    movers = [o for o in doc["objects"] if o["moving"] and o["class_id"] == -1]
+    if len(movers) != 1:
+        raise SystemExit(f"{sim_dir}/objects.json: expected one moving object of class -1, found {len(movers)}")
+    mover = movers[0]
+    poses = np.full((len(doc["stamps_ns"]), 4, 4), np.nan)
+    for k, row in enumerate(mover["poses"]):
+        if row is not None:
+            poses[k] = make_pose(quat_to_rot(np.array(row[3:7])), np.array(row[:3]))
+    return np.array(doc["stamps_ns"], dtype=np.int64), poses, int(mover["id"])
+
+
+def carried(poses: np.ndarray, min_step_m: float = 1e-4) -> np.ndarray:
+    """(F,) True where the object moved between the previous and the next frame."""
+    pos = poses[:, :3, 3]
+    step = np.zeros(len(pos))
+    step[1:-1] = np.linalg.norm(pos[2:] - pos[:-2], axis=1)
+    return np.nan_to_num(step) > min_step_m
+
+
+def _mean_pose(poses: np.ndarray) -> np.ndarray:
+    u, _, vt = np.linalg.svd(poses[:, :3, :3].mean(axis=0))
+    rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return make_pose(rot, poses[:, :3, 3].mean(axis=0))
+
+
+def object_errors(track: MovingObjectTrack, S: np.ndarray, gt_stamps: np.ndarray, gt_poses: np.ndarray) -> np.ndarray:
+    """Position errors (n,) metres of the track's poses at stamps where the ground truth exists (see module doc)."""
+    idx = np.clip(np.searchsorted(gt_stamps, track.stamps_ns), 0, len(gt_stamps) - 1)
+    near = np.abs(gt_stamps[idx] - track.stamps_ns) < 5_000_000  # 5 ms: the same frame
+    G = gt_poses[idx[near]]
+    E = np.einsum("ab,nbc->nac", S, track.T_world_obj[near])
+    ok = np.all(np.isfinite(G.reshape(len(G), -1)), axis=1)
+    G, E = G[ok], E[ok]
+    if not len(G):
+        return np.zeros(0)
+    Y = _mean_pose(np.einsum("nab,nbc->nac", np.linalg.inv(G), E))
+    return np.asarray(np.linalg.norm(E[:, :3, 3] - (G @ Y)[:, :3, 3], axis=1))
+
+
+def score_objects(tracks: list[MovingObjectTrack], S: np.ndarray, sim_dir: Path) -> None:
+    gt_stamps, gt_poses, _ = load_mover_truth(sim_dir)
+    moving = carried(gt_poses)
+    n_carried = int(moving.sum())
+    print(f"objects exported: {len(tracks)}; mover carried in {n_carried} frames")
+    for t in sorted(tracks, key=lambda t: -len(t.stamps_ns)):
+        err = object_errors(t, S, gt_stamps, gt_poses)
+        rmse = float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
+        print(f"  object {t.object_id} (class {t.class_id}): {len(t.stamps_ns)} poses, "
+              f"{(t.first_stamp_ns - gt_stamps[0]) * 1e-9:.2f}-{(t.last_stamp_ns - gt_stamps[0]) * 1e-9:.2f} s, "
+              f"{t.n_points} points; ATE vs the mover {100 * rmse:.2f} cm (max {100 * err.max(initial=0):.2f} cm)")
+
+
+def camera_alignment(gt: Trajectory, est: Trajectory) -> tuple[np.ndarray, float]:
+    from changing_slam_ros.eval.ate import ate
+
+    res = ate(gt, est)
+    return res.alignment.T_gt_est, float(np.sqrt(np.mean(res.errors_m**2)))
+
+
+def run_system(args: argparse.Namespace) -> None:
+    from changing_slam_ros.commands.run import system_config_from_mapping
+    from changing_slam_ros.config import load_yaml, section
+    from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+    from changing_slam_ros.core.system import SlamSystem
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.io.dataset_config import settings_from_mapping
+    from changing_slam_ros.io.moving_objects_file import write_moving_objects
+    from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
+
+    sim_dir = Path(args.sim_dir)
+    data = load_yaml(Path(args.config))
+    source = open_dataset(str(sim_dir), settings_from_mapping(data, args.config))
+    dyn_cfg = section(DynamicConfig, data.get("dynamic"), f"{args.config}: dynamic")
+    filt = DynamicFilter(dyn_cfg)
+    system = SlamSystem(system_config_from_mapping(data, args.config), dynamic_filter=filt)
+    seen: list[np.ndarray] = []
+    original = filt.before_tracking
+
+    def recording(rgbd, features, detections):  # type: ignore[no-untyped-def]
+        out = original(rgbd, features, detections)
+        seen.append(features.keypoints_px.copy())
+        seen.append(features.depths_m.copy())
+        return out
+
+    filt.before_tracking = recording  # type: ignore[method-assign]
+    gt_stamps, gt_poses, mask_id = load_mover_truth(sim_dir)
+    moving_gt = carried(gt_poses)
+    masks = sorted((sim_dir / "masks").glob("*.png"))
+    n = min(args.frames or len(source), len(source))
+    tp = fp = fn = 0
+    tp_all = fp_all = fn_all = 0
+    t0 = time.perf_counter()
+    for k, rgbd in enumerate(source):
+        if k >= n:
+            break
+        out = system.process(rgbd, None)
+        px, depth = seen[-2], seen[-1]
+        flagged = out.dynamic.moving if out.dynamic is not None else np.zeros(len(px), bool)
+        mask = cv2.imread(str(masks[k]), cv2.IMREAD_UNCHANGED)
+        c = np.clip(np.rint(px[:, 0]).astype(int), 0, mask.shape[1] - 1)
+        r = np.clip(np.rint(px[:, 1]).astype(int), 0, mask.shape[0] - 1)
+        on = (mask[r, c] == mask_id) & (depth > 0)
+        f = flagged & (depth > 0)
+        a, b, d = int(np.sum(f & on)), int(np.sum(f & ~on)), int(np.sum(on & ~f))
+        tp_all, fp_all, fn_all = tp_all + a, fp_all + b, fn_all + d
+        if moving_gt[k]:
+            tp, fp, fn = tp + a, fp + b, fn + d
+    wall = time.perf_counter() - t0
+    print(f"{sim_dir.name}: {n} frames, {system.n_tracked()} tracked, {wall:.0f} s wall")
+    for name, (a, b, d) in (("carried frames", (tp, fp, fn)), ("all frames", (tp_all, fp_all, fn_all))):
+        print(f"  moving keypoints, {name}: precision {a / max(a + b, 1):.3f} recall {a / max(a + d, 1):.3f} "
+              f"(TP {a}, FP {b}, FN {d})")
+    movers = filt.movers
+    assert movers is not None, "dynamic.movers.enabled must be true in the config"
+    if movers.segmentation_ms:
+        ms = np.array(movers.segmentation_ms)
+        print(f"  segmentation: {len(ms)} windows, CPU ms median {np.median(ms):.0f}, p90 {np.percentile(ms, 90):.0f}")
+    print(f"  filter ms per frame (median): {np.median(filt.frames_ms):.1f}; "
+          f"tracking total ms per frame (median): {np.median(system.timings_ms['total']):.0f}")
+    online = system.online_trajectory()
+    gt_cam = source.groundtruth
+    S, cam_ate = camera_alignment(gt_cam, online)
+    final_ate = camera_alignment(gt_cam, system.final_trajectory())[1]
+    print(f"  camera ATE: online {100 * cam_ate:.2f} cm, final {100 * final_ate:.2f} cm")
+    tracks = movers.tracks()
+    if args.out:
+        out = Path(args.out)
+        write_moving_objects(out, tracks)
+        write_tum_trajectory(out / "trajectory_online.txt", online)
+    score_objects(tracks, S, sim_dir)
+
+
+def score_run_dir(args: argparse.Namespace) -> None:
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.io.moving_objects_file import read_moving_objects
+    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+    run = Path(args.run_dir)
+    sim_dir = Path(args.sim_dir)
+    gt_cam = open_dataset(str(sim_dir)).groundtruth
+    S, cam_ate = camera_alignment(gt_cam, read_tum_trajectory(run / "trajectory_online.txt"))
+    print(f"{run}: online camera ATE {100 * cam_ate:.2f} cm")
+    score_objects(read_moving_objects(run / "moving_objects.json"), S, sim_dir)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sim_dir", help="folder written by `changing-slam simulate unknown_mover`")
+    parser.add_argument("--frames", type=int, default=0, help="frames to run (0 = all)")
+    parser.add_argument("--config", default=str(REPO / "config" / "sim.yaml"),
+                        help="YAML with `dynamic: movers: enabled: true` (and the camera)")
+    parser.add_argument("--out", help="write moving_objects.json and the trajectories here")
+    parser.add_argument("--run-dir", help="score this `changing-slam run` output instead of running")
+    args = parser.parse_args()
+    if args.run_dir:
+        score_run_dir(args)
+    else:
+        run_system(args)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
