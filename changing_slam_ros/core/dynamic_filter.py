@@ -36,6 +36,7 @@ from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.detector import Detection
 from changing_slam_ros.core.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectState
 from changing_slam_ros.core.keyframe import KeypointClass
+from changing_slam_ros.core.mover_tracking import MoverConfig, MoverTracker
 from changing_slam_ros.core.orb_features import Features
 from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationConfig, segment
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
@@ -80,6 +81,8 @@ class DynamicConfig:
       for the paper's behaviour.
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
+    - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
+      eq. 12 merging; `core/mover_tracking.py`); its moving keypoints are dropped too. Off by default.
     """
 
     enabled: bool = True
@@ -99,6 +102,7 @@ class DynamicConfig:
     fixed_class_ids: tuple[int, ...] = (59, 60, 61, 69, 71, 72)
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
+    movers: MoverConfig = field(default_factory=MoverConfig)
 
     def __post_init__(self) -> None:
         if self.segmentation_gap_frames < 1:
@@ -163,6 +167,12 @@ class DynamicFilter:
         self.n_kept = 0
         self.frames_ms: list[float] = []
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
+        self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
+
+    @property
+    def movers(self) -> MoverTracker | None:
+        """The class-agnostic mover tracker (None when `movers.enabled` is off)."""
+        return self._movers
 
     @property
     def objects(self) -> DynamicObjectTracker | None:
@@ -190,11 +200,13 @@ class DynamicFilter:
         if cfg.enabled:
             if cfg.segmentation:
                 moving = self._segment(features, rgbd.camera)
+            if self._movers is not None:
+                moving |= self._movers.before_tracking(rgbd.stamp_ns, features, rgbd.camera)
             if cfg.detection_filtering:
                 tracker = self._tracker_for(rgbd.camera)
                 res = tracker.classify(
                     rgbd.stamp_ns, features.raw_px, rgbd.depth_m, self._with_held(self._movable(detections)),
-                    moving_mask=moving if cfg.segmentation else None,
+                    moving_mask=moving if cfg.segmentation or self._movers is not None else None,
                 )
                 self._classified = True
                 keep = res.use_for_tracking.copy()
@@ -214,6 +226,8 @@ class DynamicFilter:
         if self._classified and T_world_cam is not None and self._tracker is not None:
             self._tracker.update(T_world_cam)
         self._classified = False
+        if self._movers is not None:
+            self._movers.after_tracking(T_world_cam)
         if self._pending is not None:
             self._pending.T_world_cam = None if T_world_cam is None else np.array(T_world_cam, dtype=np.float64)
             self._history.append(self._pending)
