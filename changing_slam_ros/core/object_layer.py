@@ -9,7 +9,9 @@ and before loop closing, so that loop closing already sees the points this keyfr
    or not yet classified), with its class and its box in this keyframe; boxes touching the border are
    truncated candidates (`long_term_association.box_truncated`). A candidate's points are
    - the map points of its keypoints (`Keyframe.object_ids`, set by the dynamic filter): only the keypoints
-     tracking was allowed to use have map points, i.e. those of objects the EKF found static;
+     tracking was allowed to use have map points, i.e. those of objects the EKF found static. With
+     `band_map_points` only those within the box's depth band (below) are kept: a box also holds keypoints
+     of the wall or the table seen past the object, which pulled a monitor's box 40 cm back to the wall;
    - depth samples inside its box (`depth_samples` on a grid, within `depth_band_m` of the box's median
      depth, back-projected from the keyframe): the object's shape even while its keypoints are filtered
      (a movable object the EKF has not yet called static has no map point at all). They carry negative ids
@@ -66,11 +68,13 @@ class ObjectLayerConfig:
     - `depth_samples`: depth pixels sampled per candidate box (on a regular grid); 0 = map points only.
     - `depth_band_m`: samples farther than this from the box's median depth are background and left out
       (smaller boxes use a narrower band, see `box_depth_samples`).
+    - `band_map_points`: apply the same band to the map points of the box's keypoints (camera-frame depth).
     """
 
     enabled: bool = True
     depth_samples: int = 100
     depth_band_m: float = 0.35
+    band_map_points: bool = True
     association: ObjectMapConfig = field(default_factory=ObjectMapConfig)
 
     def __post_init__(self) -> None:
@@ -80,7 +84,7 @@ class ObjectLayerConfig:
             raise ConfigError(f"objects.depth_band_m: expected > 0, got {self.depth_band_m}")
 
 
-_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float}
+_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "band_map_points": bool}
 
 
 def object_layer_config(data: dict[str, Any] | None, where: str = "objects") -> ObjectLayerConfig:
@@ -259,6 +263,10 @@ class ObjectLayer:
                 ids = ids[~slam_map.points.bad[ids]]
             pts_w = slam_map.points.positions[ids].reshape(-1, 3)
             pts_c = pts_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+            band = None if depth_m is None else box_depth_band(depth_m, o.box_xyxy, kf.camera, self.config.depth_band_m)
+            if self.config.band_map_points and band is not None:
+                near = np.abs(pts_c[:, 2] - band[0]) < band[1]
+                ids, pts_w, pts_c = ids[near], pts_w[near], pts_c[near]
             if depth_m is not None and self.config.depth_samples > 0:
                 sample_c = box_depth_samples(depth_m, o.box_xyxy, kf.camera, self.config.depth_samples,
                                              self.config.depth_band_m)
@@ -344,6 +352,24 @@ class ObjectLayer:
             "ms_per_keyframe_mean": float(ms.mean()),
             "ms_per_keyframe_p90": float(np.percentile(ms, 90)),
         }
+
+
+def box_depth_band(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
+                   depth_band_m: float, n_samples: int = 100) -> tuple[float, float] | None:
+    """(median depth, band half-width) in metres of a box, as `box_depth_samples` uses them; None without depth."""
+    h, w = depth_m.shape[:2]
+    x0, y0 = max(0, int(np.floor(box_xyxy[0]))), max(0, int(np.floor(box_xyxy[1])))
+    x1, y1 = min(w, int(np.ceil(box_xyxy[2]))), min(h, int(np.ceil(box_xyxy[3])))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    step = max(1, int(np.ceil(np.sqrt((x1 - x0) * (y1 - y0) / max(n_samples, 1)))))
+    d = np.asarray(depth_m[y0 + step // 2:y1:step, x0 + step // 2:x1:step], float)
+    d = d[d > 0]
+    if len(d) < 3:
+        return None
+    median_m = float(np.median(d))
+    width_m = min(x1 - x0, y1 - y0) * median_m / camera.fx
+    return median_m, float(np.clip(0.5 * width_m, MIN_DEPTH_BAND_M, depth_band_m))
 
 
 def box_depth_samples(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,

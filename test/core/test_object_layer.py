@@ -146,3 +146,25 @@ def test_small_box_uses_a_narrow_depth_band() -> None:
     d[100:112, 150:160] = 2.5  # the cup covers most of its box; the box's right part shows the wall
     pts = box_depth_samples(d, (150.0, 100.0, 164.0, 112.0), CAM, 100, 0.35)
     assert len(pts) == 30 and np.allclose(pts[:, 2], 2.5)  # a 7 x 6 grid, 5 x 6 on the cup
+
+
+def test_map_points_of_the_wall_seen_past_the_object_stay_out_of_it() -> None:
+    """Keypoints inside the box on the wall 2 m behind the object (the monitor in front of the wall) are not the
+    object's: with `band_map_points` they are left out, without it they drag the centroid back by 2 m * 4/16."""
+    m, kf = _map_with_keyframe(0, np.eye(4))
+    # move 4 of the 12 object keypoints onto the wall behind (4 m), still inside the box
+    pids = kf.point_ids[:4]
+    px = kf.keypoints_px[:4].astype(float)
+    m.points.positions[pids] = CAM.backproject(px, np.full(4, 4.0))
+    banded = ObjectLayer()
+    banded.after_keyframe(kf, m, _depth(), [_state()])
+    (obj,) = banded.objects(0)
+    assert set(obj.point_ids[obj.point_ids >= 0].tolist()) == set(kf.point_ids[4:12].tolist())
+    assert abs(obj.centroid_w[2] - 2.0) < 1e-6 and obj.box_size_m[2] < 0.01
+    m2, kf2 = _map_with_keyframe(0, np.eye(4))
+    m2.points.positions[kf2.point_ids[:4]] = CAM.backproject(px, np.full(4, 4.0))
+    loose = ObjectLayer(ObjectLayerConfig(band_map_points=False))
+    loose.after_keyframe(kf2, m2, _depth(), [_state()])
+    (obj2,) = loose.objects(0)
+    assert (obj2.point_ids >= 0).sum() == 12 and obj2.centroid_w[2] > 2.05 and obj2.box_size_m[2] > 1.5
+    assert object_layer_config({"band_map_points": False}).band_map_points is False

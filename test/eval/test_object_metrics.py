@@ -117,3 +117,33 @@ def test_top_view_png_is_written(tmp_path: Path) -> None:
     assert (img.std(axis=2) > 20).sum() > 300  # coloured boxes were drawn (not a grey-only figure)
     with pytest.raises(EvalError, match="nothing to plot"):
         plot_semantic_map(tmp_path / "empty.png", SemanticMap((), 0.6))
+
+
+def test_visible_surface_centroid_is_the_seen_side_and_scores_the_point_centroid_fairly(tmp_path: Path) -> None:
+    """A camera at the origin looking along +x (optical z = world x) sees the -x face of the chair at (3, 1):
+    the visible-surface centroid is on that face (x = 2.75), 25 cm from the volume centre; an estimate whose
+    centroid is the mean of that face's points is 25 cm off the box centre but 0 cm off the seen surface."""
+    from changing_slam_ros.core.camera import CameraIntrinsics
+    from changing_slam_ros.eval.object_metrics import SurfaceView, visible_surface_centroids
+
+    gt = load_ground_truth_objects(_gt_file(tmp_path))
+    cam = CameraIntrinsics(320, 240, 200.0, 200.0, 159.5, 119.5)
+    T_world_cam = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 0.45], [0, 0, 0, 1]], float)  # x fwd, z up
+    # the chair's front face x = 2.75, y in [0.75, 1.25], z in [0, 0.9], rendered as instance id 1 at depth 2.75
+    ids = np.zeros((240, 320), np.uint8)
+    depth = np.zeros((240, 320), np.float32)
+    vv, uu = np.mgrid[0:240, 0:320]
+    u_lo, u_hi = cam.cx - cam.fx * 1.25 / 2.75, cam.cx - cam.fx * 0.75 / 2.75
+    v_lo, v_hi = cam.cy - cam.fy * 0.45 / 2.75, cam.cy + cam.fy * 0.45 / 2.75
+    face = (uu >= u_lo) & (uu <= u_hi) & (vv >= v_lo) & (vv <= v_hi)
+    ids[face], depth[face] = 1, 2.75
+    seen_before_move = visible_surface_centroids(gt, [(0, SurfaceView(ids, depth, T_world_cam, cam.backproject))])
+    assert "chair" not in seen_before_move  # frame 0: the chair stood elsewhere, not at its final place
+    surf = visible_surface_centroids(gt, [(1, SurfaceView(ids, depth, T_world_cam, cam.backproject))])
+    np.testing.assert_allclose(surf["chair"], [2.75, 1.0, 0.45], atol=0.05)  # pixel grid of the constructed face
+    est = [_est(10, 56, [2.75, 1.02, 0.45], [2.9, 1.0, 0.45], [0.3, 0.5, 0.9])]
+    m = evaluate_objects(est, gt, surface_centroids=surf)
+    (match,) = m.matches
+    assert match.centroid_error_m == pytest.approx(0.25, abs=0.01)
+    assert match.surface_centroid_error_m < 0.03 and m.mean_surface_centroid_error_m < 0.03
+    assert math.isnan(evaluate_objects(est, gt).matches[0].surface_centroid_error_m)
