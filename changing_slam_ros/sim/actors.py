@@ -1,4 +1,4 @@
-"""Actors: people and COCO-class objects built from textured boxes and cylinders, each on its own track.
+"""Actors: people and COCO-class objects built from textured boxes, cylinders and ellipsoids, each on its own track.
 
 An actor's frame has z up, origin at the centre of its footprint on the floor, front facing +x. Parts are
 given in that frame. Class ids are COCO 0-based (the 80-class list: person 0, suitcase 28, cup 41,
@@ -29,6 +29,7 @@ def coco_name(class_id: int) -> str:
 class Shape(Enum):
     BOX = "box"
     CYLINDER = "cylinder"  # axis along z; radius = half_size_m[0]
+    ELLIPSOID = "ellipsoid"  # semi-axes = half_size_m; the texture wraps once around z, its centre facing +x
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,8 @@ class Part:
     """One textured solid. `half_size_m` (x, y, z) half extents; `offset_m` its centre in the parent frame.
 
     `tile_m`: metres per texture repeat (tiled surfaces); None stretches the texture once over each face.
+    `pitch_rad`: the part turned by this angle about the parent's y axis, about its own centre (a leg or an
+    arm swung forward: positive moves its bottom towards +x).
     """
 
     half_size_m: tuple[float, float, float]
@@ -43,6 +46,12 @@ class Part:
     texture: str
     tile_m: float | None = None
     shape: Shape = Shape.BOX
+    pitch_rad: float = 0.0
+
+    def rotation(self) -> F64:
+        """(3, 3) rotation of the part in the parent frame (about y by -`pitch_rad`)."""
+        c, s = np.cos(self.pitch_rad), np.sin(self.pitch_rad)
+        return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
 
     def corners_m(self) -> F64:
         """The 8 corners (8, 3) of the part's bounding box, in the parent frame."""
@@ -50,7 +59,16 @@ class Part:
         if self.shape is Shape.CYLINDER:
             h = np.array([h[0], h[0], h[2]])
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
-        return np.asarray(self.offset_m) + signs * h
+        return np.asarray(self.offset_m) + (signs * h) @ self.rotation().T
+
+
+def limb(top_m: tuple[float, float, float], length_m: float, radius_m: float, texture: str, tile_m: float | None,
+         pitch_rad: float = 0.0) -> Part:
+    """A cylinder hanging from the joint `top_m` (a hip or a shoulder), swung by `pitch_rad` (bottom forward)."""
+    half = length_m / 2.0
+    centre = (top_m[0] + half * np.sin(pitch_rad), top_m[1], top_m[2] - half * np.cos(pitch_rad))
+    return Part((radius_m, radius_m, half), (float(centre[0]), float(centre[1]), float(centre[2])), texture, tile_m,
+                Shape.CYLINDER, pitch_rad)
 
 
 class ChangeKind(Enum):
@@ -93,30 +111,74 @@ class Actor:
 
 # --- Catalogue of shapes. Each returns the parts; scenarios pick tracks. ---
 
-def person_parts(photo: str = "astronaut") -> tuple[Part, ...]:
-    """A standing person, 1.74 m: legs, hips, arms, and a torso whose front and back show a photo of a
-    person (head and shoulders); seen from the side it is a dark silhouette."""
-    suit = "suit_orange" if photo == "astronaut" else "fabric_dark"
-    return (
-        Part((0.08, 0.08, 0.42), (0.0, -0.09, 0.42), "fabric_dark", 0.25, Shape.CYLINDER),
-        Part((0.08, 0.08, 0.42), (0.0, 0.09, 0.42), "fabric_dark", 0.25, Shape.CYLINDER),
-        Part((0.1, 0.19, 0.14), (0.0, 0.0, 0.98), "fabric_dark", 0.25),
-        Part((0.05, 0.05, 0.3), (0.0, -0.25, 1.1), suit, 0.25, Shape.CYLINDER),
-        Part((0.05, 0.05, 0.3), (0.0, 0.25, 1.1), suit, 0.25, Shape.CYLINDER),
-        Part((0.1, 0.2, 0.31), (0.0, 0.0, 1.43), suit, 0.25),
-        Part((0.004, 0.26, 0.31), (0.104, 0.0, 1.43), photo, None),
-        Part((0.004, 0.26, 0.31), (-0.104, 0.0, 1.43), photo, None),
-    )
+# Clothing per person: (shirt, trousers, head texture: a face photo wrapped on the front, hair around it).
+OUTFITS: dict[str, tuple[str, str, str]] = {
+    "astronaut": ("shirt_red", "denim", "head_astronaut"),
+    "cameraman": ("shirt_blue", "fabric_dark", "head_grey"),
+}
+
+
+def _outfit(photo: str) -> tuple[str, str, str]:
+    return OUTFITS.get(photo, OUTFITS["astronaut"])
+
+
+def person_parts(photo: str = "astronaut", stride_rad: float = 0.3) -> tuple[Part, ...]:
+    """A standing person, 1.76 m, facing +x, caught mid-stride: legs apart by `stride_rad` each way (left
+    forward), arms swung the other way, shoes, hips, torso with shoulders, neck and a head whose front shows
+    a face photo (hair around it). Clothing per `photo` (`OUTFITS`)."""
+    shirt, trousers, head = _outfit(photo)
+    E = Shape.ELLIPSOID
+    parts: list[Part] = []
+    leg_len = 0.84
+    hip_z = 0.07 + leg_len * float(np.cos(stride_rad))  # the feet on the floor
+    for sy, side in ((1.0, 1.0), (-1.0, -1.0)):  # left (+y) leg forward, right arm forward
+        leg = side * stride_rad
+        arm = -side * 0.6 * stride_rad
+        parts += [
+            Part((0.12, 0.05, 0.035), (leg_len * float(np.sin(leg)) + 0.04, sy * 0.1, 0.035), "shoe", 0.2),
+            limb((0.0, sy * 0.1, hip_z), 0.44, 0.078, trousers, 0.25, leg),  # thigh
+            limb((0.44 * float(np.sin(leg)), sy * 0.1, hip_z - 0.44 * float(np.cos(leg))), 0.4, 0.058,
+                 trousers, 0.25, leg),  # shin
+            limb((0.0, sy * 0.27, 1.45), 0.3, 0.048, shirt, 0.25, arm),  # upper arm
+            limb((0.3 * float(np.sin(arm)), sy * 0.28, 1.45 - 0.3 * float(np.cos(arm))), 0.27, 0.04, "skin", 0.2,
+                 arm + 0.15),  # forearm, elbow a little bent
+        ]
+        elbow = (0.3 * np.sin(arm), 1.45 - 0.3 * np.cos(arm))
+        hand = (elbow[0] + 0.31 * np.sin(arm + 0.15), elbow[1] - 0.31 * np.cos(arm + 0.15))
+        parts.append(Part((0.035, 0.03, 0.07), (float(hand[0]), sy * 0.28, float(hand[1])), "skin", 0.2, E))
+    parts += [
+        Part((0.12, 0.19, 0.1), (0.0, 0.0, 0.93), trousers, 0.25, E),  # hips
+        Part((0.1, 0.18, 0.25), (0.0, 0.0, 1.2), shirt, 0.3),  # torso
+        Part((0.1, 0.24, 0.065), (0.0, 0.0, 1.44), shirt, 0.3, E),  # shoulders
+        Part((0.05, 0.05, 0.05), (0.0, 0.0, 1.53), "skin", 0.2, Shape.CYLINDER),  # neck
+        Part((0.105, 0.09, 0.12), (0.0, 0.0, 1.645), head, None, E),  # head, face to +x
+    ]
+    return tuple(parts)
 
 
 def sitting_person_parts(photo: str = "astronaut") -> tuple[Part, ...]:
-    """A person sitting (on a chair placed by the scenario), 1.3 m tall: thighs forward, upper body photo."""
-    return (
-        Part((0.06, 0.06, 0.23), (0.24, -0.09, 0.23), "fabric_dark", 0.25, Shape.CYLINDER),
-        Part((0.06, 0.06, 0.23), (0.24, 0.09, 0.23), "fabric_dark", 0.25, Shape.CYLINDER),
-        Part((0.18, 0.18, 0.06), (0.1, 0.0, 0.52), "fabric_dark", 0.25),
-        Part((0.11, 0.26, 0.33), (-0.02, 0.0, 0.92), photo, None),
-    )
+    """A person sitting on a chair (placed by the scenario, seat top at 0.5 m), facing +x, 1.42 m tall:
+    feet on the floor, shins, thighs forward on the seat, torso, arms resting on the thighs, head."""
+    shirt, trousers, head = _outfit(photo)
+    E, C = Shape.ELLIPSOID, Shape.CYLINDER
+    parts: list[Part] = []
+    for sy in (-1.0, 1.0):
+        parts += [
+            Part((0.12, 0.05, 0.035), (0.36, sy * 0.1, 0.035), "shoe", 0.2),
+            Part((0.058, 0.058, 0.22), (0.32, sy * 0.1, 0.29), trousers, 0.25, C),  # shin
+            Part((0.21, 0.075, 0.07), (0.13, sy * 0.1, 0.57), trousers, 0.25),  # thigh, forward on the seat
+            Part((0.048, 0.048, 0.14), (-0.06, sy * 0.26, 0.96), shirt, 0.25, C),  # upper arm
+            Part((0.13, 0.04, 0.04), (0.06, sy * 0.22, 0.76), "skin", 0.2),  # forearm on the thigh
+            Part((0.05, 0.03, 0.035), (0.22, sy * 0.19, 0.74), "skin", 0.2, E),  # hand
+        ]
+    parts += [
+        Part((0.12, 0.19, 0.09), (-0.06, 0.0, 0.62), trousers, 0.25, E),  # hips
+        Part((0.11, 0.19, 0.3), (-0.06, 0.0, 0.86), shirt, 0.3, E),  # torso
+        Part((0.1, 0.24, 0.065), (-0.06, 0.0, 1.09), shirt, 0.3, E),  # shoulders
+        Part((0.05, 0.05, 0.05), (-0.06, 0.0, 1.18), "skin", 0.2, C),  # neck
+        Part((0.105, 0.09, 0.12), (-0.06, 0.0, 1.295), head, None, E),  # head
+    ]
+    return tuple(parts)
 
 
 def chair_parts(texture: str = "leather") -> tuple[Part, ...]:

@@ -118,17 +118,47 @@ def cylinder_mesh(radius_m: float, half_height_m: float, tile_m: float | None) -
     return np.array(verts), np.array(uvs), np.array(faces, dtype=np.int64)
 
 
+ELLIPSOID_SEGMENTS = (24, 12)  # around z, pole to pole
+
+
+def ellipsoid_mesh(half_size_m: tuple[float, float, float], tile_m: float | None) -> tuple[F64, F64, npt.NDArray[np.int64]]:
+    """Ellipsoid with semi-axes `half_size_m` centred at the origin, as a latitude-longitude grid.
+
+    The texture wraps once around z with its horizontal centre (u = 0.5) facing +x and its top at the
+    top pole, seen upright and unmirrored from the front; with `tile_m` it repeats at that metric scale.
+    """
+    n_lon, n_lat = ELLIPSOID_SEGMENTS
+    a, b, c = half_size_m
+    su, sv = (1.0, 1.0) if tile_m is None else (np.pi * (a + b) / tile_m, np.pi * c / tile_m)
+    verts, uvs, faces = [], [], []
+    for j in range(n_lat + 1):  # top pole (j = 0) to bottom pole
+        theta = np.pi * j / n_lat
+        for i in range(n_lon + 1):  # duplicated seam column at the back (-x)
+            phi = 2 * np.pi * i / n_lon - np.pi
+            verts.append((a * np.sin(theta) * np.cos(phi), b * np.sin(theta) * np.sin(phi), c * np.cos(theta)))
+            uvs.append((i / n_lon * su, j / n_lat * sv))
+    row = n_lon + 1
+    for j in range(n_lat):
+        for i in range(n_lon):
+            p, q = j * row + i, (j + 1) * row + i
+            faces += [(p, q, q + 1), (p, q + 1, p + 1)]
+    return np.array(verts), np.array(uvs), np.array(faces, dtype=np.int64)
+
+
 def _mesh_xml(name: str, part: Part) -> str:
     if part.shape is Shape.CYLINDER:
         v, uv, f = cylinder_mesh(part.half_size_m[0], part.half_size_m[2], part.tile_m)
+    elif part.shape is Shape.ELLIPSOID:
+        v, uv, f = ellipsoid_mesh(part.half_size_m, part.tile_m)
     else:
         v, uv, f = box_mesh(part.half_size_m, part.tile_m)
     return f'<mesh name="{name}" vertex="{_fmt(v)}" texcoord="{_fmt(uv)}" face="{_fmt(f)}"/>'
 
 
 def _geom_xml(mesh: str, part: Part, group: int) -> str:
+    turn = f'euler="0 {_fmt(-part.pitch_rad)} 0" ' if part.pitch_rad else ""
     return (f'<geom name="{mesh}" type="mesh" mesh="{mesh}" material="mat_{part.texture}" '
-            f'pos="{_fmt(part.offset_m)}" group="{group}" contype="0" conaffinity="0"/>')
+            f'pos="{_fmt(part.offset_m)}" {turn}group="{group}" contype="0" conaffinity="0"/>')
 
 
 def actor_body_name(index: int) -> str:

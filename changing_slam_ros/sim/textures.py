@@ -29,6 +29,9 @@ class TextureSource:
     licence: str = ""
     what: str = ""
     rot90: bool = False  # turn the photo a quarter turn (the brick photo has vertical courses)
+    crop: tuple[int, int, int, int] | None = None  # (row0, row1, col0, col1) of the photo, before the tint
+    wrap_fraction: float | None = None  # the crop covers this fraction of the width; the rest is its top rows
+    grey: bool = False  # drop the photo's colour before the tint
 
 
 # name used in scenes -> where it comes from. Licences as stated by scikit-image's data docstrings.
@@ -65,6 +68,17 @@ TEXTURES: dict[str, TextureSource] = {
     "wood": TextureSource("grass", (0.6, 0.42, 0.25), "CC0 (DeviantArt, linolafett Grass-01)", "furniture"),
     "leather": TextureSource("moon", (0.45, 0.25, 0.15), "no separate statement; scikit-image BSD-3-Clause",
                              "suitcase, chair"),
+    # people: skin, clothes, and heads (a face photo wrapped on the front of an ellipsoid, hair around)
+    "skin": TextureSource("moon", (1.0, 0.78, 0.62), "no separate statement; scikit-image BSD-3-Clause", "skin"),
+    "shirt_red": TextureSource("gravel", (0.85, 0.22, 0.18), "CC0 (CC0Textures Gravel04)", "shirt"),
+    "shoe": TextureSource("gravel", (0.18, 0.13, 0.1), "CC0 (CC0Textures Gravel04)", "shoes"),
+    "denim": TextureSource("grass", (0.35, 0.45, 0.75), "CC0 (DeviantArt, linolafett Grass-01)", "jeans"),
+    "shirt_blue": TextureSource("coins", (0.45, 0.6, 0.95), "no known copyright restrictions (Brooklyn Museum)",
+                                "shirt", grey=True),
+    "head_astronaut": TextureSource("astronaut", licence="public domain (NASA; Eileen Collins)", what="head",
+                                    crop=(28, 178, 150, 295), wrap_fraction=0.36),
+    "head_grey": TextureSource("astronaut", (0.75, 0.68, 0.62), "public domain (NASA; Eileen Collins)", "head",
+                               crop=(28, 178, 150, 295), wrap_fraction=0.36, grey=True),
     "plastic_blue": TextureSource("coins", (0.3, 0.45, 0.85), "no known copyright restrictions (Brooklyn Museum)",
                                   "the unknown object"),
 }
@@ -91,10 +105,31 @@ def load_texture(name: str) -> U8:
     if image.ndim == 2:
         image = np.stack([image] * 3, axis=-1)
     image = image[..., :3].astype(np.float32)
+    if source.grey:
+        image = np.repeat(image.mean(axis=2, keepdims=True), 3, axis=2)
+    if source.crop is not None:
+        r0, r1, c0, c1 = source.crop
+        image = image[r0:r1, c0:c1]
+    if source.wrap_fraction is not None:
+        image = _wrapped(image, source.wrap_fraction)
     if source.rot90:
         image = np.ascontiguousarray(np.rot90(image))
     image *= np.asarray(source.tint_rgb, dtype=np.float32)
     return np.clip(image + 0.5, 0, 255).astype(np.uint8)
+
+
+def _wrapped(face: npt.NDArray[np.float32], fraction: float) -> npt.NDArray[np.float32]:
+    """A texture to wrap around a head: `face` in the middle covering `fraction` of the width, the rest
+    filled with its top rows (hair) stretched, blended into the face over a tenth of its width."""
+    h, w = face.shape[:2]
+    width = int(round(w / fraction))
+    hair = cv2.resize(face[: max(2, h // 8)], (width, h), interpolation=cv2.INTER_LINEAR)
+    out = hair.copy()
+    x0 = (width - w) // 2
+    ramp = np.clip(np.minimum(np.arange(w) + 1, w - np.arange(w)) / max(1.0, 0.1 * w), 0.0, 1.0)
+    alpha = ramp[None, :, None].astype(np.float32)
+    out[:, x0:x0 + w] = alpha * face + (1.0 - alpha) * hair[:, x0:x0 + w]
+    return out
 
 
 @functools.lru_cache(maxsize=64)
