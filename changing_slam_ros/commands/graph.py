@@ -2,21 +2,24 @@
 
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
         [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
+        [--backend split|in_process]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
-`tracking` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node --ros-args ...` processes on a
+`tracking`, `local_mapping`, `loop_closing` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node --ros-args ...` processes on a
 ROS domain of their own (a random ROS_DOMAIN_ID unless ROS_DOMAIN_ID is set, discovery limited to this
 machine), waits until each node says it is up, plays the bag, waits for the player to finish, asks tracking to
 write its outputs (SIGINT, then waits), stops the rest (SIGINT, then SIGTERM, then SIGKILL), evaluates the
 trajectory against the bag's ground truth and prints a summary. A node that dies before the end is restarted
 (at most --max-restarts times per node); `--kill object_map@5` kills a node on purpose after 5 s (fault test).
 
-INTERIM: tracking runs local mapping, the object layer and loop closing in its own process
-(`in_process_backend`, see `nodes/slam_backend.py`); the `local_mapping` and `loop_closing` processes are not
-started because they would only receive keyframes (map-update replication is open).
+Backends: `split` (default): tracking tracks against a replica of the map, `local_mapping` owns the map (local
+BA, object layer) and `loop_closing` closes loops, exchanging keyframe packets, map updates and loop results
+(`nodes/split_backend.py`); with --lossless tracking acknowledges a keyframe frame only once its map update
+and loop verdict are in, so the run repeats the offline order of work. `in_process`: tracking runs the whole
+`SlamSystem` itself (`nodes/slam_backend.py`) and local_mapping / loop_closing are not started.
 
-DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, semantic_map.json,
-tracking_stats.json (from tracking), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
+DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, tracking_stats.json (from
+tracking), semantic_map.json and local_mapping_stats.json (from local_mapping; from tracking when in_process), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
 for evo and Foxglove, written after the run), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
 process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts).
 Drops: colour frames in the bag that did not become a pose (not received, not paired, or not tracked).
@@ -43,7 +46,10 @@ READY_MARKERS = {
     "object_map": "object_map: started",
     "detection": "detection: active",
     "tracking": "tracking: started",
+    "local_mapping": "local_mapping: started",
+    "loop_closing": "loop_closing: started",
 }
+BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
 
 
@@ -64,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="colour/depth frames tracking queues while busy (default 2)")
     parser.add_argument("--max-restarts", type=int, default=2, metavar="N", help="restarts per node (default 2)")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
+    parser.add_argument("--backend", choices=BACKENDS, default="split",
+                        help="split: local_mapping and loop_closing in their own processes (default); "
+                             "in_process: tracking runs the whole SLAM system")
     parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
                         help="fault injection: SIGKILL NODE S seconds after playback starts (repeatable)")
 
@@ -199,9 +208,17 @@ class Graph:
     def _build(self) -> None:
         a, info = self.args, self.info
         wait = a.detections_wait if a.detections_wait is not None else (10.0 if a.lossless else 0.1)
+        split = a.backend == "split"
         if a.object_map:
+            remaps = {"/tracking/semantic_map": "/local_mapping/semantic_map"} if split else None
             self.nodes["object_map"] = NodeProcess("object_map", _node_argv("object_map_node", {
-                "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}), self.logs)  # fmt: skip
+                "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
+        if split:
+            self.nodes["local_mapping"] = NodeProcess("local_mapping", _node_argv("local_mapping_node", {
+                "config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless)}),
+                self.logs)  # fmt: skip
+            self.nodes["loop_closing"] = NodeProcess("loop_closing", _node_argv("loop_closing_node", {
+                "config": self.config}), self.logs)  # fmt: skip
         if self.detection:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
             self.nodes["detection"] = NodeProcess("detection", _node_argv("detection_node", {
@@ -209,7 +226,8 @@ class Graph:
         self.nodes["tracking"] = NodeProcess("tracking", _node_argv("tracking_node", {
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
-            "in_process_backend": True, "reliable_images": True, "image_queue_depth": a.queue_depth,
+            "in_process_backend": not split, "wait_for_map_updates": bool(a.lossless and split),
+            "reliable_images": True, "image_queue_depth": a.queue_depth,
         }), self.logs)  # fmt: skip
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
@@ -262,10 +280,11 @@ class Graph:
     def shutdown(self) -> dict[str, int | None]:
         """Tracking first (SIGINT: it writes its outputs), then the others; escalate to SIGTERM, SIGKILL."""
         codes: dict[str, int | None] = {}
-        order = [n for n in ("tracking", "detection", "object_map") if n in self.nodes] + ["bag_player"]
+        order = [n for n in ("tracking", "local_mapping", "loop_closing", "detection", "object_map")
+                 if n in self.nodes] + ["bag_player"]  # fmt: skip
         for name in order:
             node = self.player if name == "bag_player" else self.nodes[name]
-            code = node.stop(signal.SIGINT, 120.0 if name == "tracking" else 15.0)
+            code = node.stop(signal.SIGINT, 120.0 if name in ("tracking", "local_mapping") else 15.0)
             if code is None:
                 code = node.stop(signal.SIGTERM, 10.0)
             if code is None:
@@ -290,7 +309,7 @@ class Graph:
             if self.player.proc is not None and self.player.proc.returncode != 0:
                 raise SlamError(f"graph: bag_player failed (exit {self.player.proc.returncode}); see {self.player.log_path}")
             if not self.args.lossless:
-                time.sleep(1.0)  # frames still in flight at the end of the bag
+                time.sleep(1.0 if self.args.backend == "in_process" else 3.0)  # frames, keyframes, map updates in flight
         finally:
             codes = self.shutdown()
         return self._summary(play_s, up_s, codes)
@@ -308,16 +327,25 @@ class Graph:
             "latency_ms_median": stats.get("latency_ms_median"), "latency_ms_p90": stats.get("latency_ms_p90"),
             "process_ms_median": stats.get("process_ms_median"), "keyframes": stats.get("keyframes"),
             "detection_delay_ms_median": stats.get("detection_delay_ms_median"),
-            "loops_closed": stats.get("loops_closed"), "play_wall_s": play_s, "startup_s": up_s,
+            "loops_closed": stats.get("loops_closed_split") if stats.get("backend") == "split" else stats.get("loops_closed"),
+            "backend": self.args.backend, "map_updates_applied": stats.get("map_updates_applied"),
+            "map_update_latency_ms_median": stats.get("map_update_latency_ms_median"),
+            "local_mapping": _read_json(self.out / "local_mapping_stats.json"), "play_wall_s": play_s, "startup_s": up_s,
             "bag_duration_s": self.info.duration_s, "detection_node": self.detection,
             "frames_without_detections": stats.get("frames_without_detections"),
             "restarts": dict(self.restarts), "exit_codes": codes,
             "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
+            "detections_received": stats.get("detections_received"),
+            "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
         }  # fmt: skip
         summary.update(_evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = _write_outputs_mcap(self.bag, self.config, self.out)
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    return json.loads(path.read_text()) if path.is_file() else None
 
 
 def _detection_median_ms(node: NodeProcess | None) -> float | None:
@@ -411,6 +439,7 @@ def main(args: argparse.Namespace) -> int:
         f"{s['poses_published']}/{s['colour_frames_in_bag']} frames with a pose ({s['drops']} dropped), "
         f"{s['keyframes']} keyframes, {s['loops_closed']} loops, {ate_text}, image-to-pose latency median "
         + (f"{lat:.0f} ms" if lat is not None else "n/a")
+        + (f", detection {s['detection_rate_hz']:.1f} Hz" if s.get("detection_node") and s.get("detection_rate_hz") else "")
         + (f", restarts {s['restarts']}" if s["restarts"] else "")
     )
     print(f"results in {graph.out}")

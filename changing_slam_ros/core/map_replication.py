@@ -287,10 +287,18 @@ def ensure_map(atlas: Atlas, map_id: int) -> SlamMap:
     return atlas.maps[map_id]
 
 
+def check_keyframe(m: SlamMap, kf: Keyframe) -> None:
+    """ReplicationError when a keyframe names map points map `m` does not have (or that are gone)."""
+    ids = kf.point_ids[kf.point_ids >= 0]
+    if len(ids) and int(ids.max()) >= m.points.size:
+        raise ReplicationError(f"keyframe {kf.id} names map point {int(ids.max())}; map {m.id} has {m.points.size}")
+
+
 def insert_keyframe(atlas: Atlas, kf: Keyframe) -> SlamMap:
     """A replica receives a new keyframe (before the owner's delta for it): inserted with its tracked points'
     observations, as `SlamMap.add_keyframe` does in the owner. Makes its map the current one."""
     m = ensure_map(atlas, kf.map_id)
+    check_keyframe(m, kf)
     atlas.current = m
     if kf.id not in m.keyframes:
         m.add_keyframe(kf)

@@ -1,72 +1,222 @@
-"""`local_mapping`: keyframes (+ loop corrections, object states) -> map updates and object candidates.
+"""`local_mapping`: owns the metric map. Keyframes in, map updates (and the semantic map, map cloud) out.
 
-SKELETON (issue 7): topics, parameters, QoS and the keyframe conversion are real; the call into the core
-local-mapping component (`core.local_mapping.LocalMapper`, which owns the metric map as ORB-SLAM3's Atlas
-does) is one TODO line in `on_keyframe`, so no map updates are published yet. It says so at start.
-Until the core can replicate map updates between processes, this work runs inside the tracking node
-(`in_process_backend`, nodes/slam_backend.py) and `changing-slam graph` does not start this node.
+    python -m changing_slam_ros.nodes.local_mapping_node --ros-args -p config:=tum_fr1
 
-Inputs: /tracking/keyframes (reliable, deep queue: keyframes must not be lost), /loop_closing/loop_corrections,
-  /object_map/object_states
-Outputs: ~/map_updates (MapUpdate), ~/object_candidates (MapObjectArray), ~/map_cloud (PointCloud2, throttled)
+Per keyframe packet from tracking: its point counters are added, `core.local_mapping.LocalMapper` maps it
+(points from depth, fusion, culling, gtsam local BA, keyframe culling), the object layer (MapObjects, beliefs,
+active flags; Changing-SLAM §4.3-4.7) runs on it with the packet's depth and short-term objects, and the diff
+of the map is published as a MapUpdate (see `nodes/split_backend.py`, `core/map_replication.py`). A closed
+loop from loop_closing is applied (exactly, or as a correction when keyframes were mapped meanwhile) and the
+change published as a MapUpdate too, so tracking's and loop closing's replicas follow this map only.
+With `wait_for_loop_results:=true` (lossless graph) a keyframe waits until loop closing has answered for the
+previous one, so the order of work is the offline runner's.
+
+Inputs: /tracking/keyframes (Keyframe, reliable, deep queue), /loop_closing/loop_corrections (LoopCorrection),
+  /object_map/object_states (beliefs come from the object layer here; subscribed for remapping only)
+Outputs: ~/map_updates (MapUpdate, reliable), ~/semantic_map (MapObjectArray, transient-local, after each
+  keyframe the object layer worked on), ~/object_candidates (MapObjectArray), ~/map_cloud (PointCloud2 of the
+  active points, at most every `map_cloud_period_s`), /diagnostics.
+On shutdown with `output_dir`: semantic_map.json and local_mapping_stats.json, written atomically.
 """
 
 from __future__ import annotations
 
+import json
+import time
+from collections import deque
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
-from sensor_msgs.msg import PointCloud2
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2, PointField
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection, MapObjectArray, MapUpdate, ObjectStateArray
+from changing_slam_ros.core.map_replication import KeyframePacket, LoopResult
 from changing_slam_ros.errors import SlamError
-from changing_slam_ros.nodes.conversions import keyframe_from_msg
+from changing_slam_ros.nodes.conversions import make_header
+from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+from changing_slam_ros.nodes.replication_conversions import loop_result_from_msg, packet_from_msg, update_to_msg
 
 KEYFRAME_QOS = QoSProfile(depth=100)  # reliable, volatile: every keyframe counts
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def points_to_cloud(positions_w: np.ndarray, stamp_ns: int, frame_id: str) -> PointCloud2:
+    """(N, 3) metres -> PointCloud2 with float32 x, y, z."""
+    xyz = np.ascontiguousarray(positions_w, dtype=np.float32).reshape(-1, 3)
+    fields = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1) for i, n in enumerate("xyz")]
+    return PointCloud2(header=make_header(stamp_ns, frame_id), height=1, width=len(xyz), fields=fields,
+                       is_bigendian=False, point_step=12, row_step=12 * len(xyz), data=xyz.tobytes(), is_dense=True)  # fmt: skip
 
 
 class LocalMappingNode(Node):
     def __init__(self, keyframe_qos: QoSProfile = KEYFRAME_QOS, output_qos: QoSProfile | int = 10,
                  **node_kwargs: Any) -> None:  # fmt: skip
         super().__init__("local_mapping", **node_kwargs)
-        self.params = declare_parameters(self, [
-            ("config", "tum_fr1", "config name or YAML path (mapping, local BA, objects sections)"),
+        self.params = p = declare_parameters(self, [
+            ("config", "tum_fr1", "config name or YAML path (features, mapping, objects sections)"),
+            ("objects", "config", "object layer (MapObjects, beliefs, active flags): config, on, off"),
             ("map_frame", "map", "frame of the published map"),
             ("map_cloud_period_s", 1.0, "shortest time between two map_cloud messages"),
+            ("wait_for_loop_results", False, "map a keyframe only after loop closing answered for the previous "
+                                             "one (lossless graph: the offline order of work)"),
+            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
+            ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
         ])  # fmt: skip
+        from changing_slam_ros.nodes.slam_backend import load_backend_config
+        from changing_slam_ros.nodes.split_backend import MapOwner
+
+        self.owner = MapOwner.build(load_backend_config(p["config"]), objects=p["objects"])
         self.keyframes_in = 0
+        self.keyframes_rejected = 0
+        self.loops_applied = 0
+        self.awaiting_loop_for = -1  # keyframe id whose loop verdict the next keyframe waits for
+        self.queue: deque[KeyframePacket] = deque()
+        self.process_ms: list[float] = []
+        self.queue_ms: list[float] = []
+        self._last_cloud_s = -1e9
+        self._finished = False
         self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
-        self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
+        self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, keyframe_qos)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
         self.update_pub = self.create_publisher(MapUpdate, "~/map_updates", keyframe_qos)
+        self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.candidate_pub = self.create_publisher(MapObjectArray, "~/object_candidates", output_qos)
         self.cloud_pub = self.create_publisher(PointCloud2, "~/map_cloud", output_qos)
-        self.get_logger().info("local_mapping: started (SKELETON: core local mapping not wired, no map updates)")
+        self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
+        self.diagnostics.set_source(self.stats)
+        layer = "on" if self.owner.backend.objects is not None else "off"
+        self.get_logger().info(f"local_mapping: started (owns the map; object layer {layer}; "
+                               f"wait_for_loop_results {p['wait_for_loop_results']})")  # fmt: skip
 
+    # -- inputs ---------------------------------------------------------------------------------
     def on_keyframe(self, msg: KeyframeMsg) -> None:
         try:
-            kf = keyframe_from_msg(msg, "/tracking/keyframes")
+            packet = packet_from_msg(msg, "/tracking/keyframes")
         except (SlamError, ValueError) as err:
+            self.keyframes_rejected += 1
             self.get_logger().warning(f"local_mapping: keyframe rejected: {err}", throttle_duration_sec=5.0)
             return
         self.keyframes_in += 1
-        update = None  # TODO(issue 7): update = self.mapper.process(kf)  (core LocalMapper -> MapUpdate)
-        if update is not None:
-            self.update_pub.publish(update)
-        self.get_logger().info(
-            f"local_mapping: keyframe {kf.id} ({len(kf)} keypoints) received; not mapped (skeleton)",
-            throttle_duration_sec=10.0,
-        )
+        packet.received_s = time.monotonic()  # type: ignore[attr-defined]
+        self.queue.append(packet)
+        self._drain()
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
-        pass  # TODO(issue 7): apply the corrected keyframe poses and points to the map.
+        try:
+            result = loop_result_from_msg(msg, "/loop_closing/loop_corrections")
+        except (SlamError, ValueError) as err:
+            self.get_logger().warning(f"local_mapping: loop correction rejected: {err}", throttle_duration_sec=5.0)
+            return
+        self.apply_loop(result, msg.header.stamp)
+        if result.query_kf_id == self.awaiting_loop_for:
+            self.awaiting_loop_for = -1
+        self._drain()
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
-        pass  # TODO(issue 7): deactivate points of MapObjects below BeliefThreshold (Changing-SLAM §4.7).
+        pass  # beliefs and active flags are the object layer's, which runs here (see the module doc)
+
+    # -- work -----------------------------------------------------------------------------------
+    def _drain(self) -> None:
+        while self.queue and self.awaiting_loop_for < 0:
+            self.map_keyframe(self.queue.popleft())
+
+    def map_keyframe(self, packet: KeyframePacket) -> None:
+        t0 = time.monotonic()
+        kf = packet.keyframe
+        try:
+            update = self.owner.on_keyframe(packet)
+        except SlamError as err:
+            self.keyframes_rejected += 1
+            self.get_logger().warning(f"local_mapping: keyframe {kf.id} not mapped: {err}", throttle_duration_sec=5.0)
+            return
+        frame = self.params["map_frame"]
+        self.update_pub.publish(update_to_msg(update, kf.stamp_ns, frame))
+        if self.params["wait_for_loop_results"]:
+            self.awaiting_loop_for = kf.id
+        if update.objects_ran and self.owner.backend.objects is not None:
+            from changing_slam_ros.nodes.object_map_node import semantic_map_to_msg
+
+            smap = self.owner.backend.objects.semantic_map(self.owner.atlas.current.id, include_inactive=True)
+            self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(kf.stamp_ns, frame)))
+        self._publish_cloud(kf.stamp_ns)
+        now = time.monotonic()
+        self.process_ms.append((now - t0) * 1e3)
+        self.queue_ms.append((t0 - getattr(packet, "received_s", t0)) * 1e3)
+
+    def apply_loop(self, result: LoopResult, stamp: Any) -> None:
+        try:
+            relay = self.owner.on_loop(result)
+        except SlamError as err:
+            self.get_logger().warning(f"local_mapping: loop correction not applied: {err}")
+            return
+        if relay is None:
+            return
+        self.loops_applied += 1
+        from changing_slam_ros.nodes.conversions import stamp_to_ns
+
+        self.update_pub.publish(update_to_msg(relay, stamp_to_ns(stamp), self.params["map_frame"]))
+        self.get_logger().info(f"local_mapping: loop at keyframe {result.query_kf_id} applied "
+                               f"({len(relay.delta.keyframes)} keyframes, {len(relay.delta.points)} points changed)")  # fmt: skip
+
+    def _publish_cloud(self, stamp_ns: int) -> None:
+        now = time.monotonic()
+        if now - self._last_cloud_s < self.params["map_cloud_period_s"] or self.cloud_pub.get_subscription_count() == 0:
+            return
+        self._last_cloud_s = now
+        pts = self.owner.atlas.current.points
+        xyz = pts.positions[: pts.size][pts.usable()]
+        self.cloud_pub.publish(points_to_cloud(xyz, stamp_ns, self.params["map_frame"]))
+
+    # -- outputs --------------------------------------------------------------------------------
+    def stats(self) -> dict[str, Any]:
+        t = self.owner.timings_ms
+        out: dict[str, Any] = {
+            "keyframes_received": self.keyframes_in, "keyframes_rejected": self.keyframes_rejected,
+            "keyframes_mapped": len(t["mapping"]), "keyframes_queued": len(self.queue), "loops_applied": self.loops_applied,
+            "map_points": int(self.owner.atlas.current.points.usable().sum()),
+            "keyframes_in_map": self.owner.atlas.n_keyframes,
+        }  # fmt: skip
+        out.update(summarise_ms(self.process_ms, "keyframe"))
+        out.update(summarise_ms(self.queue_ms, "queue_wait"))
+        out.update(summarise_ms(t["mapping"], "local_ba_and_mapping"))
+        out.update(summarise_ms(t["diff"], "diff"))
+        return out
+
+    def finish(self) -> list[Path]:
+        if self._finished:
+            return []
+        self._finished = True
+        while self.queue:
+            self.map_keyframe(self.queue.popleft())
+        if not self.params["output_dir"]:
+            return []
+        from changing_slam_ros.io.atomic import atomic_write_text
+
+        out = Path(self.params["output_dir"])
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        layer = self.owner.backend.objects
+        if layer is not None and len(self.process_ms):
+            from changing_slam_ros.io.semantic_map_file import write_semantic_map
+
+            write_semantic_map(out / "semantic_map.json", layer.semantic_map(self.owner.atlas.current.id))
+            written.append(out / "semantic_map.json")
+        atomic_write_text(out / "local_mapping_stats.json", json.dumps(self.stats(), indent=2) + "\n")
+        written.append(out / "local_mapping_stats.json")
+        self.get_logger().info(f"local_mapping: wrote {', '.join(p.name for p in written)} to {out}")
+        return written
+
+    def destroy_node(self) -> None:
+        try:
+            self.finish()
+        finally:
+            super().destroy_node()
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -1,17 +1,23 @@
-"""`loop_closing`: keyframes (+ map updates, object states) -> loop corrections.
+"""`loop_closing`: keyframes + map updates -> loop corrections (place recognition, verification, pose graph).
 
-SKELETON (issue 7): topics, parameters, QoS, the keyframe conversion and the LoopCorrection message are
-real; the call into the core component (`core.loop_closing.LoopCloser`: place recognition, geometric
-verification, gtsam pose graph) is one TODO line in `on_keyframe`. It says so at start.
-Until the core can replicate map updates between processes, this work runs inside the tracking node
-(`in_process_backend`, nodes/slam_backend.py) and `changing-slam graph` does not start this node.
+    python -m changing_slam_ros.nodes.loop_closing_node --ros-args -p config:=tum_fr1
 
-Inputs: /tracking/keyframes, /local_mapping/map_updates, /object_map/object_states
-Output: ~/loop_corrections (LoopCorrection, reliable)
+Keeps a replica of the map fed by tracking's keyframe packets and local_mapping's MapUpdates (see
+`nodes/split_backend.py`). For each mapped keyframe, in the order local_mapping mapped them, it updates the
+keyframe database (culled keyframes out, the new one in, re-indexed when the object layer changed active
+flags) and runs `core.loop_closing.SlamMapLoopClosing` on it: BoW candidates, geometric verification, gtsam
+pose graph, fusion (and global BA when configured). It answers every keyframe with a LoopCorrection:
+`closed: false`, or the correction and the delta it made to the replica; local_mapping applies it to the map.
+
+Inputs: /tracking/keyframes (Keyframe, reliable), /local_mapping/map_updates (MapUpdate, reliable),
+  /object_map/object_states (inactive points reach place recognition through the map updates' active flags)
+Output: ~/loop_corrections (LoopCorrection, reliable), /diagnostics
 """
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -19,11 +25,13 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
-from changing_slam_msgs.msg import MapUpdate, ObjectStateArray
-from changing_slam_ros.errors import SlamError
-from changing_slam_ros.nodes.conversions import keyframe_from_msg, loop_correction_to_msg
-from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_msgs.msg import LoopCorrection as LoopCorrectionMsg
+from changing_slam_msgs.msg import MapUpdate, ObjectStateArray
+from changing_slam_ros.core.map_replication import MapUpdate as MapUpdateData
+from changing_slam_ros.errors import SlamError
+from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
+from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+from changing_slam_ros.nodes.replication_conversions import loop_result_to_msg, packet_from_msg, update_from_msg
 
 KEYFRAME_QOS = QoSProfile(depth=100)
 
@@ -31,33 +39,98 @@ KEYFRAME_QOS = QoSProfile(depth=100)
 class LoopClosingNode(Node):
     def __init__(self, keyframe_qos: QoSProfile = KEYFRAME_QOS, **node_kwargs: Any) -> None:
         super().__init__("loop_closing", **node_kwargs)
-        self.params = declare_parameters(self, [
+        self.params = p = declare_parameters(self, [
             ("config", "tum_fr1", "config name or YAML path (loop section: verification, pose graph)"),
             ("map_frame", "map", "frame of the corrected poses"),
+            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
         ])  # fmt: skip
+        from changing_slam_ros.nodes.slam_backend import load_backend_config
+        from changing_slam_ros.nodes.split_backend import LoopSide
+
+        self.side = LoopSide.build(load_backend_config(p["config"]))
         self.keyframes_in = 0
+        self.updates_in = 0
+        self.rejected = 0
+        self.loops = 0
+        self.process_ms: list[float] = []
+        self.updates: deque[tuple[MapUpdateData, Any]] = deque()  # waiting for their keyframe packet
         self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
         self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, keyframe_qos)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
         self.correction_pub = self.create_publisher(LoopCorrectionMsg, "~/loop_corrections", keyframe_qos)
-        self.get_logger().info("loop_closing: started (SKELETON: core loop closing not wired, no loops closed)")
+        self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
+        self.diagnostics.set_source(self.stats)
+        state = "on" if self.side is not None else "OFF (the config's loop.enabled is false): every keyframe answered 'no loop'"
+        self.get_logger().info(f"loop_closing: started (loop closing {state})")
 
     def on_keyframe(self, msg: KeyframeMsg) -> None:
         try:
-            kf = keyframe_from_msg(msg, "/tracking/keyframes")
+            packet = packet_from_msg(msg, "/tracking/keyframes")
         except (SlamError, ValueError) as err:
+            self.rejected += 1
             self.get_logger().warning(f"loop_closing: keyframe rejected: {err}", throttle_duration_sec=5.0)
             return
+        if self.side is not None:
+            try:
+                self.side.on_keyframe(packet)
+            except SlamError as err:
+                self.rejected += 1
+                self.get_logger().warning(f"loop_closing: keyframe rejected: {err}", throttle_duration_sec=5.0)
+                return
         self.keyframes_in += 1
-        correction = None  # TODO(issue 7): correction = self.loop_closer.process(kf, ...)  (core LoopCloser)
-        if correction is not None:
-            self.correction_pub.publish(loop_correction_to_msg(correction, kf.stamp_ns, self.params["map_frame"]))
+        self._drain()
 
     def on_map_update(self, msg: MapUpdate) -> None:
-        pass  # TODO(issue 7): update keyframe poses in the keyframe database / pose graph.
+        try:
+            update = update_from_msg(msg, "/local_mapping/map_updates")
+        except (SlamError, ValueError) as err:
+            self.rejected += 1
+            self.get_logger().warning(f"loop_closing: map update rejected: {err}", throttle_duration_sec=5.0)
+            return
+        self.updates_in += 1
+        self.updates.append((update, msg.header.stamp))
+        self._drain()
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
-        pass  # TODO(issue 7): exclude inactive points' descriptors from place recognition.
+        pass  # active flags arrive with the map updates (the object layer runs in local_mapping)
+
+    def _drain(self) -> None:
+        """Apply updates in order; one for a keyframe whose packet has not arrived yet waits for it."""
+        while self.updates:
+            update, stamp = self.updates[0]
+            if self.side is not None and update.keyframe_id >= 0 and update.keyframe_id not in self.side.pending:
+                return
+            self.updates.popleft()
+            self._process(update, stamp)
+
+    def _process(self, update: MapUpdateData, stamp: Any) -> None:
+        from changing_slam_ros.core.map_replication import LoopResult
+        from changing_slam_ros.nodes.conversions import stamp_to_ns
+
+        t0 = time.monotonic()
+        if self.side is None:
+            result = LoopResult(update.keyframe_id, False) if update.keyframe_id >= 0 else None
+        else:
+            try:
+                result = self.side.on_update(update)
+            except SlamError as err:
+                self.rejected += 1
+                self.get_logger().warning(f"loop_closing: map update not applied: {err}", throttle_duration_sec=5.0)
+                return
+        if result is None:
+            return
+        self.process_ms.append((time.monotonic() - t0) * 1e3)
+        self.loops += int(result.closed)
+        if result.closed:
+            self.get_logger().info(f"loop_closing: loop closed at keyframe {result.query_kf_id}")
+        self.correction_pub.publish(loop_result_to_msg(result, stamp_to_ns(stamp), self.params["map_frame"],
+                                                       update.delta.map_id))  # fmt: skip
+
+    def stats(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"keyframes_received": self.keyframes_in, "updates_received": self.updates_in,
+                               "updates_waiting": len(self.updates), "rejected": self.rejected, "loops_closed": self.loops}  # fmt: skip
+        out.update(summarise_ms(self.process_ms, "keyframe"))
+        return out
 
 
 def main(args: Sequence[str] | None = None) -> int:

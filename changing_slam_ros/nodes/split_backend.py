@@ -22,6 +22,7 @@ The object layer runs in the map owner: it needs the mapped keyframe's points (b
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,6 +39,7 @@ from changing_slam_ros.core.map_replication import (
     ReplicationError,
     apply_counters,
     apply_delta,
+    check_keyframe,
     diff,
     ensure_map,
     insert_keyframe,
@@ -71,8 +73,11 @@ class TrackingSide:
     n_updates: int = 0
     n_loops: int = 0
 
+    ship_objects: bool = True  # the map owner runs the object layer: packets carry depth and objects
+
     @staticmethod
-    def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config") -> TrackingSide:
+    def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config", objects: str = "config") -> TrackingSide:
+        ship = build_backend(cfg, loop=False, dynamic="off", objects=objects).objects is not None
         backend = build_backend(cfg, loop=loop, dynamic=dynamic, objects="off")
         system = backend.system
         index = backend.loop_closing  # same class as the loop side's: relocalisation candidates only here
@@ -83,7 +88,7 @@ class TrackingSide:
         if index is not None:
             system.tracker.candidates = index
         backend.loop_closing = None
-        return TrackingSide(backend, index=index)
+        return TrackingSide(backend, index=index, ship_objects=ship)
 
     @property
     def system(self) -> SlamSystem:
@@ -95,6 +100,8 @@ class TrackingSide:
             return out, None
         kf = out.keyframe
         counters = self.counters.take(self.system.atlas.maps[kf.map_id].points)
+        if not self.ship_objects:
+            return out, KeyframePacket(kf, counters)
         objects = tuple(out.dynamic.objects) if out.dynamic is not None else ()
         return out, KeyframePacket(kf, counters, rgbd.depth_m, objects)
 
@@ -137,6 +144,7 @@ class MapOwner:
     def on_keyframe(self, packet: KeyframePacket) -> MapUpdate:
         kf = packet.keyframe
         m = ensure_map(self.atlas, kf.map_id)
+        check_keyframe(m, kf)
         self.atlas.current = m
         apply_counters(m.points, packet.counters)
         before = snapshot(m)
@@ -168,10 +176,15 @@ class MapOwner:
         before = snapshot(m)
         if result.query_kf_id == self.last_kf_id:
             apply_delta(self.atlas, result.delta)  # the loop side corrected the very map we hold
-        elif result.correction is not None:
+        elif result.correction is not None:  # keyframes were mapped meanwhile: correct our newer map
             from changing_slam_ros.core.loop_closing import apply_correction
 
-            apply_correction(m, result.correction)  # keyframes were mapped meanwhile: correct our newer map
+            corr = result.correction
+            if not corr.pose_corrections:  # from a message: T_new @ T_old^-1 against our own poses
+                corr = dataclasses.replace(corr, pose_corrections={
+                    k: T @ np.linalg.inv(m.keyframes[k].T_world_cam) for k, T in corr.corrected_poses.items()
+                    if k in m.keyframes})  # fmt: skip
+            apply_correction(m, corr)
         else:
             raise ReplicationError(f"loop result for keyframe {result.query_kf_id}: stale and without a correction")
         return MapUpdate(-1, diff(before, m), loop_query_kf_id=result.query_kf_id)
@@ -242,7 +255,7 @@ class ChainedGraph:
 
     @staticmethod
     def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config", objects: str = "config") -> ChainedGraph:
-        return ChainedGraph(TrackingSide.build(cfg, loop, dynamic), MapOwner.build(cfg, objects),
+        return ChainedGraph(TrackingSide.build(cfg, loop, dynamic, objects), MapOwner.build(cfg, objects),
                             LoopSide.build(cfg) if loop else None)  # fmt: skip
 
     def process(self, rgbd: RgbdFrame, detections: Any = None) -> FrameOutput:

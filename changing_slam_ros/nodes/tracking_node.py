@@ -2,12 +2,16 @@
 
     python -m changing_slam_ros.nodes.tracking_node --ros-args -p config:=tum_fr1 -p output_dir:=/tmp/out
 
-INTERIM MODE, `in_process_backend:=true` (the default): the node runs the whole `core.system.SlamSystem`
-(tracking -> local mapping -> object layer -> loop closing, as `changing-slam run` wires them) in its own
-process, see `nodes/slam_backend.py`. Separate `local_mapping` / `loop_closing` processes need map-update
-replication into tracking's map, which the core does not have yet; until then those nodes stay skeletons and
-the map updates / loop corrections / object states topics below are subscribed but not applied.
-With `in_process_backend:=false` frames are paired, converted and acknowledged only (no pose; plumbing tests).
+Two backends. `in_process_backend:=false` (the split graph): features, dynamic filter and tracking run
+here against a replica of the map; each new keyframe goes out as a keyframe packet (~/keyframes) to
+`local_mapping` (which owns the map) and `loop_closing`; their MapUpdates (/local_mapping/map_updates) are
+applied to the replica as they arrive and the last frame is re-anchored on its moved reference keyframe
+(`nodes/split_backend.py`, `core/map_replication.py`). With `wait_for_map_updates:=true` (lossless graph) a
+keyframe frame is acknowledged to the bag player only once local_mapping's update and loop_closing's verdict
+for it (and, after a loop, local_mapping's update applying it) are in, so the graph replays the offline order.
+`in_process_backend:=true`: the whole `core.system.SlamSystem` (tracking -> local mapping -> object layer ->
+loop closing) runs in this process (deterministic, `nodes/slam_backend.py`), and this node publishes the
+semantic map itself. `slam:=false`: frames are paired, converted and acknowledged only (plumbing tests).
 
 Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour
 stamp for at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is
@@ -106,7 +110,13 @@ class TrackingNode(Node):
             ("ack_topic", "", "std_msgs/Header per processed frame (bag_player lossless); empty = off"),
             ("stats_period_s", 10.0, "seconds between log lines with frame and drop counts"),
             ("compressed", False, "subscribe CompressedImage on <colour>/compressed and <depth>/compressed"),
-            ("in_process_backend", True, "INTERIM: run local mapping, objects and loop closing in this process"),
+            ("slam", True, "false: pair, convert and acknowledge frames only (no poses; plumbing tests)"),
+            ("in_process_backend", False, "run local mapping, objects and loop closing in this process instead of "
+                                          "taking map updates from local_mapping / loop_closing"),
+            ("wait_for_map_updates", False, "split backend: acknowledge a keyframe frame only after its map update "
+                                            "and loop verdict arrived (lossless graph)"),
+            ("map_update_timeout_s", 30.0, "wait_for_map_updates: give up waiting after this long (warns)"),
+            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
             ("loop_closing", True, "in-process backend: loop closing on (unless the config's loop.enabled is false)"),
             ("dynamic", "config", "dynamic-scene filter: config (the dynamic section's enabled), on, off"),
             ("objects", "config", "object layer (MapObjects, beliefs): config, on, off"),
@@ -140,13 +150,26 @@ class TrackingNode(Node):
         self._finished = False
 
         self.backend: Any = None
+        self.split: Any = None  # split_backend.TrackingSide when the map comes from local_mapping
         self.config_camera: CameraIntrinsics | None = None
+        self.updates_applied = 0
+        self.detections_in = 0
+        self.update_latency_ms: list[float] = []  # keyframe published -> its map update applied
+        self._awaiting: dict[str, Any] | None = None  # wait_for_map_updates: what the held ack waits for
+        self._kf_sent_s: dict[int, float] = {}
+        self._relays_seen: set[int] = set()
         intrinsics_from = p["intrinsics_from"]
-        if p["in_process_backend"]:
+        if p["slam"]:
             from changing_slam_ros.nodes.slam_backend import build_backend, config_camera, intrinsics_source, load_backend_config
 
             cfg = load_backend_config(p["config"])
-            self.backend = build_backend(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"])
+            if p["in_process_backend"]:
+                self.backend = build_backend(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"])
+            else:
+                from changing_slam_ros.nodes.split_backend import TrackingSide
+
+                self.split = TrackingSide.build(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"])
+                self.backend = self.split.backend
             if intrinsics_from == "auto":
                 intrinsics_from = intrinsics_source(cfg)
             if intrinsics_from == "config":
@@ -185,8 +208,16 @@ class TrackingNode(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(p["stats_period_s"], self._log_stats, clock=steady)
         self.create_timer(0.01, self._drain, clock=steady)
-        mode = "in-process backend (INTERIM: tracking + local mapping + objects + loop closing here)" if self.backend \
-            else "pairing only (in_process_backend:=false, no poses)"  # fmt: skip
+        from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
+
+        self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"], warn_if=_warn_if)
+        self.diagnostics.set_source(self.diagnostic_values)
+        if self.backend is None:
+            mode = "pairing only (slam:=false, no poses)"
+        elif self.split is not None:
+            mode = "split backend (map from local_mapping, loops from loop_closing)"
+        else:
+            mode = "in-process backend (tracking + local mapping + objects + loop closing here)"
         self.get_logger().info(f"tracking: started, {mode}, intrinsics from {self.intrinsics_from}")
 
     # -- inputs ---------------------------------------------------------------------------------
@@ -214,6 +245,7 @@ class TrackingNode(Node):
     def on_detections(self, msg: DetectionArray) -> None:
         ds = detections_from_msg(msg)
         self._detections_seen = True
+        self.detections_in += 1
         if ds.stamp_ns in self._received_s or any(f.stamp_ns == ds.stamp_ns for f in self._pending):
             received = self._received_s.get(ds.stamp_ns) or next(f.received_s for f in self._pending if f.stamp_ns == ds.stamp_ns)
             self.detection_delay_ms.append((time.monotonic() - received) * 1e3)
@@ -223,13 +255,61 @@ class TrackingNode(Node):
         self._drain()
 
     def on_map_update(self, msg: MapUpdate) -> None:
-        pass  # Separate local_mapping process: needs map-update replication in core (open, see module doc).
+        """Split backend: local_mapping's change of the map into the replica (in publication order)."""
+        if self.split is None:
+            return
+        from changing_slam_ros.nodes.replication_conversions import update_from_msg
+
+        try:
+            update = update_from_msg(msg, "/local_mapping/map_updates")
+            self.split.apply_update(update)
+        except (SlamError, ValueError) as err:
+            self.get_logger().warning(f"tracking: map update rejected: {err}", throttle_duration_sec=5.0)
+            return
+        self.updates_applied += 1
+        sent = self._kf_sent_s.pop(update.keyframe_id, None)
+        if sent is not None:
+            self.update_latency_ms.append((time.monotonic() - sent) * 1e3)
+        if update.loop_query_kf_id >= 0:
+            self.split.n_loops += 1
+            self._relays_seen.add(update.loop_query_kf_id)
+            self._rebuild_path()
+        self._settle(update=update.keyframe_id, relay=update.loop_query_kf_id)
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
-        pass  # Separate loop_closing process: same (the in-process backend corrects its own map).
+        """Split backend: loop_closing's verdict; a closed loop reaches the replica through local_mapping's update."""
+        if self.split is None:
+            return
+        self._settle(verdict=int(msg.query_keyframe_id), closed=bool(msg.closed))
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
-        pass  # Separate object_map process: same (the in-process object layer sets point activity itself).
+        pass  # Point activity comes from the object layer (in local_mapping, or in-process), not from object_map.
+
+    def _settle(self, update: int = -2, relay: int = -2, verdict: int = -2, closed: bool = False) -> None:
+        """wait_for_map_updates: tick off what the held acknowledgement waits for; send it when all is in."""
+        a = self._awaiting
+        if a is None:
+            return
+        kf = a["kf"]
+        if update == kf:
+            a["update"] = True
+        if verdict == kf:
+            a["verdict"] = True
+            a["relay"] = not closed or kf in self._relays_seen
+        if relay == kf:
+            a["relay"] = True
+        if a["update"] and a["verdict"] and a["relay"]:
+            self._awaiting = None
+            self._ack(a["header"])
+            self._drain()
+
+    def _check_wait(self) -> None:
+        a = self._awaiting
+        if a is not None and time.monotonic() > a["deadline"]:
+            self.get_logger().warning(f"tracking: no map update / loop verdict for keyframe {a['kf']} after "
+                                      f"{self.params['map_update_timeout_s']} s; going on")  # fmt: skip
+            self._awaiting = None
+            self._ack(a["header"])
 
     # -- one RGB-D frame ------------------------------------------------------------------------
     def on_frame(self, stamp_ns: int, rgb_msg: Any, depth_msg: Any) -> None:
@@ -245,7 +325,8 @@ class TrackingNode(Node):
 
     def _drain(self) -> None:
         """Process waiting frames in order: each when its detections are in, or at its deadline."""
-        while self._pending:
+        self._check_wait()
+        while self._pending and self._awaiting is None:
             head = self._pending[0]
             if head.stamp_ns not in self.detections and time.monotonic() < head.deadline_s:
                 return
@@ -285,20 +366,35 @@ class TrackingNode(Node):
         dets = self.detections.pop(item.stamp_ns, None)
         if dets is None and self.backend.wants_detections:
             self.frames_without_detections += 1
-        out = self.backend.system.process(frame, None if dets is None else dets.detections)
+        packet = None
+        if self.split is not None:
+            out, packet = self.split.process(frame, None if dets is None else dets.detections)
+        else:
+            out = self.backend.system.process(frame, None if dets is None else dets.detections)
         if out.state == TrackingState.OK and out.T_world_cam is not None:
             self.publish_pose(item.stamp_ns, out.T_world_cam)
             self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
         if out.loop_corrected:
             self._rebuild_path()
-        if out.keyframe is not None:
+        if packet is not None:
+            from changing_slam_ros.nodes.replication_conversions import packet_to_msg
+
+            msg = packet_to_msg(packet, self.params["map_frame"])
+            self._kf_sent_s[packet.keyframe.id] = time.monotonic()
+            if self.params["wait_for_map_updates"]:
+                self._awaiting = {"kf": packet.keyframe.id, "update": False, "verdict": False, "relay": False,
+                                  "header": item.rgb_msg.header,
+                                  "deadline": time.monotonic() + self.params["map_update_timeout_s"]}  # fmt: skip
+            self.keyframe_pub.publish(msg)
+        elif out.keyframe is not None:
             self.keyframe_pub.publish(keyframe_to_msg(out.keyframe, self.params["map_frame"]))
         if out.objects is not None:
             self.publish_semantic_map(item.stamp_ns)
         if self.debug_pub is not None and self.debug_pub.get_subscription_count() > 0:
             self.debug_pub.publish(self._debug_image(frame, out, dets))
         self.process_ms.append((time.monotonic() - t0) * 1e3)
-        self._ack(item.rgb_msg.header)
+        if self._awaiting is None:
+            self._ack(item.rgb_msg.header)
 
     # -- outputs --------------------------------------------------------------------------------
     def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
@@ -324,6 +420,8 @@ class TrackingNode(Node):
     def _rebuild_path(self) -> None:
         """After a loop closure: the path becomes the optimised (final) trajectory so far."""
         traj = self.backend.system.final_trajectory()
+        if len(traj) == 0:
+            return
         frame = self.params["map_frame"]
         self.path.poses = [
             PoseStamped(header=make_header(round(t * 1e9), frame), pose=matrix_to_pose(T))
@@ -369,8 +467,23 @@ class TrackingNode(Node):
             "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
             "process_ms_median": float(np.median(proc)) if proc.size else None,
             "detection_delay_ms_median": float(np.median(self.detection_delay_ms)) if self.detection_delay_ms else None,
+            "detections_received": self.detections_in,
+            "backend": "in_process" if self.split is None else "split",
+            "map_updates_applied": self.updates_applied,
+            "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
+            "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "latency_ms": [round(float(v), 2) for v in lat],
         }  # fmt: skip
+
+    def diagnostic_values(self) -> dict[str, Any]:
+        """Counts and latencies for /diagnostics (no per-frame lists)."""
+        s = self.stats()
+        keep = ("colour_received", "frames_converted", "poses_published", "unpaired_colour_dropped",
+                "unpaired_depth_dropped", "frames_rejected", "frames_without_detections", "latency_ms_median",
+                "latency_ms_p90", "process_ms_median", "detections_received", "map_updates_applied", "map_update_latency_ms_median")  # fmt: skip
+        out = {k: s[k] for k in keep}
+        out["dropped"] = self.colour_in - self.published_poses
+        return out
 
     def finish(self) -> list[Path]:
         """Process frames still waiting, then write the outputs to `output_dir` (once; no-op without it)."""
@@ -419,6 +532,13 @@ class TrackingNode(Node):
         if key not in self._warned:
             self._warned.add(key)
             self.get_logger().warning(text)
+
+
+def _warn_if(values: Any) -> str | None:
+    lat = values.get("latency_ms_median")
+    if lat is not None and lat > 60.0:
+        return f"image-to-pose latency median {lat:.0f} ms > 60 ms"
+    return None
 
 
 def main(args: Sequence[str] | None = None) -> int:

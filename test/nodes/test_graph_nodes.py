@@ -1,4 +1,4 @@
-"""The nodes in-process: topics, conversions, acks, services (tracking with `in_process_backend:=false`: plumbing only;
+"""The nodes in-process: topics, conversions, acks, services (tracking with `slam:=false`: plumbing only;
 its SLAM backend is tested in test_tracking_node.py)."""
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from helpers import spin_until  # noqa: E402
 def test_tracking_pairs_every_bag_frame_and_acks_it_for_a_lossless_bag_player(ros_context, tmp_path, fr1_bag_writer):
     bag = fr1_bag_writer(tmp_path / "bag", n=10, scale=4)
     tracking = TrackingNode(context=ros_context, parameter_overrides=[
-        Parameter("ack_topic", value="/bag_player/ack"), Parameter("in_process_backend", value=False)])  # fmt: skip
+        Parameter("ack_topic", value="/bag_player/ack"), Parameter("slam", value=False)])  # fmt: skip
     player = BagPlayerNode(context=ros_context, parameter_overrides=[
         Parameter("bag", value=str(bag.path)), Parameter("rate", value=5.0), Parameter("lossless", value=True),
         Parameter("ack_topics", value=["/camera/rgb/image_color"]),
@@ -65,7 +65,7 @@ def test_tracking_pairs_every_bag_frame_and_acks_it_for_a_lossless_bag_player(ro
 
 
 def test_tracking_publishes_pose_and_rep105_tf_from_a_camera_to_world_matrix(ros_context):
-    tracking = TrackingNode(context=ros_context, parameter_overrides=[Parameter("in_process_backend", value=False)])
+    tracking = TrackingNode(context=ros_context, parameter_overrides=[Parameter("slam", value=False)])
     probe = Node("probe", context=ros_context)
     poses: list[PoseStamped] = []
     tfs: list[TFMessage] = []
@@ -94,7 +94,7 @@ def _keyframe_msg(n: int = 50) -> KeyframeMsg:
         id=3, stamp_ns=10, T_world_cam=np.eye(4), camera=CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5),
         keypoints_px=rng.uniform(0, 480, (n, 2)).astype(np.float32), octaves=np.zeros(n, np.int8),
         descriptors=rng.integers(0, 256, (n, 32)).astype(np.uint8), depths_m=np.ones(n, np.float32),
-        point_ids=np.arange(n, dtype=np.int64),
+        point_ids=np.full(n, -1, np.int64),  # a first keyframe: no map points yet
     )  # fmt: skip
     return cv.keyframe_to_msg(kf, "map")
 
@@ -115,6 +115,13 @@ def test_mapping_and_loop_nodes_take_keyframes_and_reject_malformed_ones(ros_con
     assert spin_until(executor, lambda: node.keyframes_in >= 1)
     spin_until(executor, lambda: False, 0.3)
     assert node.keyframes_in == 1  # the malformed one was rejected with a warning, the node lives on
+    unknown = _keyframe_msg()
+    unknown.id = 4
+    unknown.point_ids = np.arange(50, dtype=np.int64) + 10_000  # points no map has: rejected, not a crash
+    pub.publish(unknown)
+    spin_until(executor, lambda: False, 0.3)
+    rejected = node.keyframes_rejected if node_class is LocalMappingNode else node.rejected
+    assert rejected == 2  # the malformed message and the keyframe naming unknown points
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
@@ -174,7 +181,7 @@ def test_tracking_takes_compressed_colour_and_depth_from_the_bundled_sim_bag(ros
     colour = "/camera/rgb/image_color/compressed"
     tracking = TrackingNode(context=ros_context, parameter_overrides=[
         Parameter("ack_topic", value="/bag_player/ack"), Parameter("compressed", value=True),
-        Parameter("in_process_backend", value=False)])  # fmt: skip
+        Parameter("slam", value=False)])  # fmt: skip
     player = BagPlayerNode(context=ros_context, parameter_overrides=[
         Parameter("bag", value=str(path)), Parameter("rate", value=4.0), Parameter("start_offset_s", value=13.0),
         Parameter("lossless", value=True), Parameter("ack_topics", value=[colour]),

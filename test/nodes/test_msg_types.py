@@ -44,6 +44,13 @@ def _keyframe(store, n: int = 3):
         point_ids=np.array([7, -1, 9][:n], dtype=np.int64),
         kp_classes=np.array([0, 2, 1][:n], dtype=np.int8),
         object_ids=np.array([-1, 3, 4][:n], dtype=np.int64),
+        counter_point_ids=np.array([7], dtype=np.int64), counter_n_visible=np.array([2], dtype=np.int64),
+        counter_n_found=np.array([1], dtype=np.int64), counter_last_seen_frame=np.array([12], dtype=np.int64),
+        depth=t["sensor_msgs/msg/Image"](header=header, height=0, width=0, encoding="", is_bigendian=0, step=0,
+                                         data=np.zeros(0, np.uint8)),
+        # Non-empty: rosbags and Fast CDR disagree on the padding after an EMPTY sequence of 8-byte elements
+        # (Fast CDR aligns, rosbags does not), so rclpy-serialised messages with one do not read back in rosbags.
+        short_term_objects=np.arange(52, dtype=np.float64),
     )
 
 

@@ -39,6 +39,7 @@ def test_tracking_node_poses_on_the_fr1_bag_match_ground_truth_and_follow_rep105
     out = tmp_path / "out"
     tracking = TrackingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="tum_fr1"), Parameter("ack_topic", value="/bag_player/ack"),
+        Parameter("in_process_backend", value=True),
         Parameter("output_dir", value=str(out)), Parameter("camera_frame", value="camera_link"),
     ])  # fmt: skip
     player = BagPlayerNode(context=ros_context, parameter_overrides=[
@@ -99,6 +100,7 @@ def test_tracking_node_uses_the_detections_stamped_for_each_frame(ros_context, t
     bag = require(REPO / "bags" / "tum_fr1_xyz_first10.mcap")
     tracking = TrackingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="tum_fr1"), Parameter("ack_topic", value="/bag_player/ack"),
+        Parameter("in_process_backend", value=True),
         Parameter("detections_required", value=True), Parameter("detections_wait_s", value=30.0),
     ])  # fmt: skip
     player = BagPlayerNode(context=ros_context, parameter_overrides=[
@@ -158,7 +160,8 @@ def test_tracking_node_rejects_malformed_images_and_survives_nan_depth(ros_conte
     rgb = np.ascontiguousarray(cv2.imread(str(root / row[1]), cv2.IMREAD_COLOR)[:, :, ::-1])
     depth = cv2.imread(str(root / row[3]), cv2.IMREAD_UNCHANGED).astype(np.float32) / 5000
     depth[100:200, 100:300] = np.nan  # NaN = no reading, not a crash
-    tracking = TrackingNode(context=ros_context, parameter_overrides=[Parameter("config", value="tum_fr1")])
+    tracking = TrackingNode(context=ros_context, parameter_overrides=[Parameter("config", value="tum_fr1"),
+                                                                         Parameter("in_process_backend", value=True)])
     assert tracking.intrinsics_from == "config"  # TUM bags carry ROS default intrinsics; the config's are used
     probe = Node("probe", context=ros_context)
     colour_pub = probe.create_publisher(Image, "/camera/rgb/image_color", 10)

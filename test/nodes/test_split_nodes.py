@@ -1,0 +1,177 @@
+"""local_mapping and loop_closing in-process: keyframe packets in, map updates / loop corrections out."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.ros
+
+pytest.importorskip("rclpy")
+msgs = pytest.importorskip("changing_slam_msgs.msg", reason="interfaces not built (tools/build_interfaces.sh)")
+if not hasattr(msgs, "MapDelta"):
+    pytest.skip("interfaces older than msg_defs (run tools/build_interfaces.sh)", allow_module_level=True)
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import QoSProfile  # noqa: E402
+
+from changing_slam_msgs.msg import Keyframe as KeyframeMsg  # noqa: E402
+from changing_slam_msgs.msg import LoopCorrection, MapUpdate  # noqa: E402
+from changing_slam_ros.core.map_replication import KeyframePacket, diff, snapshot  # noqa: E402
+from changing_slam_ros.core.map_replication import MapUpdate as MapUpdateData  # noqa: E402
+from changing_slam_ros.nodes.local_mapping_node import LocalMappingNode  # noqa: E402
+from changing_slam_ros.nodes.loop_closing_node import LoopClosingNode  # noqa: E402
+from changing_slam_ros.nodes.replication_conversions import (  # noqa: E402
+    packet_from_msg,
+    packet_to_msg,
+    update_from_msg,
+    update_to_msg,
+)
+from helpers import REDKITCHEN, require, spin_until  # noqa: E402
+
+Q = QoSProfile(depth=100)
+
+
+@pytest.fixture(scope="module")
+def kitchen_packets():
+    """Keyframe packets tracking made on 7-Scenes redkitchen (first 45 frames, lossless order) and the map the
+    owner built from them (ChainedGraph)."""
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.nodes.slam_backend import load_backend_config
+    from changing_slam_ros.nodes.split_backend import ChainedGraph
+
+    source = open_dataset(require(REDKITCHEN), "7scenes")
+    chained = ChainedGraph.build(load_backend_config("7scenes"), loop=False, objects="off")
+    packets: list[KeyframePacket] = []
+    owner_call = chained.owner.on_keyframe
+
+    def capture(packet: KeyframePacket) -> MapUpdateData:
+        packets.append(copy.deepcopy(packet))
+        return owner_call(packet)
+
+    chained.owner.on_keyframe = capture  # type: ignore[method-assign]
+    for i, rgbd in enumerate(source):
+        if i >= 45:
+            break
+        chained.process(rgbd)
+    return packets, chained.owner.atlas.current
+
+
+def test_packets_and_updates_round_trip_through_their_messages(kitchen_packets):
+    packets, owner = kitchen_packets
+    p = packets[-1]
+    back = packet_from_msg(packet_to_msg(p, "map"), "t")
+    np.testing.assert_array_equal(back.keyframe.point_ids, p.keyframe.point_ids)
+    np.testing.assert_array_equal(back.counters.n_visible, p.counters.n_visible)
+    before = snapshot(owner)
+    owner.points.positions[:5] += 0.0  # no change: an empty delta survives too
+    u = MapUpdateData(7, diff(before, owner))
+    again = update_from_msg(update_to_msg(u, 1, "map"), "t")
+    assert again.keyframe_id == 7 and again.delta.empty
+
+
+def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros_context, kitchen_packets):
+    packets, owner = kitchen_packets
+    assert len(packets) >= 4
+    node = LocalMappingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="7scenes"), Parameter("objects", value="off"),
+        Parameter("diagnostics_period_s", value=0.2)])  # fmt: skip
+    probe = Node("probe", context=ros_context)
+    pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
+    updates: list[MapUpdate] = []
+    diags: list[DiagnosticArray] = []
+    probe.create_subscription(MapUpdate, "/local_mapping/map_updates", updates.append, Q)
+    probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0 and node.update_pub.get_subscription_count() > 0)
+    for p in packets:
+        pub.publish(packet_to_msg(p, "map"))
+    assert spin_until(executor, lambda: len(updates) >= len(packets), 60.0)
+    assert [u.keyframe_id for u in updates] == [p.keyframe.id for p in packets]
+    later = update_from_msg(updates[-1], "t")
+    assert len(later.delta.points) > 0 and len(later.delta.keyframes) >= 2  # new points; BA moved neighbours
+    assert len(updates[-1].keyframe_poses) == len(later.delta.keyframes)  # the summary fields are filled
+    m = node.owner.atlas.current
+    assert sorted(m.keyframes) == sorted(owner.keyframes)
+    for k, kf in owner.keyframes.items():
+        np.testing.assert_allclose(m.keyframes[k].T_world_cam, kf.T_world_cam, atol=1e-9, rtol=0)
+    n = owner.points.size
+    np.testing.assert_allclose(m.points.positions[:n], owner.points.positions[:n], atol=1e-9, rtol=0)
+    def reported() -> dict[str, str]:
+        ours = [s for d in diags for s in d.status if s.name == "local_mapping"]
+        return {kv.key: kv.value for kv in ours[-1].values} if ours else {}
+
+    assert spin_until(executor, lambda: reported().get("keyframes_mapped") == str(len(packets)), 5.0)
+    assert float(reported()["keyframe_ms_median"]) > 0 and reported()["keyframes_rejected"] == "0"
+    executor.shutdown()
+    node.destroy_node()
+    probe.destroy_node()
+
+
+def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):
+    """Synthetic room with ground truth (test/core/test_loop_closing.py): a drifting owner maps a turn and a
+    quarter; fed its keyframe packets and map updates, the node answers every keyframe and closes the loop
+    between the start and a turn later, with the correction's delta for the owner."""
+    from core.test_loop_closing import SyntheticRoom, _rot_y  # noqa: PLC0415 - the room of the core tests
+
+    from changing_slam_ros.core.orb_features import FeatureConfig
+    from changing_slam_ros.core.se3 import invert, make_pose
+    from changing_slam_ros.core.slam_map import SlamMap
+
+    node = LoopClosingNode(context=ros_context, parameter_overrides=[Parameter("config", value="")])
+    probe = Node("probe", context=ros_context)
+    kf_pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
+    up_pub = probe.create_publisher(MapUpdate, "/local_mapping/map_updates", Q)
+    answers: list[LoopCorrection] = []
+    probe.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", answers.append, Q)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    assert spin_until(executor, lambda: kf_pub.get_subscription_count() > 0 and up_pub.get_subscription_count() > 0
+                      and node.correction_pub.get_subscription_count() > 0)  # fmt: skip
+    room, m, scales = SyntheticRoom(seed=1), SlamMap(0), FeatureConfig().level_scales()
+    truth, online, last_seen = {}, {}, {}
+    n_kf, n_per_turn = 58, 48
+    for k in range(n_kf):
+        truth[k] = room.pose(k, n_per_turn)
+        rel = invert(truth[k - 1]) @ truth[k] if k else np.eye(4)
+        online[k] = truth[0].copy() if k == 0 else \
+            m.keyframes[k - 1].T_world_cam @ make_pose(_rot_y(np.radians(1.0)) @ rel[:3, :3], rel[:3, 3])  # fmt: skip
+        kf, seen = room.keyframe(k, truth[k], online[k])
+        kf_pub.publish(packet_to_msg(KeyframePacket(copy.deepcopy(kf)), "map"))
+        before = snapshot(m)  # the owner: re-use points of the last 3 keyframes, map the rest anew (drift)
+        m.add_keyframe(kf)
+        rows = []
+        for row, w in enumerate(seen.tolist()):
+            known = last_seen.get(w)
+            if known is not None and k - known[1] <= 3:
+                m.add_observation(known[0], k, row)
+                last_seen[w] = (known[0], k)
+            else:
+                rows.append(row)
+        r = np.array(rows, np.int64)
+        pc = kf.camera.backproject(kf.keypoints_px[r].astype(np.float64), kf.depths_m[r].astype(np.float64))
+        ids = m.points.add(pc @ online[k][:3, :3].T + online[k][:3, 3], kf.descriptors[r], k, r, online[k][:3, 3],
+                           np.zeros(len(r), np.int64), scales)  # fmt: skip
+        kf.point_ids[r] = ids
+        for pid, row in zip(ids.tolist(), r.tolist(), strict=True):
+            last_seen[int(seen[row])] = (pid, k)
+        m.update_connections(k)
+        up_pub.publish(update_to_msg(MapUpdateData(k, diff(before, m)), kf.stamp_ns, "map"))
+        assert spin_until(executor, lambda k=k: len(answers) >= k + 1, 30.0)
+    closed = [a for a in answers if a.closed]
+    assert [a.query_keyframe_id for a in answers] == list(range(n_kf))
+    assert closed, "no loop closed"
+    first = closed[0]
+    assert first.match_keyframe_id < 5 and first.query_keyframe_id >= n_per_turn - 3
+    assert len(first.fused_point_pairs) // 2 > 100 and len(first.delta.kf_ids) > 40
+    executor.shutdown()
+    node.destroy_node()
+    probe.destroy_node()
