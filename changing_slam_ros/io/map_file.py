@@ -350,8 +350,8 @@ class _Reader:
             if rem.parent_id not in known and rem.parent_id not in m.removed:
                 raise self.fail(pre + "removed_parents", f"culled keyframe {k} hangs off unknown keyframe {rem.parent_id}")
 
-        def check(key: str, ids: npt.NDArray[Any]) -> None:
-            bad = sorted(set(ids.reshape(-1).tolist()) - known)
+        def check(key: str, ids: npt.NDArray[Any], also_culled: bool = False) -> None:
+            bad = sorted(set(ids.reshape(-1).tolist()) - known - (set(m.removed) if also_culled else set()))
             if bad:
                 raise self.fail(key, f"unknown keyframe ids {bad[:5]}")
 
@@ -377,7 +377,7 @@ class _Reader:
                 raise self.fail(pre + "children", f"keyframe {p} is not in children_keys")
             m.children[p].add(c)
         loops = self.get(pre + "loop_edges", "i", (None, 2))
-        check(pre + "loop_edges", loops)
+        check(pre + "loop_edges", loops, also_culled=True)  # a loop's keyframe may be culled later
         m.loop_edges = {}
         for k, o in loops.tolist():
             m.loop_edges.setdefault(k, set()).add(o)
