@@ -49,6 +49,7 @@ from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.long_term_association import (
     AssociationResult, LongTermAssociation, ObjectCandidate, apply_to_point_store, box_truncated,
 )
+from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
 from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.core.semantic_map import SemanticMap, build_semantic_map
@@ -69,12 +70,17 @@ class ObjectLayerConfig:
     - `depth_band_m`: samples farther than this from the box's median depth are background and left out
       (smaller boxes use a narrower band, see `box_depth_samples`).
     - `band_map_points`: apply the same band to the map points of the box's keypoints (camera-frame depth).
+    - `session_belief_decay`: a map loaded for a new session (multi-session) pulls every object's belief this
+      fraction of the way back to 0.5 (0 = keep, 1 = forget): time has passed and the room may have changed, so
+      what the last session saw counts less than what this one sees (a one-step stand-in for a survival-time
+      prior). An object that falls below `belief_threshold` starts the session inactive.
     """
 
     enabled: bool = True
     depth_samples: int = 100
     depth_band_m: float = 0.35
     band_map_points: bool = True
+    session_belief_decay: float = 0.5
     association: ObjectMapConfig = field(default_factory=ObjectMapConfig)
 
     def __post_init__(self) -> None:
@@ -82,9 +88,12 @@ class ObjectLayerConfig:
             raise ConfigError(f"objects.depth_samples: expected >= 0, got {self.depth_samples}")
         if self.depth_band_m <= 0.0:
             raise ConfigError(f"objects.depth_band_m: expected > 0, got {self.depth_band_m}")
+        if not 0.0 <= self.session_belief_decay <= 1.0:
+            raise ConfigError(f"objects.session_belief_decay: expected within [0, 1], got {self.session_belief_decay}")
 
 
-_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "band_map_points": bool}
+_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "band_map_points": bool,
+             "session_belief_decay": float}
 
 
 def object_layer_config(data: dict[str, Any] | None, where: str = "objects") -> ObjectLayerConfig:
@@ -213,13 +222,22 @@ class ObjectLayer:
         ids, kfs, pts = mo.anchors.arrays()
         return SavedObjectMap(self.objects(map_id), ids.copy(), kfs.copy(), pts.copy(), mo.next_sample_id)
 
-    def load_objects(self, map_id: int, saved: SavedObjectMap, first_keyframe_id: int) -> None:
-        """Start `map_id`'s object map from a loaded one (its objects keep their beliefs); the new session's
-        keyframes start at `first_keyframe_id`, and every object counts as long unseen
+    def load_objects(self, map_id: int, saved: SavedObjectMap, first_keyframe_id: int,
+                     points: PointStore | None = None) -> None:
+        """Start `map_id`'s object map from a loaded one; beliefs are pulled toward 0.5 by `session_belief_decay`
+        and the active flags of the objects and of their map points in `points` (the loaded map's) follow. The
+        new session's keyframes start at `first_keyframe_id`, and every object counts as long unseen
         (`LongTermAssociation.new_session`): its first sighting, or expected miss, updates its belief."""
         mo = _MapObjects(LongTermAssociation(self.config.association), next_sample_id=saved.next_sample_id)
+        keep = 1.0 - self.config.session_belief_decay
         for obj in saved.objects:
+            obj.belief = 0.5 + (obj.belief - 0.5) * keep
+            obj.active = obj.belief >= self.config.association.belief_threshold
             mo.lta.add_object(obj)
+            if points is not None:
+                ids = obj.point_ids[(obj.point_ids >= 0) & (obj.point_ids < points.size)]
+                ids = ids[points.object_id[ids] == obj.id]  # a shared point follows its last object
+                points.active[ids] = obj.active
         for kf_id in np.unique(saved.anchor_kf_ids).tolist():
             sel = saved.anchor_kf_ids == kf_id
             mo.anchors.add(int(kf_id), saved.anchor_ids[sel], saved.anchor_points_cam[sel])
