@@ -128,6 +128,9 @@ class SlamSystem:
         if self.records:
             raise RuntimeError("start_from_map must be called before the first frame")
         self.atlas.maps, self.atlas.current = atlas.maps, atlas.current
+        if self.object_layer is not None and self.object_layer.enabled:  # first: it may deactivate points
+            for map_id, saved in (objects or {}).items():
+                self.object_layer.load_objects(map_id, saved, next_keyframe_id, self.atlas.maps[map_id].points)
         refresh = getattr(self.loop_closer, "refresh_active_points", None)
         for m in self.atlas.maps:
             if self.keyframe_index is not None:
@@ -135,9 +138,6 @@ class SlamSystem:
                     self.keyframe_index.add(m.keyframes[kf_id])
             if refresh is not None:
                 refresh(m)
-        if self.object_layer is not None and self.object_layer.enabled:
-            for map_id, saved in (objects or {}).items():
-                self.object_layer.load_objects(map_id, saved, next_keyframe_id)
         self.tracker.start_from_map(next_keyframe_id)
 
     def _extractor_for(self, camera: CameraIntrinsics) -> OrbExtractor:
