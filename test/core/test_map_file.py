@@ -142,3 +142,20 @@ def test_truncated_corrupt_and_foreign_files(mapped: tuple[SlamSystem, Path], tm
         load_map(foreign)
     with pytest.raises(MapFileError, match="no such file"):
         load_map(tmp_path / "none.npz")
+
+
+def test_culled_keyframes_and_loop_edges_round_trip(mapped: tuple[SlamSystem, Path], tmp_path: Path) -> None:
+    """A keyframe culled after a loop closed on it: its removal record and the loop edge naming it survive."""
+    _, path = mapped
+    loaded = load_map(path)
+    m = loaded.atlas.maps[0]
+    last = max(m.keyframes)
+    assert m.remove_keyframe(last - 1)
+    m.loop_edges = {last: {last - 1}}
+    out = tmp_path / "culled.npz"
+    save_map(out, loaded.atlas, loaded.objects, loaded.next_keyframe_id)
+    back = load_map(out).atlas.maps[0]
+    assert back.loop_edges == {last: {last - 1}} and sorted(back.keyframes) == sorted(m.keyframes)
+    assert back.removed[last - 1].parent_id == m.removed[last - 1].parent_id
+    np.testing.assert_array_equal(back.pose_of(last - 1), m.pose_of(last - 1))
+    assert back.covisibility == m.covisibility and back.children == m.children and back.parent == m.parent
