@@ -1,10 +1,12 @@
 """Local mapping (ORB-SLAM `LocalMapping` for RGB-D): what happens when tracking makes a keyframe.
 
 1. insert the keyframe (its tracked points gain an observation) and update the covisibility graph;
-2. create map points from its unmatched keypoints with valid depth (back-projected, RGB-D), then fuse
-   duplicates with the covisible keyframes (`map_fusion`);
+2. create map points from its unmatched keypoints with valid depth (back-projected, RGB-D), and from
+   depth-less keypoints matched and triangulated with its best covisible keyframes (`triangulation`);
+   then fuse duplicates with the covisible keyframes (`map_fusion`);
 3. cull recently created points that tracking rarely finds (found / visible < 0.25) or that fewer than
-   `min_observations` keyframes see after two more keyframes;
+   `min_observations` keyframes (`triangulation.min_observations` for triangulated points) see after two
+   more keyframes;
 4. local bundle adjustment with gtsam (`backend.local_ba`);
 5. cull keyframes whose points are 90 % seen by at least three other keyframes.
 """
@@ -19,9 +21,11 @@ import numpy.typing as npt
 from changing_slam_ros.core.backend.local_ba import LocalBAConfig, LocalBAResult, local_bundle_adjust
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.map_fusion import fuse_into, refresh_points
+from changing_slam_ros.core.map_merging import MergeConfig
 from changing_slam_ros.core.orb_features import FeatureConfig
 from changing_slam_ros.core.se3 import transform_points
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.triangulation import TriangulationConfig, TwoView, triangulate_pair
 
 F64 = npt.NDArray[np.float64]
 
@@ -35,6 +39,8 @@ class MappingConfig:
     - `local_ba`: enable local BA; `ba_window`, `ba_max_fixed`, `ba_iterations`, `ba_max_points`: its size and effort.
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
+    - `triangulation`: points from depth-less keypoints (nested section, see `TriangulationConfig`).
+    - `merge`: welding two maps of the Atlas that share a place (nested section, see `map_merging.MergeConfig`).
     """
 
     max_new_point_depth_m: float = 6.0
@@ -49,11 +55,14 @@ class MappingConfig:
     redundancy: float = 0.9
     fuse_neighbours: int = 10
     fuse_radius_px: float = 3.0
+    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
+    merge: MergeConfig = field(default_factory=MergeConfig)
 
 
 @dataclass
 class MappingStats:
     new_points: int = 0
+    triangulated: int = 0
     fused: int = 0
     culled_points: int = 0
     culled_keyframes: list[int] = field(default_factory=list)
@@ -68,8 +77,10 @@ class LocalMapper:
         self.fcfg = features
         self.cfg = config or MappingConfig()
         self.scales = features.level_scales()
-        self._recent: list[tuple[int, npt.NDArray[np.int64]]] = []  # (kf id that created, point ids)
+        # (kf id that created, point ids, observations needed to survive): points still on probation
+        self._recent: list[tuple[int, npt.NDArray[np.int64], int]] = []
         self._recent_map_id = atlas.current.id
+        self.triangulated: dict[int, list[npt.NDArray[np.int64]]] = {}  # map id -> ids of triangulated points
 
     @property
     def map(self) -> SlamMap:
@@ -86,6 +97,10 @@ class LocalMapper:
         # 2. New points from depth.
         stats.new_points = self._create_points(kf)
         m.update_connections(kf.id)
+        # 2a. New points by triangulation with the covisible keyframes (keypoints without depth).
+        if self.cfg.triangulation.enabled:
+            stats.triangulated = self._triangulate(kf)
+            stats.new_points += stats.triangulated
         # 2b. Fuse duplicates with the neighbours, refresh descriptors and viewing directions.
         if self.cfg.fuse_neighbours > 0:
             stats.fused = self._fuse(kf)
@@ -94,16 +109,19 @@ class LocalMapper:
         stats.culled_points = self._cull_points(kf.id)
         # 4. Local BA.
         if self.cfg.local_ba and len(m.keyframes) > 1:
-            ba_cfg = LocalBAConfig(
-                self.cfg.ba_window, self.cfg.ba_max_fixed, self.cfg.ba_iterations, self.cfg.ba_max_points,
-                self.fcfg.bf_m_px, tuple(float(s) for s in self.scales),
-            )
-            stats.ba = local_bundle_adjust(m, kf.id, ba_cfg)
+            stats.ba = local_bundle_adjust(m, kf.id, self.ba_config())
             m.update_connections(kf.id)
         # 5. Keyframe culling.
         if self.cfg.keyframe_culling:
             stats.culled_keyframes = self._cull_keyframes(kf.id)
         return stats
+
+    def ba_config(self) -> LocalBAConfig:
+        """The local BA settings of this mapper (also used for the welding BA of a map merge)."""
+        return LocalBAConfig(
+            self.cfg.ba_window, self.cfg.ba_max_fixed, self.cfg.ba_iterations, self.cfg.ba_max_points,
+            self.fcfg.bf_m_px, tuple(float(s) for s in self.scales),
+        )
 
     def _fuse(self, kf: Keyframe) -> int:
         m = self.map
@@ -133,30 +151,87 @@ class LocalMapper:
             pw, kf.descriptors[idx], kf.id, idx, kf.T_world_cam[:3, 3], kf.octaves[idx].astype(np.int64), self.scales,
         )
         kf.point_ids[idx] = ids
-        self._recent.append((kf.id, ids))
+        self._recent.append((kf.id, ids, self.cfg.min_observations))
         return len(ids)
+
+    def _no_depth_point(self, kf: Keyframe) -> npt.NDArray[np.int64]:
+        """Keypoints without a map point whose depth cannot make one (missing or beyond the mapping range)."""
+        d = kf.depths_m
+        return np.flatnonzero((kf.point_ids < 0) & ((d <= 0) | (d > self.cfg.max_new_point_depth_m)))
+
+    def _view(self, kf: Keyframe, rows: npt.NDArray[np.int64]) -> TwoView:
+        return TwoView(kf.T_world_cam, kf.camera.K, kf.keypoints_px[rows].astype(np.float64),
+                       kf.octaves[rows].astype(np.int64), kf.descriptors[rows])
+
+    def _triangulate(self, kf: Keyframe) -> int:
+        """Points from `kf`'s depth-less keypoints matched with its best covisible keyframes' (see `triangulation`)."""
+        m = self.map
+        tcfg = self.cfg.triangulation
+        made: list[npt.NDArray[np.int64]] = []
+        for nb_id in m.covisible(kf.id, tcfg.neighbours):
+            nb = m.keyframes.get(nb_id)
+            c1 = self._no_depth_point(kf)
+            if nb is None or len(c1) == 0:
+                continue
+            c2 = self._no_depth_point(nb)
+            if len(c2) == 0:
+                continue
+            tri = triangulate_pair(self._view(kf, c1), self._view(nb, c2), self.scales, tcfg)
+            if len(tri.rows1) == 0:
+                continue
+            i1, i2 = c1[tri.rows1], c2[tri.rows2]
+            ids = m.points.add(tri.points_w, kf.descriptors[i1], kf.id, i1, kf.T_world_cam[:3, 3],
+                               kf.octaves[i1].astype(np.int64), self.scales)
+            kf.point_ids[i1] = ids
+            for pid, j in zip(ids.tolist(), i2.tolist()):
+                m.add_observation(pid, nb.id, j)
+            made.append(ids)
+        if not made:
+            return 0
+        ids = np.concatenate(made)
+        refresh_points(m, ids, self.scales)
+        self._recent.append((kf.id, ids, tcfg.min_observations))
+        self.triangulated.setdefault(m.id, []).append(ids)
+        return len(ids)
+
+    def n_triangulated_alive(self) -> int:
+        """Triangulated points still in the maps (not culled, fused away or erased), over all maps."""
+        n = 0
+        for map_id, chunks in self.triangulated.items():
+            bad = self.atlas.maps[map_id].points.bad
+            n += sum(int((~bad[c]).sum()) for c in chunks)
+        return n
+
+    def points_moved(self, from_map: int, to_map: int, offset: int) -> None:
+        """The points of map `from_map` now live in map `to_map` with ids shifted by `offset` (a map merge)."""
+        if self._recent_map_id == from_map:
+            self._recent = [(k, ids + offset, n) for k, ids, n in self._recent]
+            self._recent_map_id = to_map
+        moved = [c + offset for c in self.triangulated.pop(from_map, [])]
+        if moved:
+            self.triangulated.setdefault(to_map, []).extend(moved)
 
     def _cull_points(self, current_kf: int) -> int:
         m = self.map
         pts = m.points
         n_culled = 0
-        keep: list[tuple[int, npt.NDArray[np.int64]]] = []
+        keep: list[tuple[int, npt.NDArray[np.int64], int]] = []
         order = sorted(m.keyframes)
         rank = {k: i for i, k in enumerate(order)}
         cur = rank.get(current_kf, len(order))
-        for kf_id, ids in self._recent:
+        for kf_id, ids, min_obs in self._recent:
             ids = ids[~pts.bad[ids]]
             age = cur - rank.get(kf_id, -10**6) if kf_id in rank else 10**6
             if len(ids) == 0:
                 continue
             bad = pts.found_ratio(ids) < self.cfg.cull_found_ratio
             if age >= 2:
-                bad |= pts.n_obs(ids) < self.cfg.min_observations
+                bad |= pts.n_obs(ids) < min_obs
             for pid in ids[bad].tolist():
                 m.erase_point(pid)
             n_culled += int(bad.sum())
             if age < 3:
-                keep.append((kf_id, ids[~bad]))
+                keep.append((kf_id, ids[~bad], min_obs))
         self._recent = keep
         return n_culled
 

@@ -20,7 +20,8 @@ to the offline runner's `core.slam_map`.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections import ChainMap
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,7 +55,7 @@ from changing_slam_ros.core.place_recognition import (
     relocalise,
 )
 from changing_slam_ros.core.se3 import invert
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.vocabulary import Vocabulary, l1_score
 
 F64 = npt.NDArray[np.float64]
@@ -443,6 +444,16 @@ class SlamMapLoopClosing:
             if kf_id in self.closer.keyframes:
                 n += int(self.closer.set_active_mask(kf_id, _active_mask(kf, slam_map.points)))
         return n
+
+    # map merging seam (`core.system.SlamSystem` applies the merge with `core.map_merging.merge_maps`)
+    def detect_merge_in(self, kf: Keyframe, atlas: Atlas) -> MapMerge | None:
+        """Does keyframe `kf` of the current map show a place of another map of `atlas`? (`LoopCloser.detect_merge`)"""
+        return self.closer.detect_merge(kf, ChainMap(*(m.covisibility for m in atlas.maps)))
+
+    def maps_merged(self, moved_keyframes: Iterable[int], into_map_id: int) -> None:
+        """Keyframes now belong to map `into_map_id` (after a merge): the database follows."""
+        for k in moved_keyframes:
+            self.closer.set_map(k, into_map_id)
 
     # loop closer seam
     def process(self, kf: Keyframe, slam_map: SlamMap) -> bool:

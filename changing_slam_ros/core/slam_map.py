@@ -185,17 +185,29 @@ class SlamMap:
 
 
 class Atlas:
-    """Several disconnected maps (ORB-SLAM3's Atlas): a new one starts when relocalisation keeps failing."""
+    """Several disconnected maps (ORB-SLAM3's Atlas): a new one starts when relocalisation keeps failing;
+    two maps that see a common place are merged (`core.map_merging`), leaving the merged-away one empty."""
 
     def __init__(self) -> None:
         self.maps: list[SlamMap] = [SlamMap(0)]
         self.current: SlamMap = self.maps[0]
+        self.merged_into: dict[int, int] = {}  # map id -> the map it was merged into (`core.map_merging`)
 
     def new_map(self) -> SlamMap:
         m = SlamMap(len(self.maps))
         self.maps.append(m)
         self.current = m
         return m
+
+    def resolve(self, map_id: int) -> SlamMap:
+        """The map that now holds what map `map_id` held (itself, unless it was merged away)."""
+        while map_id in self.merged_into:
+            map_id = self.merged_into[map_id]
+        return self.maps[map_id]
+
+    def live_maps(self) -> list[SlamMap]:
+        """Maps holding at least one keyframe."""
+        return [m for m in self.maps if m.keyframes]
 
     def map_of_keyframe(self, kf_id: int) -> SlamMap | None:
         for m in self.maps:
