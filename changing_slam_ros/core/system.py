@@ -26,6 +26,7 @@ from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
 from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig, MappingStats
+from changing_slam_ros.core.map_merging import MergeResult, merge_maps, move_frame
 from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
 from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
@@ -118,6 +119,7 @@ class SlamSystem:
         self.records: list[FrameRecord] = []
         self.timings_ms: dict[str, list[float]] = defaultdict(list)
         self.n_loops = 0
+        self.merges: list[MergeResult] = []
 
     def start_from_map(self, atlas: Atlas, next_keyframe_id: int,
                        objects: dict[int, SavedObjectMap] | None = None) -> None:
@@ -176,6 +178,8 @@ class SlamSystem:
         if res.new_keyframe is not None and self.loop_closer is not None and res.new_keyframe.id in self.atlas.current.keyframes:
             corrected = bool(self.loop_closer.process(res.new_keyframe, self.atlas.current))
             self.n_loops += int(corrected)
+        if res.new_keyframe is not None and not corrected and len(self.atlas.live_maps()) > 1:
+            self._try_merge(res.new_keyframe)
         t4 = time.perf_counter()
         if res.new_keyframe is not None:
             self._reanchor_last_frame()
@@ -192,6 +196,27 @@ class SlamSystem:
             self.timings_ms["local_mapping_per_keyframe"].append(timings["local_mapping"])
         return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings, dyn,
                            objects)
+
+    def _try_merge(self, kf: Keyframe) -> None:
+        """A place of an older map seen from the current one: weld the maps (`map_merging`); frame records,
+        tracking's last frame, local mapping's recent points and the keyframe database follow."""
+        detect = getattr(self.loop_closer, "detect_merge_in", None)
+        if detect is None or not self.config.mapping.merge.enabled or kf.id not in self.atlas.current.keyframes:
+            return
+        merge = detect(kf, self.atlas)
+        if merge is None:
+            return
+        result = merge_maps(self.atlas, merge, self.mapper.scales, self.config.features.bf_m_px,
+                            self.config.mapping.merge, self.mapper.ba_config())
+        self.loop_closer.maps_merged(result.moved_keyframes, result.into_map_id)  # type: ignore[union-attr]
+        self.mapper.points_moved(result.from_map_id, result.into_map_id, result.point_id_offset)
+        for r in self.records:
+            if r.map_id == result.from_map_id:
+                r.map_id = result.into_map_id
+        if self.tracker.last_frame is not None:
+            move_frame(self.tracker.last_frame, result)
+        self.tracker.last_good_pose = result.T_into_from @ self.tracker.last_good_pose
+        self.merges.append(result)
 
     def _after_objects(self, kf: Keyframe, rgbd: RgbdFrame, dyn: DynamicFrame | None) -> ObjectLayerResult:
         """The object layer on a mapped keyframe (before loop closing, so that it sees the points this keyframe
