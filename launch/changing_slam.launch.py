@@ -40,11 +40,13 @@ def generate_launch_description() -> LaunchDescription:
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
              parameters=[{"config": config}, sim_time], remappings=[("image", "/camera/rgb/image_color")]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
-             parameters=[{"config": config, "ack_topic": ack_topic}, sim_time]),
+             parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
+                          "wait_for_map_updates": lossless}, sim_time]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
-             parameters=[{"config": config}, sim_time]),
+             parameters=[{"config": config, "wait_for_loop_results": lossless}, sim_time]),
         Node(package=PACKAGE, executable="loop_closing", name="loop_closing", output="screen",
              parameters=[{"config": config}, sim_time]),
         Node(package=PACKAGE, executable="object_map", name="object_map", output="screen",
-             parameters=[{"config": config}, sim_time]),
+             parameters=[{"config": config}, sim_time],
+             remappings=[("/tracking/semantic_map", "/local_mapping/semantic_map")]),  # the object layer's map
     ])  # fmt: skip

@@ -3,7 +3,7 @@
     diag = NodeDiagnostics(node, period_s=5.0)          # publishes on a steady timer
     diag.set_source(lambda: {"latency_ms_median": 42.0, "dropped": 3})
 
-Each report is one DiagnosticStatus named `<node name>` (hardware_id `changing_slam`), level OK, or WARN when a
+The log gets the same figures when they changed since the last line. Each report is one DiagnosticStatus named `<node name>` (hardware_id `changing_slam`), level OK, or WARN when a
 `warn_if` predicate on the values holds (e.g. latency over target, drops). Values are written as strings
 (DiagnosticStatus carries KeyValue strings only).
 """
@@ -47,6 +47,7 @@ class NodeDiagnostics:
         self.log = log
         self.warn_if = warn_if
         self.n_published = 0
+        self._last_logged = ""
         if period_s > 0:
             node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -68,8 +69,8 @@ class NodeDiagnostics:
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.pub.publish(msg)
         self.n_published += 1
-        if self.log:
-            self.node.get_logger().info(
-                f"{self.node.get_name()}: diagnostics: " + ", ".join(f"{kv.key} {kv.value}" for kv in st.values)
-            )
+        text = ", ".join(f"{kv.key} {kv.value}" for kv in st.values)
+        if self.log and text != self._last_logged:  # the log gets a line when something changed
+            self._last_logged = text
+            self.node.get_logger().info(f"{self.node.get_name()}: diagnostics: {text}")
         return st

@@ -1,19 +1,19 @@
 """`object_map`: the semantic map (Changing-SLAM §4.8) on topics and services.
 
-INTERIM MODE (issue 7): the object layer (`core.object_layer.ObjectLayer`: long-term association, persistence
-beliefs, inactive points) runs inside the tracking node's in-process backend, because it reads and flags the
-metric map's points, which a separate process cannot reach until map-update replication exists. Tracking
-publishes the map it keeps on `/tracking/semantic_map` (MapObjectArray, transient-local, every object with its
-belief and activity); this node holds the latest one (`self.objects`, MapObject messages) and serves it:
+The object layer (`core.object_layer.ObjectLayer`: long-term association, persistence beliefs, inactive
+points) runs where the metric map is written, because it reads and flags the map's points: in `local_mapping`
+(split graph; `changing-slam graph` remaps this node's input to `/local_mapping/semantic_map`) or in tracking's
+in-process backend (`/tracking/semantic_map`). That node publishes the map it keeps (MapObjectArray,
+transient-local, every object with its belief and activity); this node holds the latest one (`self.objects`, MapObject messages) and serves it:
 `~/semantic_map` (MapObjectArray) and `~/markers` (MarkerArray: a box per object coloured by class, alpha by
 belief, a text label), both transient-local so late subscribers get them; `~/object_states` (belief, active);
 QueryObjects by class and region; SaveMap / LoadMap as the project's semantic-map file
 (`io/semantic_map_file.py`, JSON or YAML, atomic); Reset clears it. With `map_file` set the map is loaded from it
 at start (so a restarted node comes back with its last map) and saved to it after every update.
-Open: candidates from a separate local_mapping process (`/local_mapping/object_candidates`) are received but
-not associated here, and a loaded map is served, not fed back into the tracking process's object layer.
+Open: candidates on `/local_mapping/object_candidates` are received but not associated here (the object
+layer associates them where it runs), and a loaded map is served, not fed back into the object layer.
 
-Inputs: /tracking/semantic_map (MapObjectArray), /local_mapping/object_candidates (MapObjectArray)
+Inputs: /tracking/semantic_map (MapObjectArray; remap), /local_mapping/object_candidates (MapObjectArray)
 Outputs: ~/object_states (ObjectStateArray: belief, active), ~/semantic_map, ~/markers
 Services: ~/query_objects (QueryObjects), ~/save_map (SaveMap), ~/load_map (LoadMap), ~/reset (std_srvs/Trigger)
 """
@@ -32,7 +32,7 @@ from std_msgs.msg import ColorRGBA, Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
-from changing_slam_msgs.msg import MapObject, MapObjectArray, MapUpdate, ObjectState, ObjectStateArray
+from changing_slam_msgs.msg import MapObject, MapObjectArray, ObjectState, ObjectStateArray
 from changing_slam_msgs.srv import LoadMap, QueryObjects, SaveMap
 from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import SlamError
@@ -134,7 +134,6 @@ class ObjectMapNode(Node):
         self.updates_in = 0
         self.create_subscription(MapObjectArray, "/tracking/semantic_map", self.on_semantic_map, LATCHED)
         self.create_subscription(MapObjectArray, "/local_mapping/object_candidates", self.on_candidates, 10)
-        self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
         self.state_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
         self.map_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, "~/markers", LATCHED)
@@ -154,7 +153,7 @@ class ObjectMapNode(Node):
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_semantic_map(self, msg: MapObjectArray) -> None:
-        """The object layer's current map (interim: from the tracking node's in-process backend)."""
+        """The object layer's current map (from local_mapping, or tracking's in-process backend)."""
         self.objects = {int(o.id): o for o in msg.objects}
         self.updates_in += 1
         self.publish_map(msg.header.stamp)
@@ -167,11 +166,8 @@ class ObjectMapNode(Node):
     def on_candidates(self, msg: MapObjectArray) -> None:
         self.get_logger().info(
             f"object_map: {len(msg.objects)} candidates from a separate local_mapping received; not associated "
-            "(interim: the object layer runs in tracking's backend)", throttle_duration_sec=30.0,
+            "(the object layer associates them where it runs)", throttle_duration_sec=30.0,
         )  # fmt: skip
-
-    def on_map_update(self, msg: MapUpdate) -> None:
-        pass  # Separate local_mapping process: keyframe poses for the visibility test (open, see module doc).
 
     # -- outputs --------------------------------------------------------------------------------
     def publish_map(self, stamp: Any = None) -> None:

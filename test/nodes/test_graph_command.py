@@ -1,5 +1,5 @@
-"""`changing-slam graph` end to end: the bundled fr1 bag through bag_player, detection, tracking and object_map
-as separate processes, with object_map killed mid-run."""
+"""`changing-slam graph` end to end: the bundled bags through bag_player, detection, tracking, local_mapping,
+loop_closing and object_map as separate processes (the split backend), with object_map killed mid-run."""
 
 from __future__ import annotations
 
@@ -36,9 +36,15 @@ def test_graph_replays_the_fr1_bag_losslessly_within_offline_accuracy_and_restar
     # object_map was killed (SIGKILL) 1 s into the replay, restarted once, and everything stopped cleanly.
     assert s["restarts"] == {"object_map": 1}
     assert "object_map: started" in (out / "logs" / "object_map.1.log").read_text()
-    assert s["exit_codes"] == {"tracking": 0, "detection": 0, "object_map": 0, "bag_player": 0}
-    for name in ("trajectory.txt", "trajectory_online.txt", "keyframes.txt", "tracking_stats.json", "semantic_map.json"):
+    assert s["exit_codes"] == {"tracking": 0, "local_mapping": 0, "loop_closing": 0, "detection": 0, "object_map": 0,
+                               "bag_player": 0}  # fmt: skip
+    for name in ("trajectory.txt", "trajectory_online.txt", "keyframes.txt", "tracking_stats.json", "semantic_map.json",
+                 "local_mapping_stats.json"):  # fmt: skip
         assert (out / name).is_file(), name
+    # The map was built in local_mapping: every keyframe tracking sent was mapped and its update applied.
+    lm = s["local_mapping"]
+    assert s["backend"] == "split" and lm["keyframes_mapped"] == lm["keyframes_received"] >= s["keyframes"] >= 1
+    assert s["map_updates_applied"] >= s["keyframes"]
     from changing_slam_ros.io.bag_messages import BagMessages
 
     with BagMessages(out / "outputs.mcap") as recorded:  # for evo_ape bag2 / Foxglove
@@ -47,7 +53,8 @@ def test_graph_replays_the_fr1_bag_losslessly_within_offline_accuracy_and_restar
 
 
 def test_graph_without_detections_reproduces_the_offline_runner_byte_for_byte(tmp_path):
-    """Same code, two transports: lossless replay through the processes gives the offline trajectory exactly."""
+    """Same code, two transports: lossless replay through the split processes (tracking, local_mapping,
+    loop_closing exchanging keyframe packets and map updates) gives the offline trajectory exactly."""
     from helpers import REPO, require
 
     bag = require(REPO / "bags" / "tum_fr1_xyz_first10.mcap")
@@ -84,7 +91,10 @@ def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path)
     # Measured at 50da4fe: 16.66 cm, and trajectory.txt byte-identical to `changing-slam run --config sim` on the bag
     # (same core, same detector on the same decoded images); the bound leaves room for core changes.
     assert s["ate_rmse_m"] < 0.20
-    # What object_map received on /tracking/semantic_map (autosaved): the monitor (COCO tv) on the table, confirmed.
+    lm = s["local_mapping"]  # every keyframe mapped in local_mapping (some culled later: >= the final count)
+    assert s["backend"] == "split" and lm["keyframes_mapped"] == lm["keyframes_received"] >= s["keyframes"]
+    # What object_map received from local_mapping's object layer (/local_mapping/semantic_map, autosaved): the
+    # monitor (COCO tv) on the table, confirmed.
     objects = json.loads((out / "semantic_map_node.json").read_text())["objects"]
     tvs = [o for o in objects if o["class_name"] == "tv" and o["active"]]
     assert len(tvs) == 1 and tvs[0]["belief"] >= 0.6 and tvs[0]["n_points"] > 500
