@@ -97,3 +97,29 @@ def test_drift_gate_and_spread_are_read_from_the_loop_yaml_section():
                                "verification": {"min_inlier_cells": 4, "spread_grid": [4, 3]}}, "x.yaml: loop")
     assert cfg.drift_gate.sigma_per_m == 0.2 and cfg.drift_gate.chi2_max == 13.8 and cfg.drift_gate.enabled
     assert cfg.verification.min_inlier_cells == 4 and cfg.verification.spread_grid == (4, 3)
+
+
+def test_loop_closer_measures_the_path_on_its_held_keyframes_and_refuses_a_period_shifted_loop():
+    """Five keyframes 20 cm apart along a wall; a verification one wallpaper period (0.9 m) off the estimate, as the
+    frames 1508 -> 1706 of session 1's `replacing` render gave (42 inliers, every pair 0.9 m apart on the wall),
+    is refused; the true relative pose with 2 cm of drift is accepted."""
+    from changing_slam_ros.core.geometric_verification import Verification
+    from changing_slam_ros.core.loop_closing import LoopCloser
+    from changing_slam_ros.core.vocabulary import Vocabulary
+
+    closer = LoopCloser(LoopConfig(), Vocabulary.load())
+    rng = np.random.default_rng(1)
+    kfs = []
+    for k in range(5):
+        kf = _view(k, CAMERA.backproject(rng.uniform([0, 0], [320, 240], (50, 2)), np.full(50, 2.0)),
+                   rng.integers(0, 256, (50, 32), dtype=np.uint8), rng)
+        kf.T_world_cam = make_pose(np.eye(3), np.array([0.2 * k, 0.0, 0.0]))
+        closer.add(kf)
+        kfs.append(kf)
+    match, query = kfs[0], kfs[4]
+    est = np.linalg.inv(match.T_world_cam) @ query.T_world_cam
+    aliased = Verification(est @ make_pose(np.eye(3), np.array([0.9, 0.0, 0.0])), np.zeros((42, 2), np.int64), 1.0)
+    c = closer._drift_check(match, query, aliased)
+    assert abs(c.path_m - 0.8) < 1e-9 and not c.accepted
+    true = Verification(est @ make_pose(np.eye(3), np.array([0.02, 0.0, 0.0])), np.zeros((90, 2), np.int64), 1.0)
+    assert closer._drift_check(match, query, true).accepted
