@@ -14,7 +14,9 @@ DIR receives:
                            graph and object map; `--map-in` starts a later run from it;
 - `metrics.json`           frames tracked, keyframes, loops, speed; ATE / RPE when ground truth exists;
 - `timing.json`            per-stage milliseconds (count, mean, p50, p90, p99, max);
-- `trajectory.png`         the final trajectory against ground truth (when it exists).
+- `trajectory.png`         the final trajectory against ground truth (when it exists);
+- `moving_objects.json`, `moving_objects/object_<id>.txt`  moving objects and their trajectories (TUM), with
+                           `dynamic: movers: enabled: true` (`io.moving_objects_file`).
 Multi-session (`--map-in PREVIOUS/map.npz`): the run continues the saved Atlas; every frame first tries
 relocalisation against the saved current map (for `tracking.loaded_map_grace_s`, 2 s by default, then a new map
 is started), trajectories are in the saved map's frame, the object layer starts from the saved objects and
@@ -48,6 +50,7 @@ from changing_slam_ros.core.tracking import TrackingConfig
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.map_file import load_map, save_map
+from changing_slam_ros.io.moving_objects_file import write_moving_objects
 from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -127,6 +130,9 @@ def main(args: argparse.Namespace) -> int:
         metrics.update(_evaluate(gt, final, online, out, args.no_plot))
     metrics["loops"] = loops.evaluate(gt)
     metrics["objects"] = write_object_outputs(out, objects, final, gt, args.source, args.no_plot)
+    movers = dynamic.filter.movers if dynamic.filter is not None else None
+    if movers is not None:  # class-agnostic moving objects (Dai et al.) and their trajectories
+        metrics["moving_objects"] = write_moving_objects(out, movers.tracks())
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     atomic_write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
     line = (
