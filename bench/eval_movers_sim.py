@@ -36,70 +36,28 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from changing_slam_ros.core.object_tracking import MovingObjectTrack  # noqa: E402
-from changing_slam_ros.core.se3 import invert, make_pose, quat_to_rot  # noqa: E402
-from changing_slam_ros.core.trajectory import Trajectory  # noqa: E402
+from changing_slam_ros.eval.moving_objects import (  # noqa: E402
+    ObjectTruth, camera_alignment, object_errors_m, read_sim_movers,
+)
 
 
-def load_mover_truth(sim_dir: Path) -> tuple[np.ndarray, np.ndarray, int]:
-    """(stamps_ns (F,), T_world_obj (F, 4, 4) with NaN where absent, mask id) of the moving class -1 object."""
-    doc = json.loads((sim_dir / "objects.json").read_text())
-    movers = [o for o in doc["objects"] if o["moving"] and o["class_id"] == -1]
+def the_mover(sim_dir: Path) -> ObjectTruth:
+    movers = read_sim_movers(sim_dir)
     if len(movers) != 1:
         raise SystemExit(f"{sim_dir}/objects.json: expected one moving object of class -1, found {len(movers)}")
-    mover = movers[0]
-    poses = np.full((len(doc["stamps_ns"]), 4, 4), np.nan)
-    for k, row in enumerate(mover["poses"]):
-        if row is not None:
-            poses[k] = make_pose(quat_to_rot(np.array(row[3:7])), np.array(row[:3]))
-    return np.array(doc["stamps_ns"], dtype=np.int64), poses, int(mover["id"])
-
-
-def carried(poses: np.ndarray, min_step_m: float = 1e-4) -> np.ndarray:
-    """(F,) True where the object moved between the previous and the next frame."""
-    pos = poses[:, :3, 3]
-    step = np.zeros(len(pos))
-    step[1:-1] = np.linalg.norm(pos[2:] - pos[:-2], axis=1)
-    return np.nan_to_num(step) > min_step_m
-
-
-def _mean_pose(poses: np.ndarray) -> np.ndarray:
-    u, _, vt = np.linalg.svd(poses[:, :3, :3].mean(axis=0))
-    rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-    return make_pose(rot, poses[:, :3, 3].mean(axis=0))
-
-
-def object_errors(track: MovingObjectTrack, S: np.ndarray, gt_stamps: np.ndarray, gt_poses: np.ndarray) -> np.ndarray:
-    """Position errors (n,) metres of the track's poses at stamps where the ground truth exists (see module doc)."""
-    idx = np.clip(np.searchsorted(gt_stamps, track.stamps_ns), 0, len(gt_stamps) - 1)
-    near = np.abs(gt_stamps[idx] - track.stamps_ns) < 5_000_000  # 5 ms: the same frame
-    G = gt_poses[idx[near]]
-    E = np.einsum("ab,nbc->nac", S, track.T_world_obj[near])
-    ok = np.all(np.isfinite(G.reshape(len(G), -1)), axis=1)
-    G, E = G[ok], E[ok]
-    if not len(G):
-        return np.zeros(0)
-    Y = _mean_pose(np.einsum("nab,nbc->nac", np.linalg.inv(G), E))
-    return np.asarray(np.linalg.norm(E[:, :3, 3] - (G @ Y)[:, :3, 3], axis=1))
+    return movers[0]
 
 
 def score_objects(tracks: list[MovingObjectTrack], S: np.ndarray, sim_dir: Path) -> None:
-    gt_stamps, gt_poses, _ = load_mover_truth(sim_dir)
-    moving = carried(gt_poses)
-    n_carried = int(moving.sum())
-    print(f"objects exported: {len(tracks)}; mover carried in {n_carried} frames")
+    truth = the_mover(sim_dir)
+    print(f"objects exported: {len(tracks)}; mover carried in {int(truth.moving_frames().sum())} frames")
+    t0 = truth.stamps_ns[0]
     for t in sorted(tracks, key=lambda t: -len(t.stamps_ns)):
-        err = object_errors(t, S, gt_stamps, gt_poses)
+        err = object_errors_m(t, S, truth)
         rmse = float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
         print(f"  object {t.object_id} (class {t.class_id}): {len(t.stamps_ns)} poses, "
-              f"{(t.first_stamp_ns - gt_stamps[0]) * 1e-9:.2f}-{(t.last_stamp_ns - gt_stamps[0]) * 1e-9:.2f} s, "
+              f"{(t.first_stamp_ns - t0) * 1e-9:.2f}-{(t.last_stamp_ns - t0) * 1e-9:.2f} s, "
               f"{t.n_points} points; ATE vs the mover {100 * rmse:.2f} cm (max {100 * err.max(initial=0):.2f} cm)")
-
-
-def camera_alignment(gt: Trajectory, est: Trajectory) -> tuple[np.ndarray, float]:
-    from changing_slam_ros.eval.ate import ate
-
-    res = ate(gt, est)
-    return res.alignment.T_gt_est, float(np.sqrt(np.mean(res.errors_m**2)))
 
 
 def run_system(args: argparse.Namespace) -> None:
@@ -119,17 +77,26 @@ def run_system(args: argparse.Namespace) -> None:
     filt = DynamicFilter(dyn_cfg)
     system = SlamSystem(system_config_from_mapping(data, args.config), dynamic_filter=filt)
     seen: list[np.ndarray] = []
-    original = filt.before_tracking
+    cpu_ms: list[float] = []
+    original, original_after = filt.before_tracking, filt.after_tracking
 
     def recording(rgbd, features, detections):  # type: ignore[no-untyped-def]
+        c0 = time.process_time()
         out = original(rgbd, features, detections)
+        cpu_ms.append((time.process_time() - c0) * 1e3)
         seen.append(features.keypoints_px.copy())
         seen.append(features.depths_m.copy())
         return out
 
+    def recording_after(T):  # type: ignore[no-untyped-def]
+        c0 = time.process_time()
+        original_after(T)
+        cpu_ms[-1] += (time.process_time() - c0) * 1e3
+
     filt.before_tracking = recording  # type: ignore[method-assign]
-    gt_stamps, gt_poses, mask_id = load_mover_truth(sim_dir)
-    moving_gt = carried(gt_poses)
+    filt.after_tracking = recording_after  # type: ignore[method-assign]
+    truth = the_mover(sim_dir)
+    mask_id, moving_gt = truth.mask_id, truth.moving_frames()
     masks = sorted((sim_dir / "masks").glob("*.png"))
     n = min(args.frames or len(source), len(source))
     tp = fp = fn = 0
@@ -160,7 +127,8 @@ def run_system(args: argparse.Namespace) -> None:
     if movers.segmentation_ms:
         ms = np.array(movers.segmentation_ms)
         print(f"  segmentation: {len(ms)} windows, CPU ms median {np.median(ms):.0f}, p90 {np.percentile(ms, 90):.0f}")
-    print(f"  filter ms per frame (median): {np.median(filt.frames_ms):.1f}; "
+    print(f"  dynamic filter + movers CPU ms per frame: median {np.median(cpu_ms):.0f}, p90 {np.percentile(cpu_ms, 90):.0f}; "
+          f"filter wall ms per frame (median): {np.median(filt.frames_ms):.1f}; "
           f"tracking total ms per frame (median): {np.median(system.timings_ms['total']):.0f}")
     online = system.online_trajectory()
     gt_cam = source.groundtruth
@@ -182,7 +150,7 @@ def score_run_dir(args: argparse.Namespace) -> None:
 
     run = Path(args.run_dir)
     sim_dir = Path(args.sim_dir)
-    gt_cam = open_dataset(str(sim_dir)).groundtruth
+    gt_cam = open_dataset(str(sim_dir), "sim").groundtruth
     S, cam_ate = camera_alignment(gt_cam, read_tum_trajectory(run / "trajectory_online.txt"))
     print(f"{run}: online camera ATE {100 * cam_ate:.2f} cm")
     score_objects(read_moving_objects(run / "moving_objects.json"), S, sim_dir)

@@ -144,16 +144,16 @@ class FeatureTracks:
         n = len(keypoints_px)
         ids = np.full(n, -1, dtype=np.int64)
         if len(self._ids) and n >= 2:
-            for pair in self._matcher.knnMatch(self._desc, descriptors, k=2):
-                if len(pair) < 2:
-                    continue
-                best, second = pair
-                if best.distance >= cfg.match_ratio * second.distance or best.distance > cfg.max_hamming:
-                    continue
-                t, j = best.queryIdx, best.trainIdx
-                if ids[j] >= 0 or np.linalg.norm(keypoints_px[j] - self._px[t]) > cfg.max_shift_px:
-                    continue
-                ids[j] = self._ids[t]
+            pairs = [p for p in self._matcher.knnMatch(self._desc, descriptors, k=2) if len(p) == 2]
+            if pairs:
+                m = np.array([(a.queryIdx, a.trainIdx, a.distance, b.distance) for a, b in pairs])
+                t, j = m[:, 0].astype(np.int64), m[:, 1].astype(np.int64)
+                ok = (m[:, 2] < cfg.match_ratio * m[:, 3]) & (m[:, 2] <= cfg.max_hamming)
+                ok &= np.linalg.norm(keypoints_px[j] - self._px[t], axis=1) <= cfg.max_shift_px
+                t, j, dist = t[ok], j[ok], m[ok, 2]
+                order = np.lexsort((t, dist))  # one track per keypoint: the closest descriptor wins
+                _, first = np.unique(j[order], return_index=True)
+                ids[j[order[first]]] = self._ids[t[order[first]]]
         new = (ids < 0) & (depths_m > 0)
         ids[new] = np.arange(self._next_id, self._next_id + int(new.sum()))
         self._next_id += int(new.sum())
