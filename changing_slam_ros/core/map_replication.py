@@ -367,55 +367,54 @@ def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
 
 # -- tracking's counters ------------------------------------------------------------------------------
 class CounterTracker:
-    """Tracking's side of the point counters: what it added to `n_visible` / `n_found` since the last packet.
+    """Tracking's side of the point counters: what it added to `n_visible` / `n_found` since the last packet,
+    per map of the atlas.
 
-    The owner's delta overwrites counter columns with the owner's values; `after_update` keeps the
+    The owner's delta overwrites counter columns with the owner's values; `apply_keeping_increments` keeps the
     increments tracking made in between on top of them, so that nothing is lost or counted twice.
     """
 
     def __init__(self) -> None:
-        self.base_visible = np.zeros(0, np.int64)
-        self.base_found = np.zeros(0, np.int64)
-        self.base_seen = np.zeros(0, np.int64)
+        self.bases: dict[int, tuple[I64, I64, I64]] = {}  # map id -> (n_visible, n_found, last_seen_frame) sent
 
-    def _sized(self, points: PointStore) -> None:
-        n = points.size
-        if len(self.base_visible) < n:
-            grow = n - len(self.base_visible)
-            self.base_visible = np.concatenate([self.base_visible, points.n_visible[len(self.base_visible):n]])
-            self.base_found = np.concatenate([self.base_found, points.n_found[len(self.base_found):n]])
-            self.base_seen = np.concatenate([self.base_seen, points.last_seen_frame[len(self.base_seen):n]])
-            assert len(self.base_seen) == n, grow
+    def _base(self, m: SlamMap) -> tuple[I64, I64, I64]:
+        pts, n = m.points, m.points.size
+        vis, found, seen = self.bases.get(m.id, (_i64(), _i64(), _i64()))
+        if len(vis) < n:  # rows the owner created since: their counters are the owner's
+            k = len(vis)
+            vis = np.concatenate([vis, pts.n_visible[k:n]])
+            found = np.concatenate([found, pts.n_found[k:n]])
+            seen = np.concatenate([seen, pts.last_seen_frame[k:n]])
+            self.bases[m.id] = (vis, found, seen)
+        return vis, found, seen
 
-    def take(self, points: PointStore) -> PointCounters:
-        """The increments since the last call (or update), and reset the base to now."""
-        self._sized(points)
-        n = points.size
-        dv = points.n_visible[:n] - self.base_visible
-        df = points.n_found[:n] - self.base_found
-        seen = points.last_seen_frame[:n]
-        ids = np.flatnonzero((dv != 0) | (df != 0) | (seen != self.base_seen)).astype(np.int64)
+    def take(self, m: SlamMap) -> PointCounters:
+        """The increments in map `m` since the last call (or update), and reset the base to now."""
+        vis, found, seen0 = self._base(m)
+        pts, n = m.points, m.points.size
+        dv = pts.n_visible[:n] - vis
+        df = pts.n_found[:n] - found
+        seen = pts.last_seen_frame[:n]
+        ids = np.flatnonzero((dv != 0) | (df != 0) | (seen != seen0)).astype(np.int64)
         out = PointCounters(ids, dv[ids].copy(), df[ids].copy(), seen[ids].copy())
-        self.base_visible = points.n_visible[:n].copy()
-        self.base_found = points.n_found[:n].copy()
-        self.base_seen = seen.copy()
+        self.bases[m.id] = (pts.n_visible[:n].copy(), pts.n_found[:n].copy(), seen.copy())
         return out
 
     def apply_keeping_increments(self, atlas: Atlas, delta: MapDelta) -> SlamMap:
         """`apply_delta`, then re-add the increments tracking made to the delta's rows since its last packet."""
-        m = atlas.maps[delta.map_id] if delta.map_id < len(atlas.maps) else None
         ids = delta.points.ids
         pending = None
-        if m is not None and len(ids):
-            self._sized(m.points)
-            old = ids[ids < len(self.base_visible)]
-            pending = (old, m.points.n_visible[old] - self.base_visible[old], m.points.n_found[old] - self.base_found[old])
+        if delta.map_id < len(atlas.maps) and len(ids):
+            m0 = atlas.maps[delta.map_id]
+            vis, found, _ = self._base(m0)
+            old = ids[ids < len(vis)]
+            pending = (old, m0.points.n_visible[old] - vis[old], m0.points.n_found[old] - found[old])
         m = apply_delta(atlas, delta)
-        self._sized(m.points)
+        vis, found, seen = self._base(m)
         if len(ids):
-            self.base_visible[ids] = m.points.n_visible[ids]
-            self.base_found[ids] = m.points.n_found[ids]
-            self.base_seen[ids] = m.points.last_seen_frame[ids]
+            vis[ids] = m.points.n_visible[ids]
+            found[ids] = m.points.n_found[ids]
+            seen[ids] = m.points.last_seen_frame[ids]
         if pending is not None:
             old, dv, df = pending
             m.points.n_visible[old] += dv

@@ -72,6 +72,8 @@ class TrackingSide:
     index: Any | None = None  # its own keyframe database (relocalisation), fed like the loop side's
     n_updates: int = 0
     n_loops: int = 0
+    waiting_for_map: int = -1  # the first keyframe of a new map, until its update brings the map's first points
+    n_skipped: int = 0  # frames not tracked while waiting for it (real time only; lossless never waits here)
 
     ship_objects: bool = True  # the map owner runs the object layer: packets carry depth and objects
 
@@ -94,12 +96,19 @@ class TrackingSide:
     def system(self) -> SlamSystem:
         return self.backend.system
 
-    def process(self, rgbd: RgbdFrame, detections: Any = None) -> tuple[FrameOutput, KeyframePacket | None]:
+    def process(self, rgbd: RgbdFrame, detections: Any = None) -> tuple[FrameOutput | None, KeyframePacket | None]:
+        """Track one frame; (None, None) when it is skipped because a new map has no points here yet (its
+        points come from the map owner: tracking on, with none, would lose the map at once and start another)."""
+        if self.waiting_for_map >= 0:
+            self.n_skipped += 1
+            return None, None
         out = self.system.process(rgbd, detections)
         if out.keyframe is None:
             return out, None
         kf = out.keyframe
-        counters = self.counters.take(self.system.atlas.maps[kf.map_id].points)
+        if kf.id == self.system.atlas.maps[kf.map_id].origin_kf_id:
+            self.waiting_for_map = kf.id
+        counters = self.counters.take(self.system.atlas.maps[kf.map_id])
         if not self.ship_objects:
             return out, KeyframePacket(kf, counters)
         objects = tuple(out.dynamic.objects) if out.dynamic is not None else ()
@@ -109,6 +118,8 @@ class TrackingSide:
         """The owner's delta into the replica (keeping tracking's newer counter increments), the keyframe
         database as `SlamSystem` feeds it, then the last frame re-anchored on its moved reference keyframe."""
         m = self.counters.apply_keeping_increments(self.system.atlas, update.delta)
+        if update.keyframe_id == self.waiting_for_map:
+            self.waiting_for_map = -1
         if self.index is not None:
             for k in update.culled_keyframes.tolist():
                 self.index.erase(k)
@@ -260,6 +271,7 @@ class ChainedGraph:
 
     def process(self, rgbd: RgbdFrame, detections: Any = None) -> FrameOutput:
         out, packet = self.tracking.process(rgbd, detections)
+        assert out is not None  # in this synchronous chain every update is in before the next frame
         if packet is None:
             return out
         update = self.owner.on_keyframe(copy_packet(packet))

@@ -369,6 +369,10 @@ class TrackingNode(Node):
         packet = None
         if self.split is not None:
             out, packet = self.split.process(frame, None if dets is None else dets.detections)
+            if out is None:  # a new map waits for its first points from local_mapping
+                self._warn_once("waiting_map", "tracking: a new map waits for its first map update; frames skipped")
+                self._ack(item.rgb_msg.header)
+                return
         else:
             out = self.backend.system.process(frame, None if dets is None else dets.detections)
         if out.state == TrackingState.OK and out.T_world_cam is not None:
@@ -472,6 +476,7 @@ class TrackingNode(Node):
             "map_updates_applied": self.updates_applied,
             "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
+            "frames_skipped_waiting_for_map": self.split.n_skipped if self.split is not None else None,
             "latency_ms": [round(float(v), 2) for v in lat],
         }  # fmt: skip
 

@@ -137,10 +137,10 @@ def test_counter_increments_survive_an_update_and_reach_the_owner() -> None:
     replica.maps[0] = copy.deepcopy(m)
     replica.current = replica.maps[0]
     ct = CounterTracker()
-    ct.take(replica.current.points)
+    ct.take(replica.current)
     replica.current.points.n_visible[[1, 2]] += 3
     replica.current.points.n_found[2] += 1
-    sent = ct.take(replica.current.points)
+    sent = ct.take(replica.current)
     assert sent.ids.tolist() == [1, 2] and sent.n_visible.tolist() == [3, 3] and sent.n_found.tolist() == [0, 1]
     replica.current.points.n_visible[2] += 5  # tracking goes on before the owner's update arrives
     apply_counters(owner.points, sent)
@@ -149,4 +149,4 @@ def test_counter_increments_survive_an_update_and_reach_the_owner() -> None:
     ct.apply_keeping_increments(replica, diff(before, owner))
     assert replica.current.points.n_visible[2] == 1 + 3 + 5
     np.testing.assert_allclose(replica.current.points.positions[2], owner.points.positions[2])
-    assert ct.take(replica.current.points).n_visible.tolist() == [5]
+    assert ct.take(replica.current).n_visible.tolist() == [5]
