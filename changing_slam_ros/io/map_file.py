@@ -5,7 +5,8 @@ byte-for-byte deterministically (fixed zip member dates, sorted members), so tha
 gives the same bytes. Version `MAP_FORMAT_VERSION` (2); version 1 (keyframe poses and usable points only,
 written before multi-session support) is refused with an error that says so.
 
-Top level: `format_version` (), `map_ids` (M,), `current_map_id` (), `next_keyframe_id` ().
+Top level: `format_version` (), `map_ids` (M,), `current_map_id` (), `next_keyframe_id` (), `merged_into` (E, 2)
+rows (merged-away map, the map it went into; such a map is stored empty).
 Per map, prefixed `m{map_id}_`:
 - keyframes, K rows in id order: `kf_ids`, `kf_stamps_ns`, `kf_poses` (K, 4, 4) camera-to-world,
   `kf_cameras` (K, 6) width, height, fx, fy, cx, cy, `kf_camera_dist` (K, D) distortion,
@@ -83,6 +84,7 @@ def map_arrays(atlas: Atlas, objects: Mapping[int, SavedObjectMap] | None = None
         "map_ids": np.array([m.id for m in atlas.maps], np.int64),
         "current_map_id": np.array(atlas.current.id, np.int64),
         "next_keyframe_id": np.array(nxt, np.int64),
+        "merged_into": _pairs(sorted(atlas.merged_into.items()), 2),
     }
     objects = objects or {}
     for m in atlas.maps:
@@ -248,6 +250,10 @@ class _Reader:
         atlas = Atlas()
         atlas.maps = [self._map(i) for i in map_ids]
         atlas.current = atlas.maps[current]
+        merged = self.get("merged_into", "i", (None, 2))
+        if not set(merged.reshape(-1).tolist()) <= set(map_ids):
+            raise self.fail("merged_into", f"map ids outside map_ids {map_ids}")
+        atlas.merged_into = {int(a): int(b) for a, b in merged.tolist()}
         objects = {i: self._objects(i) for i in map_ids if f"m{i}_objects_json" in self.a}
         used = [k for m in atlas.maps for k in (*m.keyframes, *m.removed)]
         nxt = self.scalar("next_keyframe_id")

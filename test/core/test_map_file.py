@@ -159,3 +159,18 @@ def test_culled_keyframes_and_loop_edges_round_trip(mapped: tuple[SlamSystem, Pa
     assert back.removed[last - 1].parent_id == m.removed[last - 1].parent_id
     np.testing.assert_array_equal(back.pose_of(last - 1), m.pose_of(last - 1))
     assert back.covisibility == m.covisibility and back.children == m.children and back.parent == m.parent
+
+
+def test_merged_away_maps_round_trip(mapped: tuple[SlamSystem, Path], tmp_path: Path) -> None:
+    """An Atlas whose map 1 was merged into map 0 (left empty, `Atlas.merged_into`) saves and loads as it was."""
+    from changing_slam_ros.core.slam_map import SlamMap
+
+    _, path = mapped
+    loaded = load_map(path)
+    loaded.atlas.maps.append(SlamMap(1))
+    loaded.atlas.merged_into = {1: 0}
+    out = tmp_path / "merged.npz"
+    save_map(out, loaded.atlas, loaded.objects, loaded.next_keyframe_id)
+    back = load_map(out).atlas
+    assert back.merged_into == {1: 0} and len(back.maps) == 2 and not back.maps[1].keyframes
+    assert back.resolve(1) is back.maps[0] and back.current is back.maps[0]
