@@ -326,6 +326,8 @@ class Graph:
             "poses_published": poses, "drops": self.info.colour_frames - poses,
             "latency_ms_median": stats.get("latency_ms_median"), "latency_ms_p90": stats.get("latency_ms_p90"),
             "process_ms_median": stats.get("process_ms_median"), "keyframes": stats.get("keyframes"),
+            "process_cpu_ms_median": stats.get("process_cpu_ms_median"),
+            "frames_skipped_waiting_for_map": stats.get("frames_skipped_waiting_for_map"),
             "detection_delay_ms_median": stats.get("detection_delay_ms_median"),
             "loops_closed": stats.get("loops_closed_split") if stats.get("backend") == "split" else stats.get("loops_closed"),
             "backend": self.args.backend, "map_updates_applied": stats.get("map_updates_applied"),

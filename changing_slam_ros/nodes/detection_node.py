@@ -47,6 +47,7 @@ class DetectionNode(LifecycleNode):
             ("compressed", False, "subscribe sensor_msgs/CompressedImage on image/compressed instead"),
             ("autostart", True, "configure and activate at start (main() only)"),
             ("reliable_images", False, "reliable image subscription (keep last 1) instead of sensor-data best effort"),
+            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
         ])  # fmt: skip
         self._image_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE) if self.params["reliable_images"] \
             else image_qos  # fmt: skip
@@ -56,7 +57,14 @@ class DetectionNode(LifecycleNode):
         self._pub: Any = None
         self._sub: Any = None
         self.frames = 0
+        self.images_in = 0
         self.latency_ms: list[float] = []
+        self.cpu_ms: list[float] = []  # process CPU time per detected frame (load-independent)
+        self._started_s = time.monotonic()
+        from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
+
+        self.diagnostics = NodeDiagnostics(self, self.params["diagnostics_period_s"])
+        self.diagnostics.set_source(self.diagnostic_values)
 
     def _detector_config(self) -> DetectorConfig:
         p = self.params
@@ -123,9 +131,11 @@ class DetectionNode(LifecycleNode):
 
     # -- work -----------------------------------------------------------------------------------
     def on_image(self, msg: Any) -> None:
+        self.images_in += 1
         if self.detector is None:
             return
         t0 = time.perf_counter()
+        c0 = time.process_time()
         topic = self._sub.topic_name if self._sub is not None else "image"
         try:
             rgb = image_to_rgb(msg, topic)
@@ -137,11 +147,22 @@ class DetectionNode(LifecycleNode):
         self._pub.publish(detections_to_msg(detections, msg.header.frame_id))
         self.frames += 1
         self.latency_ms.append(1000.0 * (time.perf_counter() - t0))
+        self.cpu_ms.append(1000.0 * (time.process_time() - c0))
         if self.frames % 100 == 0:
             recent = sorted(self.latency_ms[-100:])
             self.get_logger().info(
                 f"detection: {self.frames} frames, median {recent[len(recent) // 2]:.1f} ms per frame"
             )
+
+
+    def diagnostic_values(self) -> dict[str, Any]:
+        """Images in, frames detected, the rate since the first frame and per-frame time, for /diagnostics."""
+        from changing_slam_ros.nodes.diagnostics import summarise_ms
+
+        out: dict[str, Any] = {"images_received": self.images_in, "frames_detected": self.frames}
+        out.update(summarise_ms(self.latency_ms, "detect"))
+        out.update(summarise_ms(self.cpu_ms, "detect_cpu"))
+        return out
 
 
 def main(args: Sequence[str] | None = None) -> int:

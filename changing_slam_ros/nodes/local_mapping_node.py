@@ -78,6 +78,7 @@ class LocalMappingNode(Node):
         self.awaiting_loop_for = -1  # keyframe id whose loop verdict the next keyframe waits for
         self.queue: deque[KeyframePacket] = deque()
         self.process_ms: list[float] = []
+        self.process_cpu_ms: list[float] = []  # process CPU time per keyframe (load-independent)
         self.queue_ms: list[float] = []
         self._last_cloud_s = -1e9
         self._finished = False
@@ -128,6 +129,7 @@ class LocalMappingNode(Node):
 
     def map_keyframe(self, packet: KeyframePacket) -> None:
         t0 = time.monotonic()
+        c0 = time.process_time()
         kf = packet.keyframe
         try:
             update = self.owner.on_keyframe(packet)
@@ -147,6 +149,7 @@ class LocalMappingNode(Node):
         self._publish_cloud(kf.stamp_ns)
         now = time.monotonic()
         self.process_ms.append((now - t0) * 1e3)
+        self.process_cpu_ms.append((time.process_time() - c0) * 1e3)
         self.queue_ms.append((t0 - getattr(packet, "received_s", t0)) * 1e3)
 
     def apply_loop(self, result: LoopResult, stamp: Any) -> None:
@@ -183,6 +186,7 @@ class LocalMappingNode(Node):
             "keyframes_in_map": self.owner.atlas.n_keyframes,
         }  # fmt: skip
         out.update(summarise_ms(self.process_ms, "keyframe"))
+        out.update(summarise_ms(self.process_cpu_ms, "keyframe_cpu"))
         out.update(summarise_ms(self.queue_ms, "queue_wait"))
         out.update(summarise_ms(t["mapping"], "local_ba_and_mapping"))
         out.update(summarise_ms(t["diff"], "diff"))
