@@ -10,6 +10,7 @@ from helpers import FR1_XYZ_10, REDKITCHEN, require
 
 from changing_slam_ros.core.map_replication import (
     CounterTracker,
+    KeyframePacket,
     ReplicationError,
     apply_counters,
     apply_delta,
@@ -150,3 +151,96 @@ def test_counter_increments_survive_an_update_and_reach_the_owner() -> None:
     assert replica.current.points.n_visible[2] == 1 + 3 + 5
     np.testing.assert_allclose(replica.current.points.positions[2], owner.points.positions[2])
     assert ct.take(replica.current).n_visible.tolist() == [5]
+
+
+# -- loops: the drifting room of test_loop_closing.py (ground truth; a loop a turn after the start) -----------
+def drifting_room_steps(n_kf: int = 58, n_per_turn: int = 48):
+    """Yield (packet keyframe copy, owner step) per keyframe of a drifting owner that re-uses points of its last 3
+    keyframes only; the step, called with the owner's map, maps the keyframe and returns the MapUpdate."""
+    from core.test_loop_closing import SyntheticRoom, _rot_y
+
+    from changing_slam_ros.core.map_replication import MapUpdate
+    from changing_slam_ros.core.orb_features import FeatureConfig
+    from changing_slam_ros.core.se3 import invert, make_pose
+
+    room, scales = SyntheticRoom(seed=1), FeatureConfig().level_scales()
+    last_seen: dict[int, tuple[int, int]] = {}
+    truth: dict[int, np.ndarray] = {}
+    for k in range(n_kf):
+        truth[k] = room.pose(k, n_per_turn)
+
+        def step(m: SlamMap, k=k):  # noqa: ANN202 - a closure per keyframe
+            rel = invert(truth[k - 1]) @ truth[k] if k else np.eye(4)
+            online = truth[0].copy() if k == 0 else \
+                m.keyframes[k - 1].T_world_cam @ make_pose(_rot_y(np.radians(1.0)) @ rel[:3, :3], rel[:3, 3])  # fmt: skip
+            kf, seen = room.keyframe(k, truth[k], online)
+            sent = copy.deepcopy(kf)
+            before = snapshot(m)
+            m.add_keyframe(kf)
+            rows = []
+            for row, w in enumerate(seen.tolist()):
+                known = last_seen.get(w)
+                if known is not None and k - known[1] <= 3 and not m.points.bad[known[0]]:
+                    m.add_observation(known[0], k, row)
+                    last_seen[w] = (known[0], k)
+                else:
+                    rows.append(row)
+            r = np.array(rows, np.int64)
+            pc = kf.camera.backproject(kf.keypoints_px[r].astype(np.float64), kf.depths_m[r].astype(np.float64))
+            ids = m.points.add(pc @ online[:3, :3].T + online[:3, 3], kf.descriptors[r], k, r, online[:3, 3],
+                               np.zeros(len(r), np.int64), scales)  # fmt: skip
+            kf.point_ids[r] = ids
+            for pid, row in zip(ids.tolist(), r.tolist(), strict=True):
+                last_seen[int(seen[row])] = (pid, k)
+            m.update_connections(k)
+            return sent, MapUpdate(k, diff(before, m))
+
+        yield k, truth, step
+
+
+def _owner(atlas: Atlas, last_kf_id: int):  # noqa: ANN202
+    """A MapOwner whose map is `atlas` (its mapper is not used by `on_loop`)."""
+    from types import SimpleNamespace
+
+    from changing_slam_ros.nodes.split_backend import MapOwner
+
+    return MapOwner(SimpleNamespace(system=SimpleNamespace(atlas=atlas)), None, last_kf_id)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("stale", [False, True])
+def test_a_loop_closed_on_the_replica_reaches_owner_and_tracking(stale: bool) -> None:
+    """Loop closing corrects its replica; the owner applies the result (exactly, or as a correction when it
+    mapped meanwhile) and its delta brings tracking's replica to the owner's map; the drift is corrected."""
+    from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.nodes.split_backend import LoopSide
+
+    owner_atlas, tracking = Atlas(), Atlas()
+    loop = LoopSide(SlamMapLoopClosing(LoopCloser(LoopConfig(), Vocabulary.load())))
+    closed = None
+    for k, truth, step in drifting_room_steps():
+        sent, update = step(owner_atlas.current)
+        loop.on_keyframe(copy.deepcopy(KeyframePacket(sent)))
+        insert_keyframe(tracking, copy.deepcopy(sent))
+        apply_delta(tracking, copy.deepcopy(update.delta))
+        result = loop.on_update(copy.deepcopy(update))
+        if result is not None and result.closed:
+            closed = result
+            break
+    assert closed is not None and closed.query_kf_id >= 45 and closed.correction.match_kf_id < 5
+    owner = _owner(owner_atlas, closed.query_kf_id + (1 if stale else 0))
+    relay = owner.on_loop(copy.deepcopy(closed))
+    assert relay is not None and relay.loop_query_kf_id == closed.query_kf_id and len(relay.delta.keyframes) > 40
+    apply_delta(tracking, copy.deepcopy(relay.delta))
+    m, t, r = owner_atlas.current, tracking.current, loop.atlas.current
+    _assert_maps_equal(m, t)  # tracking follows the owner, whichever way the owner applied it
+    if not stale:
+        _assert_maps_equal(m, r)  # exact: the owner's map is loop closing's corrected replica
+    q = closed.query_kf_id
+    T_new = closed.correction.corrected_poses[q]
+    T_old = np.linalg.inv(closed.correction.pose_corrections[q]) @ T_new  # the drifted pose before the loop
+    np.testing.assert_allclose(m.keyframes[q].T_world_cam, T_new, atol=1e-9)
+    before, after = (float(np.linalg.norm(T[:3, 3] - truth[q][:3, 3])) for T in (T_old, m.keyframes[q].T_world_cam))
+    assert after < 0.25 * before  # the query keyframe's drift corrected in the owner's map
+    for dup, keep in closed.correction.fused_points[:50]:
+        assert m.points.bad[dup] and not m.points.bad[keep]

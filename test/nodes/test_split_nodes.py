@@ -119,10 +119,8 @@ def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):
     """Synthetic room with ground truth (test/core/test_loop_closing.py): a drifting owner maps a turn and a
     quarter; fed its keyframe packets and map updates, the node answers every keyframe and closes the loop
     between the start and a turn later, with the correction's delta for the owner."""
-    from core.test_loop_closing import SyntheticRoom, _rot_y  # noqa: PLC0415 - the room of the core tests
+    from core.test_map_replication import drifting_room_steps
 
-    from changing_slam_ros.core.orb_features import FeatureConfig
-    from changing_slam_ros.core.se3 import invert, make_pose
     from changing_slam_ros.core.slam_map import SlamMap
 
     node = LoopClosingNode(context=ros_context, parameter_overrides=[Parameter("config", value="")])
@@ -136,35 +134,11 @@ def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):
     executor.add_node(probe)
     assert spin_until(executor, lambda: kf_pub.get_subscription_count() > 0 and up_pub.get_subscription_count() > 0
                       and node.correction_pub.get_subscription_count() > 0)  # fmt: skip
-    room, m, scales = SyntheticRoom(seed=1), SlamMap(0), FeatureConfig().level_scales()
-    truth, online, last_seen = {}, {}, {}
-    n_kf, n_per_turn = 58, 48
-    for k in range(n_kf):
-        truth[k] = room.pose(k, n_per_turn)
-        rel = invert(truth[k - 1]) @ truth[k] if k else np.eye(4)
-        online[k] = truth[0].copy() if k == 0 else \
-            m.keyframes[k - 1].T_world_cam @ make_pose(_rot_y(np.radians(1.0)) @ rel[:3, :3], rel[:3, 3])  # fmt: skip
-        kf, seen = room.keyframe(k, truth[k], online[k])
-        kf_pub.publish(packet_to_msg(KeyframePacket(copy.deepcopy(kf)), "map"))
-        before = snapshot(m)  # the owner: re-use points of the last 3 keyframes, map the rest anew (drift)
-        m.add_keyframe(kf)
-        rows = []
-        for row, w in enumerate(seen.tolist()):
-            known = last_seen.get(w)
-            if known is not None and k - known[1] <= 3:
-                m.add_observation(known[0], k, row)
-                last_seen[w] = (known[0], k)
-            else:
-                rows.append(row)
-        r = np.array(rows, np.int64)
-        pc = kf.camera.backproject(kf.keypoints_px[r].astype(np.float64), kf.depths_m[r].astype(np.float64))
-        ids = m.points.add(pc @ online[k][:3, :3].T + online[k][:3, 3], kf.descriptors[r], k, r, online[k][:3, 3],
-                           np.zeros(len(r), np.int64), scales)  # fmt: skip
-        kf.point_ids[r] = ids
-        for pid, row in zip(ids.tolist(), r.tolist(), strict=True):
-            last_seen[int(seen[row])] = (pid, k)
-        m.update_connections(k)
-        up_pub.publish(update_to_msg(MapUpdateData(k, diff(before, m)), kf.stamp_ns, "map"))
+    m, n_kf, n_per_turn = SlamMap(0), 58, 48
+    for k, _, step in drifting_room_steps(n_kf, n_per_turn):
+        sent, update = step(m)
+        kf_pub.publish(packet_to_msg(KeyframePacket(sent), "map"))
+        up_pub.publish(update_to_msg(update, sent.stamp_ns, "map"))
         assert spin_until(executor, lambda k=k: len(answers) >= k + 1, 30.0)
     closed = [a for a in answers if a.closed]
     assert [a.query_keyframe_id for a in answers] == list(range(n_kf))
