@@ -14,6 +14,7 @@ import argparse
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -45,9 +46,14 @@ def timed(fn: Callable[[], object], runs: int) -> tuple[object, float, float]:
 
 def bench_segmentation(args: argparse.Namespace) -> None:
     print("point-correlation segmentation (precision/recall of moving points; unassigned counts as missed)")
+    fast = [np.array([0.06, 0.0, 0.0]), np.array([0.0, 0.05, -0.04])]
+    slow = [np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.025, -0.015])]
+    two, multi = SegmentationConfig.two_frame(), SegmentationConfig.multi_frame()
     cases = [
-        ("two-frame", 2, [np.array([0.06, 0.0, 0.0]), np.array([0.0, 0.05, -0.04])], 0.05, 0.03, SegmentationConfig.two_frame()),
-        ("5-frame window", 5, [np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.025, -0.015])], 0.08, 0.01, SegmentationConfig.multi_frame()),
+        ("two-frame", 2, fast, 0.05, 0.03, two),
+        ("two-frame, <=500", 2, fast, 0.05, 0.03, replace(two, max_points=500)),
+        ("5-frame window", 5, slow, 0.08, 0.01, multi),
+        ("5-frame, <=500", 5, slow, 0.08, 0.01, replace(multi, max_points=500)),
     ]
     for name, k, steps, outliers, spin, cfg in cases:
         rng = np.random.default_rng(0)
@@ -59,7 +65,7 @@ def bench_segmentation(args: argparse.Namespace) -> None:
         precision, recall = precision_recall(result.dynamic_mask, truth > 0)  # type: ignore[attr-defined]
         seen = int((window.observed.sum(axis=0) >= 2).sum())
         print(
-            f"  {name:15s} points {len(truth):5d} (seen twice {seen}), edges {len(result.edges):5d}, "  # type: ignore[attr-defined]
+            f"  {name:17s} points {len(truth):5d} (seen twice {seen}), edges {len(result.edges):5d}, "  # type: ignore[attr-defined]
             f"{outliers:.0%} outlier measurements: {wall:7.1f} ms wall, {cpu:7.1f} ms CPU; "
             f"targets {result.num_targets}, P {precision:.3f} R {recall:.3f}"  # type: ignore[attr-defined]
         )
