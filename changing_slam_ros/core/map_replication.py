@@ -24,7 +24,7 @@ only (`PointStore.add` rows); replicas never create either, so ids cannot collid
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -469,7 +469,3 @@ class ObjectRows:
             for i in range(len(self.ids))
         )
 
-
-def dataclass_arrays(obj: Any) -> dict[str, Any]:
-    """Field name -> value of a packet dataclass (for the message conversions)."""
-    return {f.name: getattr(obj, f.name) for f in fields(obj)}

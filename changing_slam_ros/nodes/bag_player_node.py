@@ -105,6 +105,13 @@ class BagPlayerNode(Node):
             raise
         self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(depth=10))
         self._acks: dict[int, set[str]] = {}
+        self.result = PlaybackResult()  # the current (or last) play() call's counts
+        from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
+
+        self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
+        self.diagnostics.set_source(lambda: {"published": self.result.published, "ack_timeouts": self.result.ack_timeouts,
+                                             "dds_ack_timeouts": self.result.dds_ack_timeouts,
+                                             "completed": self.result.completed})  # fmt: skip
         if self.lossless and self._ack_count > 0 and self._ack_topics:
             self.create_subscription(Header, p["ack_topic"], self._on_ack, QoSProfile(depth=1000))
         self.get_logger().info(
@@ -139,6 +146,7 @@ class BagPlayerNode(Node):
             ("ack_topic", "/bag_player/ack", "lossless: std_msgs/Header acks (stamp = acknowledged stamp)"),
             ("ack_count", 1, "lossless: distinct acknowledging nodes awaited per message on ack_topics"),
             ("ack_timeout_s", 2.0, "lossless: longest wait per message for acks (DDS and processing)"),
+            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports while playing (0 = off)"),
         ]
         values = declare_parameters(self, specs)
         for name in ("clock_hz", "progress_period_s"):
@@ -186,7 +194,7 @@ class BagPlayerNode(Node):
     # -- playback ----------------------------------------------------------------------------
     def play(self, executor: Executor) -> PlaybackResult:
         """Publish the bag on schedule, spinning `executor` while waiting; returns at the end of the bag."""
-        result = PlaybackResult()
+        result = self.result = PlaybackResult()
         t_start = time.monotonic()
         if self._wait_subscribers and not self._wait_for_subscribers(executor):
             result.wall_s = time.monotonic() - t_start
