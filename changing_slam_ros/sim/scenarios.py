@@ -2,7 +2,8 @@
 
 TUM fr3-like (`walking_xyz`, `walking_static`, `walking_rpy`, `walking_halfsphere`, `sitting_xyz`): two
 people walk (or sit) between a hand-held camera and an office corner with a table, a monitor and chairs.
-PUC-USP-like (`static`, `one_chair`, `vanishing`, `changing`, `shift`, `replacing`): a camera on a
+PUC-USP-like (`static`, `one_chair`, `vanishing`, `changing`, `shift`, `replacing`; `one_chair_static` is
+`one_chair`'s sparser room with nothing moved, its control): a camera on a
 wheeled robot (0.07 m/s, turning 30 deg/s in place) drives 7 or 8 sides of a 0.8 m square, facing the
 walls in turn so that each changed place is seen before and after its change (101 or 115 s, 15 Hz);
 objects are moved, removed, replaced or added while the robot faces away, and every change is checked
@@ -273,6 +274,12 @@ def _one_chair_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
     return [(T_FACING_W1, "chair", M, chair, ""), (T_FACING_W1, "teddy_bear", M, _on(chair, 0.5, 0.02), "")]
 
 
+def _one_chair_static_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    """No change, but the same random draws as `_one_chair_plan`: the same layout and the same robot path."""
+    _one_chair_plan(p, rng)
+    return []
+
+
 def _vanishing_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
     chair = _moved(p["chair"], -0.3, 1.0 + _jit(rng, 0.1), -0.4)
     return [
@@ -420,6 +427,9 @@ SCENARIOS: dict[str, ScenarioInfo] = {
     "static": _puc("static", "robot loop in a furnished room, nothing changes (baseline)", ALL_PUC, _static_plan),
     "one_chair": _puc("one_chair", "robot loop; a chair with a teddy bear is moved while out of view",
                       ["chair", "teddy_bear", "table"], _one_chair_plan),
+    "one_chair_static": _puc("one_chair_static", "one_chair's room (chair, teddy bear, table) with nothing moved: "
+                             "the control for one_chair's camera ATE", ["chair", "teddy_bear", "table"],
+                             _one_chair_static_plan),
     "vanishing": _puc("vanishing", "robot loop; objects are moved and removed one by one out of view",
                       ALL_PUC, _vanishing_plan, n_sides=8),
     "changing": _puc("changing", "robot loop; the teddy bear changes chair, objects are removed, replaced, added",
