@@ -1,6 +1,6 @@
 """Speed and memory of the RGB-D SLAM core: prints figures, asserts nothing.
 
-    .venv/bin/python bench/bench_slam.py [SOURCE] [--config NAME] [--max-frames N] [--no-loop]
+    .venv/bin/python bench/bench_slam.py [SOURCE] [--config NAME] [--max-frames N] [--no-loop] [--triangulation on|off]
 
 Prints the median / p90 tracking time per frame (feature extraction + tracking, as ORB-SLAM
 reports it), local mapping per keyframe, the whole-run rate in frames per second (frames decoded
@@ -38,10 +38,15 @@ def main() -> int:
     parser.add_argument("--config", default="7scenes")
     parser.add_argument("--max-frames", type=int, default=0)
     parser.add_argument("--no-loop", action="store_true")
+    parser.add_argument("--triangulation", choices=("on", "off"), help="override mapping.triangulation.enabled")
     args = parser.parse_args()
 
     path = find_config(args.config)
     data = load_yaml(path)
+    if args.triangulation is not None:
+        mapping = data.setdefault("mapping", None) or {}
+        mapping["triangulation"] = {**(mapping.get("triangulation") or {}), "enabled": args.triangulation == "on"}
+        data["mapping"] = mapping
     source = open_dataset(args.source, settings_from_mapping(data, str(path)))
     closing = None if args.no_loop else _loop_closing(data, str(path))
     system = SlamSystem(system_config_from_mapping(data, str(path)), loop_closer=closing, keyframe_index=closing)
@@ -63,6 +68,9 @@ def main() -> int:
     print(f"loop closing ms     mean per frame {t['loop_closing']['mean']:.1f}  max {t['loop_closing']['max']:.1f}")
     print(f"whole run           {wall:.1f} s, {len(system.records) / wall:.1f} fps")
     print(f"resident memory     {rss1:.0f} MiB at end, +{rss1 - rss0:.0f} MiB over the run, {(rss1 - rss0) / n_kf * 1024:.0f} KiB per keyframe")
+    made = sum(len(c) for chunks in system.mapper.triangulated.values() for c in chunks)
+    print(f"triangulated points made {made}, alive at the end {system.mapper.n_triangulated_alive()}")
+    print(f"maps                {len(system.atlas.live_maps())} holding keyframes of {len(system.atlas.maps)}, merges {len(system.merges)}")
     gt = source.groundtruth
     if gt is not None and system.n_tracked() >= 3:
         from changing_slam_ros.eval.ate import ate

@@ -117,7 +117,7 @@ def test_welding_ba_keeps_a_consistent_merge_when_the_transform_is_slightly_off(
     m = atlas.maps[0]
     err_before = np.linalg.norm((off @ invert(T_1_true))[:3, 3])  # the seam error the merge started from (1.1 cm)
     err_after = max(np.linalg.norm(m.keyframes[10 + j].T_world_cam[:3, 3] - T[:3, 3]) for j, T in enumerate(poses_1))
-    assert err_after < 0.5 * err_before
+    assert err_before > 0.01 and err_after < 0.001  # noise-free observations: measured 1.0 cm -> 0.0 mm
     _check_consistent(m)
 
 
