@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -113,6 +115,22 @@ def test_two_frame_segmentation_splits_two_rigid_movers_from_the_static_backgrou
     # No moving point, corrupted or not, is ever used as static.
     assert not np.any(result.static_mask & (truth > 0))
 
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_bounded_graph_labels_the_points_left_out_from_their_nearest_graph_point(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    steps = [np.array([0.06, 0.0, 0.0]), np.array([0.0, 0.05, -0.04])]
+    window, truth, _ = make_scene(rng, 2, steps, np.array([0.03, 0.0, 0.01]), n_static=800, n_object=100, outlier_rate=0.05)
+    full = segment(window, SegmentationConfig.two_frame())
+    bounded = segment(window, replace(SegmentationConfig.two_frame(), max_points=500))
+    assert len(np.unique(bounded.edges)) <= 500 < len(np.unique(full.edges))
+    precision, recall = precision_recall(bounded.dynamic_mask, truth > 0)
+    assert precision >= 0.98 and recall >= 0.8, (precision, recall)  # full graph: recall 0.86-0.93
+    assert bounded.num_targets == 2
+    # Points outside the graph got labels too (not all left unassigned), and no mover point is static.
+    outside = ~np.isin(np.arange(len(truth)), np.unique(bounded.edges))
+    assert np.mean(bounded.labels[outside & (truth > 0)] > 0) > 0.7
+    assert not np.any(bounded.static_mask & (truth > 0))
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_multi_frame_segmentation_finds_slow_movers_over_a_keyframe_window(seed: int) -> None:
@@ -245,3 +263,10 @@ def test_view_cone_volume_keeps_a_flat_wall_static_where_the_hull_volume_does_no
     assert not np.any(on_box[cone.static_mask])
     precision, recall = precision_recall(cone.dynamic_mask, on_box)
     assert precision >= 0.95 and recall >= 0.95, (precision, recall)
+
+
+def test_config_rejects_bad_solver_tolerance_and_point_bound() -> None:
+    with pytest.raises(ConfigError, match="cg_rtol"):
+        SegmentationConfig(cg_rtol=0.0)
+    with pytest.raises(ConfigError, match="max_points"):
+        SegmentationConfig(max_points=-1)
