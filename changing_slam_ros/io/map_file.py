@@ -1,6 +1,6 @@
 """The saved map (`map.npz`): every map of the Atlas and its object map, enough to start a second session.
 
-One uncompressed-name, deflate-compressed npz (numpy arrays, no pickles), written atomically and
+One deflate-compressed npz archive (numpy arrays, no pickles), written atomically and
 byte-for-byte deterministically (fixed zip member dates, sorted members), so that save -> load -> save
 gives the same bytes. Version `MAP_FORMAT_VERSION` (2); version 1 (keyframe poses and usable points only,
 written before multi-session support) is refused with an error that says so.
