@@ -275,6 +275,17 @@ def diff(before: MapSnapshot, m: SlamMap) -> MapDelta:
     )  # fmt: skip
 
 
+def empty_snapshot(map_id: int) -> MapSnapshot:
+    """The snapshot of a map with nothing in it: `diff(empty_snapshot(m.id), m)` is all of map `m`."""
+    cols = {name: np.zeros((0,) + shape, dtype) for name, shape, dtype in POINT_COLUMNS}
+    return MapSnapshot(map_id, -1, {}, frozenset(), 0, cols, [])
+
+
+def full_delta(m: SlamMap) -> MapDelta:
+    """All of map `m` as one delta (a replica restarted empty gets it with `restore`)."""
+    return diff(empty_snapshot(m.id), m)
+
+
 # -- applying ------------------------------------------------------------------------------------------
 def ensure_map(atlas: Atlas, map_id: int) -> SlamMap:
     """The atlas's map `map_id`, creating maps up to it (ids are dense, as `Atlas.new_map` makes them)."""
@@ -363,6 +374,25 @@ def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
         m.children.pop(k, None)
         m.parent.pop(k, None)
     return m
+
+
+def restore(atlas: Atlas, keyframes: list[Keyframe], delta: MapDelta) -> SlamMap:
+    """Rebuild map `delta.map_id` in a replica that restarted empty, from the keyframes (features; their
+    point ids are ignored) and `full_delta` of the map. Replaces what the replica had of that map."""
+    missing = sorted(set(delta.keyframes.ids.tolist()) - {kf.id for kf in keyframes})
+    if missing:
+        raise ReplicationError(f"restore of map {delta.map_id}: keyframes {missing[:5]} missing")
+    m = ensure_map(atlas, delta.map_id)
+    fresh = SlamMap(m.id)
+    atlas.maps[m.id] = fresh
+    if atlas.current is m:
+        atlas.current = fresh
+    wanted = set(delta.keyframes.ids.tolist())
+    for kf in sorted(keyframes, key=lambda k: k.id):
+        if kf.id in wanted:
+            kf.point_ids = np.full(len(kf), -1, np.int64)
+            fresh.add_keyframe(kf)
+    return apply_delta(atlas, delta)
 
 
 # -- tracking's counters ------------------------------------------------------------------------------

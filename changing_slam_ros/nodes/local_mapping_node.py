@@ -67,6 +67,7 @@ class LocalMappingNode(Node):
                                              "one (lossless graph: the offline order of work)"),
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
             ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
+            ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
         ])  # fmt: skip
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import MapOwner
@@ -89,6 +90,10 @@ class LocalMappingNode(Node):
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.candidate_pub = self.create_publisher(MapObjectArray, "~/object_candidates", output_qos)
         self.cloud_pub = self.create_publisher(PointCloud2, "~/map_cloud", output_qos)
+        from changing_slam_ros.nodes.map_resync import ResyncClient
+
+        # After a restart the map comes back from tracking's replica; keyframes wait for it (see map_resync).
+        self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"])
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
         layer = "on" if self.owner.backend.objects is not None else "off"
@@ -123,9 +128,17 @@ class LocalMappingNode(Node):
         pass  # beliefs and active flags are the object layer's, which runs here (see the module doc)
 
     # -- work -----------------------------------------------------------------------------------
+    def _restore(self, keyframes: list[Any], delta: Any) -> None:
+        self.owner.restore(keyframes, delta)
+        self._drain()
+
     def _drain(self) -> None:
-        while self.queue and self.awaiting_loop_for < 0:
-            self.map_keyframe(self.queue.popleft())
+        while self.queue and self.awaiting_loop_for < 0 and self.resync.ready:
+            packet = self.queue.popleft()
+            m = self.owner.atlas.maps[packet.keyframe.map_id] if packet.keyframe.map_id < len(self.owner.atlas.maps) else None
+            if m is not None and (packet.keyframe.id in m.keyframes or packet.keyframe.id in m.removed):
+                continue  # already in the map restored from tracking's replica
+            self.map_keyframe(packet)
 
     def map_keyframe(self, packet: KeyframePacket) -> None:
         t0 = time.monotonic()
@@ -183,7 +196,7 @@ class LocalMappingNode(Node):
             "keyframes_received": self.keyframes_in, "keyframes_rejected": self.keyframes_rejected,
             "keyframes_mapped": len(t["mapping"]), "keyframes_queued": len(self.queue), "loops_applied": self.loops_applied,
             "map_points": int(self.owner.atlas.current.points.usable().sum()),
-            "keyframes_in_map": self.owner.atlas.n_keyframes,
+            "keyframes_in_map": self.owner.atlas.n_keyframes, "restored_keyframes": self.resync.restored_keyframes,
         }  # fmt: skip
         out.update(summarise_ms(self.process_ms, "keyframe"))
         out.update(summarise_ms(self.process_cpu_ms, "keyframe_cpu"))

@@ -43,6 +43,7 @@ class LoopClosingNode(Node):
             ("config", "tum_fr1", "config name or YAML path (loop section: verification, pose graph)"),
             ("map_frame", "map", "frame of the corrected poses"),
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
+            ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
         ])  # fmt: skip
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import LoopSide
@@ -58,6 +59,11 @@ class LoopClosingNode(Node):
         self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, keyframe_qos)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
         self.correction_pub = self.create_publisher(LoopCorrectionMsg, "~/loop_corrections", keyframe_qos)
+        from changing_slam_ros.nodes.map_resync import ResyncClient
+
+        self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"])
+        if self.side is None:
+            self.resync.ready = True
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
         state = "on" if self.side is not None else "OFF (the config's loop.enabled is false): every keyframe answered 'no loop'"
@@ -94,11 +100,17 @@ class LoopClosingNode(Node):
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # active flags arrive with the map updates (the object layer runs in local_mapping)
 
+    def _restore(self, keyframes: list[Any], delta: Any) -> None:
+        if self.side is not None:
+            self.side.restore(keyframes, delta)
+        self._drain()
+
     def _drain(self) -> None:
         """Apply updates in order; one for a keyframe whose packet has not arrived yet waits for it."""
-        while self.updates:
+        while self.updates and self.resync.ready:
             update, stamp = self.updates[0]
-            if self.side is not None and update.keyframe_id >= 0 and update.keyframe_id not in self.side.pending:
+            if self.side is not None and update.keyframe_id >= 0 and update.keyframe_id not in self.side.pending \
+                    and not self.side.knows(update.keyframe_id):  # fmt: skip
                 return
             self.updates.popleft()
             self._process(update, stamp)
@@ -128,7 +140,8 @@ class LoopClosingNode(Node):
 
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {"keyframes_received": self.keyframes_in, "updates_received": self.updates_in,
-                               "updates_waiting": len(self.updates), "rejected": self.rejected, "loops_closed": self.loops}  # fmt: skip
+                               "updates_waiting": len(self.updates), "rejected": self.rejected, "loops_closed": self.loops,
+                               "restored_keyframes": self.resync.restored_keyframes}  # fmt: skip
         out.update(summarise_ms(self.process_ms, "keyframe"))
         return out
 

@@ -35,6 +35,7 @@ from changing_slam_ros.core.map_replication import (
     CounterTracker,
     KeyframePacket,
     LoopResult,
+    MapDelta,
     MapUpdate,
     ReplicationError,
     apply_counters,
@@ -42,7 +43,9 @@ from changing_slam_ros.core.map_replication import (
     check_keyframe,
     diff,
     ensure_map,
+    full_delta,
     insert_keyframe,
+    restore,
     snapshot,
 )
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
@@ -133,6 +136,11 @@ class TrackingSide:
             self.system._reanchor_last_frame()  # noqa: SLF001 - SlamSystem's own re-anchoring, reused
 
 
+    def snapshot(self) -> list[tuple[list[Keyframe], MapDelta]]:
+        """Every map of the replica as (keyframes, full delta), for a map owner or loop closing that restarted."""
+        return [(list(m.keyframes.values()), full_delta(m)) for m in self.system.atlas.maps if m.keyframes]
+
+
 @dataclass
 class MapOwner:
     """Owns the metric map: applies keyframe packets, runs `LocalMapper` and the object layer (local_mapping)."""
@@ -179,6 +187,12 @@ class MapOwner:
         culled = np.asarray(stats.culled_keyframes, np.int64)
         return MapUpdate(kf.id, delta, culled, active_changed, ran)
 
+    def restore(self, keyframes: list[Keyframe], delta: MapDelta) -> None:
+        """After a restart: the map rebuilt from tracking's replica (recent-point culling starts afresh)."""
+        m = restore(self.atlas, keyframes, delta)
+        self.atlas.current = m
+        self.last_kf_id = max(m.keyframes, default=self.last_kf_id)
+
     def on_loop(self, result: LoopResult) -> MapUpdate | None:
         """Apply a closed loop; returns the delta of doing so for the replicas (None when nothing to apply)."""
         if not result.closed or result.delta is None:
@@ -217,16 +231,31 @@ class LoopSide:
         backend = build_backend(cfg, loop=True, dynamic="off", objects="off")
         return None if backend.loop_closing is None else LoopSide(backend.loop_closing)
 
+    def restore(self, keyframes: list[Keyframe], delta: MapDelta) -> None:
+        """After a restart: the replica rebuilt from tracking's, every keyframe indexed again."""
+        m = restore(self.atlas, keyframes, delta)
+        self.atlas.current = m
+        for k in sorted(m.keyframes):
+            self.closing.add(m.keyframes[k])
+        self.closing.refresh_active_points(m)
+
+    def knows(self, kf_id: int) -> bool:
+        """The keyframe is in the replica already (restored) and was not sent to it as a packet."""
+        return any(kf_id in m.keyframes or kf_id in m.removed for m in self.atlas.maps) and kf_id not in self.pending
+
     def on_keyframe(self, packet: KeyframePacket) -> None:
         kf = packet.keyframe
+        if self.knows(kf.id):
+            return  # in the map restored from tracking's replica
         insert_keyframe(self.atlas, kf)
         self.pending[kf.id] = kf
 
     def on_update(self, update: MapUpdate) -> LoopResult | None:
         """Apply the owner's delta; for a mapped keyframe, run loop closing on it (as `SlamSystem` does after
         local mapping and the object layer) and return the verdict."""
+        restored = update.keyframe_id >= 0 and self.knows(update.keyframe_id)
         m = apply_delta(self.atlas, update.delta)
-        if update.keyframe_id < 0:
+        if update.keyframe_id < 0 or restored:
             return None
         kf = self.pending.pop(update.keyframe_id, None)
         if kf is None:

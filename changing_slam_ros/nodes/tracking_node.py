@@ -171,6 +171,9 @@ class TrackingNode(Node):
 
                 self.split = TrackingSide.build(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"])
                 self.backend = self.split.backend
+                from changing_slam_ros.nodes.map_resync import ResyncServer
+
+                self.resync = ResyncServer(self, self.split.snapshot, p["map_frame"])  # for a restarted mapper
             if intrinsics_from == "auto":
                 intrinsics_from = intrinsics_source(cfg)
             if intrinsics_from == "config":

@@ -101,7 +101,7 @@ def _keyframe_msg(n: int = 50) -> KeyframeMsg:
 
 @pytest.mark.parametrize("node_class", [LocalMappingNode, LoopClosingNode])
 def test_mapping_and_loop_nodes_take_keyframes_and_reject_malformed_ones(ros_context, node_class):
-    node = node_class(context=ros_context)
+    node = node_class(context=ros_context, parameter_overrides=[Parameter("resync_timeout_s", value=0.0)])
     probe = Node("probe", context=ros_context)
     pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", QoSProfile(depth=100))
     executor = SingleThreadedExecutor(context=ros_context)

@@ -59,11 +59,11 @@ def kitchen_packets():
         if i >= 45:
             break
         chained.process(rgbd)
-    return packets, chained.owner.atlas.current
+    return packets, chained.owner.atlas.current, chained.tracking
 
 
 def test_packets_and_updates_round_trip_through_their_messages(kitchen_packets):
-    packets, owner = kitchen_packets
+    packets, owner, _ = kitchen_packets
     p = packets[-1]
     back = packet_from_msg(packet_to_msg(p, "map"), "t")
     np.testing.assert_array_equal(back.keyframe.point_ids, p.keyframe.point_ids)
@@ -76,11 +76,11 @@ def test_packets_and_updates_round_trip_through_their_messages(kitchen_packets):
 
 
 def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros_context, kitchen_packets):
-    packets, owner = kitchen_packets
+    packets, owner, _ = kitchen_packets
     assert len(packets) >= 4
     node = LocalMappingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="7scenes"), Parameter("objects", value="off"),
-        Parameter("diagnostics_period_s", value=0.2)])  # fmt: skip
+        Parameter("diagnostics_period_s", value=0.2), Parameter("resync_timeout_s", value=0.0)])  # fmt: skip
     probe = Node("probe", context=ros_context)
     pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
     updates: list[MapUpdate] = []
@@ -123,7 +123,8 @@ def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):
 
     from changing_slam_ros.core.slam_map import SlamMap
 
-    node = LoopClosingNode(context=ros_context, parameter_overrides=[Parameter("config", value="")])
+    node = LoopClosingNode(context=ros_context, parameter_overrides=[Parameter("config", value=""),
+                                                                     Parameter("resync_timeout_s", value=0.0)])
     probe = Node("probe", context=ros_context)
     kf_pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
     up_pub = probe.create_publisher(MapUpdate, "/local_mapping/map_updates", Q)
@@ -146,6 +147,37 @@ def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):
     first = closed[0]
     assert first.match_keyframe_id < 5 and first.query_keyframe_id >= n_per_turn - 3
     assert len(first.fused_point_pairs) // 2 > 100 and len(first.delta.kf_ids) > 40
+    executor.shutdown()
+    node.destroy_node()
+    probe.destroy_node()
+
+
+def test_a_restarted_local_mapping_node_gets_its_map_back_from_tracking(ros_context, kitchen_packets):
+    """local_mapping dies and starts empty: it asks, tracking (here a probe with the split tracking side's
+    replica) answers with its keyframes and the full map, and the node's map equals the owner's again."""
+    from changing_slam_ros.nodes.map_resync import ResyncServer
+
+    _, owner, tracking_side = kitchen_packets
+    probe = Node("tracking", context=ros_context)
+    server = ResyncServer(probe, tracking_side.snapshot, "map")
+    node = LocalMappingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="7scenes"), Parameter("objects", value="off"),
+        Parameter("resync_timeout_s", value=30.0)])  # fmt: skip
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    assert not node.resync.ready
+    assert spin_until(executor, lambda: node.resync.ready, 30.0)
+    assert server.answered >= 1 and node.resync.restored_keyframes == len(owner.keyframes)
+    m = node.owner.atlas.current
+    assert sorted(m.keyframes) == sorted(owner.keyframes) and m.points.size == owner.points.size
+    for k, kf in owner.keyframes.items():
+        np.testing.assert_allclose(m.keyframes[k].T_world_cam, kf.T_world_cam, atol=1e-9, rtol=0)
+        np.testing.assert_array_equal(m.keyframes[k].point_ids, kf.point_ids)
+        assert m.covisibility[k] == owner.covisibility[k]
+    n = owner.points.size
+    np.testing.assert_allclose(m.points.positions[:n], owner.points.positions[:n], atol=1e-9, rtol=0)
+    np.testing.assert_array_equal(m.points.bad[:n], owner.points.bad[:n])
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
