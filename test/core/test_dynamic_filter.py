@@ -42,8 +42,10 @@ def _scene() -> tuple[RgbdFrame, Features, dict[str, np.ndarray]]:
         "behind_person": in_pbox & (d > 3.0),
         "chair": (px[:, 0] >= 215) & (px[:, 0] < 295) & (px[:, 1] >= 145) & (px[:, 1] < 225) & (d < 3.0),
     }
-    regions["elsewhere"] = ~(in_pbox | regions["chair"]) & ~(
-        (px[:, 0] >= 215) & (px[:, 0] < 295) & (px[:, 1] >= 145) & (px[:, 1] < 225)
+    g = 2.0  # keypoints within the classification's box_margin_px of a box count as inside it
+    near_pbox = (px[:, 0] >= 40 - g) & (px[:, 0] < 130 + g) & (px[:, 1] >= 40 - g) & (px[:, 1] < 220 + g)
+    regions["elsewhere"] = ~(near_pbox | regions["chair"]) & ~(
+        (px[:, 0] >= 215 - g) & (px[:, 0] < 295 + g) & (px[:, 1] >= 145 - g) & (px[:, 1] < 225 + g)
     )
     rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), depth, CAM)
     return rgbd, _features(px, d), regions

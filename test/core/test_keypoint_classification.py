@@ -154,3 +154,19 @@ def test_debug_image_colours_keypoints_like_paper_figure_2() -> None:
     for (u, v), rgb in zip(kps, [(255, 0, 0), (0, 255, 0), (0, 255, 0)]):
         window = img[int(v) - 5 : int(v) + 6, int(u) - 5 : int(u) + 6].reshape(-1, 3)
         assert (window == rgb).all(axis=1).sum() >= 8  # the circle's ring in the class colour
+
+
+def test_a_corner_on_the_silhouette_just_outside_a_tight_box_is_the_persons() -> None:
+    """A tight box spanning the person's pixel indices 260..379 (x_max exclusive): corners detected on the
+    silhouette's left edge lie up to half a pixel left of it (x 259.6); they take the person's class, while
+    the wall a few pixels further out stays static."""
+    depth = np.full((H, W), WALL_M, np.float32)
+    depth[100:440, 260:380] = 1.5
+    box = Detection((260.0, 100.0, 380.0, 440.0), PERSON_CLASS_ID, 1.0)
+    edge = np.array([[259.6, 200.0], [259.7, 300.0], [300.0, 99.6]])
+    wall = np.array([[254.0, 200.0], [300.0, 94.0]])
+    res = classify_keypoints(np.concatenate([edge, wall]), depth, [box])
+    assert (res.kp_classes[:3] == KeypointClass.DYNAMIC).all()
+    assert (res.kp_classes[3:] == KeypointClass.STATIC).all()
+    tight = classify_keypoints(edge, depth, [box], KeypointClassificationConfig(box_margin_px=0.0))
+    assert (tight.kp_classes == KeypointClass.STATIC).all()  # what leaked into tracking before
