@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import FR1_XYZ_10, require
 
 from changing_slam_ros.commands.objects_options import trajectory_alignment
 from changing_slam_ros.core.dynamic_filter import DynamicFilter
@@ -25,8 +26,8 @@ from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapL
 from changing_slam_ros.core.map_object import MapObject
 from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerConfig, SavedObjectMap
-from changing_slam_ros.core.system import SlamSystem
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.system import SlamSystem, SystemConfig
+from changing_slam_ros.core.tracking import TrackingConfig, TrackingState
 from changing_slam_ros.core.vocabulary import Vocabulary
 from changing_slam_ros.eval.multi_session import map_frame_errors_m, moved_places
 from changing_slam_ros.eval.object_metrics import load_ground_truth_objects
@@ -140,3 +141,27 @@ def test_shift_from_the_static_map(scenes: Path, tmp_path: Path) -> None:
     for name in NEW_PLACES:
         new = places[(name, "new")]
         assert new.n_objects >= 1 and new.belief is not None and new.belief >= 0.5, new
+
+
+def test_no_relocalisation_in_the_loaded_map_starts_a_new_map_after_the_grace_period() -> None:
+    """A saved map the frames cannot relocalise in (its keyframes' descriptors scrambled): tracking stays LOST for
+    `loaded_map_grace_s`, then starts a new map of the Atlas; the saved map is kept."""
+    source = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(source)
+    first = SlamSystem()
+    for rgbd in frames:
+        first.process(rgbd)
+    rng = np.random.default_rng(0)
+    for kf in first.atlas.maps[0].keyframes.values():
+        kf.descriptors[:] = rng.integers(0, 256, kf.descriptors.shape, dtype=np.uint8)
+    grace_s = 0.1
+    second = SlamSystem(SystemConfig(tracking=TrackingConfig(loaded_map_grace_s=grace_s)))
+    second.start_from_map(first.atlas, first.tracker.next_kf_id)
+    states = [second.process(rgbd).state for rgbd in frames]
+    t0 = frames[0].stamp_ns
+    lost = [(f.stamp_ns - t0) * 1e-9 < grace_s for f in frames]
+    assert any(lost) and not all(lost)
+    assert all(s == TrackingState.LOST for s, early in zip(states, lost) if early)
+    assert all(s == TrackingState.OK for s, early in zip(states, lost) if not early)
+    assert second.tracker.loaded_map_relocalised_index == -1
+    assert len(second.atlas.maps) == 2 and second.atlas.current.id == 1 and len(second.atlas.maps[0].keyframes) >= 1
