@@ -77,6 +77,7 @@ class TrackingSide:
     n_loops: int = 0
     waiting_for_map: int = -1  # the first keyframe of a new map, until its update brings the map's first points
     n_skipped: int = 0  # frames not tracked while waiting for it (real time only; lossless never waits here)
+    unacked: dict[int, KeyframePacket] = field(default_factory=dict)  # sent, its map update not in yet
 
     ship_objects: bool = True  # the map owner runs the object layer: packets carry depth and objects
 
@@ -109,13 +110,14 @@ class TrackingSide:
         if out.keyframe is None:
             return out, None
         kf = out.keyframe
+        counters = self.counters.take(self.system.atlas.maps[kf.map_id])
         if kf.id == self.system.atlas.maps[kf.map_id].origin_kf_id:
             self.waiting_for_map = kf.id
-        counters = self.counters.take(self.system.atlas.maps[kf.map_id])
-        if not self.ship_objects:
-            return out, KeyframePacket(kf, counters)
-        objects = tuple(out.dynamic.objects) if out.dynamic is not None else ()
-        return out, KeyframePacket(kf, counters, rgbd.depth_m, objects)
+        packet = KeyframePacket(kf, counters, rgbd.depth_m, ()) if self.ship_objects else KeyframePacket(kf, counters)
+        if self.ship_objects and out.dynamic is not None:
+            packet.objects = tuple(out.dynamic.objects)
+        self.unacked[kf.id] = copy.deepcopy(packet)  # re-sent to a map owner that restarts before mapping it
+        return out, packet
 
     def apply_update(self, update: MapUpdate) -> None:
         """The owner's delta into the replica (keeping tracking's newer counter increments), the keyframe
@@ -123,6 +125,7 @@ class TrackingSide:
         m = self.counters.apply_keeping_increments(self.system.atlas, update.delta)
         if update.keyframe_id == self.waiting_for_map:
             self.waiting_for_map = -1
+        self.unacked.pop(update.keyframe_id, None)
         if self.index is not None:
             for k in update.culled_keyframes.tolist():
                 self.index.erase(k)
@@ -137,8 +140,29 @@ class TrackingSide:
 
 
     def snapshot(self) -> list[tuple[list[Keyframe], MapDelta]]:
-        """Every map of the replica as (keyframes, full delta), for a map owner or loop closing that restarted."""
-        return [(list(m.keyframes.values()), full_delta(m)) for m in self.system.atlas.maps if m.keyframes]
+        """Every map of the replica as (keyframes, full delta), for a map owner or loop closing that restarted:
+        the map as the owner last mapped it, i.e. without the keyframes still waiting for their update (their
+        insertion is undone on a copy; `unacked` packets are sent again after the snapshot)."""
+        out = []
+        for m in self.system.atlas.maps:
+            waiting = [k for k in self.unacked if k in m.keyframes]
+            if waiting:
+                m = copy.deepcopy(m)
+                for k in sorted(waiting, reverse=True):  # newest first: undo the replica insertions
+                    kf = m.keyframes.pop(k)
+                    for pid in kf.point_ids[kf.point_ids >= 0].tolist():
+                        m.points.observations[pid].pop(k, None)
+                    m.covisibility.pop(k, None)
+                    m.children.pop(k, None)
+                    if m.origin_kf_id == k:
+                        m.origin_kf_id = -1
+            if m.keyframes:
+                out.append((list(m.keyframes.values()), full_delta(m)))
+        return out
+
+    def resend(self) -> list[KeyframePacket]:
+        """The packets whose map update has not come, oldest first (after a snapshot, for a restarted owner)."""
+        return [self.unacked[k] for k in sorted(self.unacked)]
 
 
 @dataclass
@@ -245,8 +269,8 @@ class LoopSide:
 
     def on_keyframe(self, packet: KeyframePacket) -> None:
         kf = packet.keyframe
-        if self.knows(kf.id):
-            return  # in the map restored from tracking's replica
+        if self.knows(kf.id) or kf.id in self.pending:
+            return  # in the map restored from tracking's replica, or sent again after a restart
         insert_keyframe(self.atlas, kf)
         self.pending[kf.id] = kf
 

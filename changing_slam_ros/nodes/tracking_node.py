@@ -173,7 +173,7 @@ class TrackingNode(Node):
                 self.backend = self.split.backend
                 from changing_slam_ros.nodes.map_resync import ResyncServer
 
-                self.resync = ResyncServer(self, self.split.snapshot, p["map_frame"])  # for a restarted mapper
+                self.resync = ResyncServer(self, self.split.snapshot, p["map_frame"], self._resend_unmapped)
             if intrinsics_from == "auto":
                 intrinsics_from = intrinsics_source(cfg)
             if intrinsics_from == "config":
@@ -279,6 +279,13 @@ class TrackingNode(Node):
             self._relays_seen.add(update.loop_query_kf_id)
             self._rebuild_path()
         self._settle(update=update.keyframe_id, relay=update.loop_query_kf_id)
+
+    def _resend_unmapped(self) -> None:
+        """After a map snapshot: keyframes sent but not mapped (local_mapping was down) go out again."""
+        from changing_slam_ros.nodes.replication_conversions import packet_to_msg
+
+        for packet in self.split.resend():
+            self.keyframe_pub.publish(packet_to_msg(packet, self.params["map_frame"]))
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
         """Split backend: loop_closing's verdict; a closed loop reaches the replica through local_mapping's update."""

@@ -244,3 +244,36 @@ def test_a_loop_closed_on_the_replica_reaches_owner_and_tracking(stale: bool) ->
     assert after < 0.25 * before  # the query keyframe's drift corrected in the owner's map
     for dup, keep in closed.correction.fused_points[:50]:
         assert m.points.bad[dup] and not m.points.bad[keep]
+
+
+def test_a_map_owner_restarted_empty_is_restored_from_tracking_and_maps_what_it_missed() -> None:
+    """7-Scenes redkitchen: the owner dies after 30 frames; tracking goes on and sends a keyframe nobody maps. A
+    new owner restored from tracking's snapshot has the old owner's map exactly, then maps the re-sent keyframe,
+    and tracking's replica follows it."""
+    from changing_slam_ros.nodes.split_backend import MapOwner, copy_packet
+
+    source = open_dataset(require(REDKITCHEN), "7scenes")
+    cfg = load_backend_config("7scenes")
+    chained = ChainedGraph.build(cfg, loop=False, objects="off")
+    frames = iter(source)
+    for _ in range(30):
+        chained.process(next(frames))
+    old_owner = chained.owner.atlas.current
+    lost = None
+    for rgbd in frames:  # the owner is down: packets go nowhere
+        _, lost = chained.tracking.process(rgbd)
+        if lost is not None:
+            break
+    assert lost is not None and list(chained.tracking.unacked) == [lost.keyframe.id]
+    (kfs, delta), = chained.tracking.snapshot()
+    assert lost.keyframe.id not in delta.keyframes.ids.tolist()
+    owner = MapOwner.build(cfg, objects="off")
+    owner.restore(copy.deepcopy(kfs), copy.deepcopy(delta))
+    _assert_maps_equal(old_owner, owner.atlas.current)  # the map as the old owner left it
+    resent = chained.tracking.resend()
+    assert [p.keyframe.id for p in resent] == [lost.keyframe.id]
+    update = owner.on_keyframe(copy_packet(resent[0]))
+    assert len(update.delta.points) > 0 and lost.keyframe.id in owner.atlas.current.keyframes
+    chained.tracking.apply_update(copy.deepcopy(update))
+    assert not chained.tracking.unacked
+    _assert_maps_equal(owner.atlas.current, chained.tracking.system.atlas.current)
