@@ -215,7 +215,8 @@ class Graph:
                 "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
         if split:
             self.nodes["local_mapping"] = NodeProcess("local_mapping", _node_argv("local_mapping_node", {
-                "config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless)}),
+                "config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
+                "update_subscribers": 2}),
                 self.logs)  # fmt: skip
             self.nodes["loop_closing"] = NodeProcess("loop_closing", _node_argv("loop_closing_node", {
                 "config": self.config}), self.logs)  # fmt: skip

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
@@ -68,6 +69,9 @@ class LocalMappingNode(Node):
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
             ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
             ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
+            ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
+                                      "tracking and loop_closing), so that a (re)started node loses no update"),
+            ("update_subscribers_wait_s", 15.0, "... waiting at most this long after start"),
         ])  # fmt: skip
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import MapOwner
@@ -94,6 +98,8 @@ class LocalMappingNode(Node):
 
         # After a restart the map comes back from tracking's replica; keyframes wait for it (see map_resync).
         self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"])
+        self._started_s = time.monotonic()
+        self.create_timer(0.1, self._drain, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
         layer = "on" if self.owner.backend.objects is not None else "off"
@@ -132,8 +138,13 @@ class LocalMappingNode(Node):
         self.owner.restore(keyframes, delta)
         self._drain()
 
+    def _subscribers_ready(self) -> bool:
+        p = self.params
+        return (self.update_pub.get_subscription_count() >= p["update_subscribers"]
+                or time.monotonic() - self._started_s > p["update_subscribers_wait_s"])  # fmt: skip
+
     def _drain(self) -> None:
-        while self.queue and self.awaiting_loop_for < 0 and self.resync.ready:
+        while self.queue and self.awaiting_loop_for < 0 and self.resync.ready and self._subscribers_ready():
             packet = self.queue.popleft()
             m = self.owner.atlas.maps[packet.keyframe.map_id] if packet.keyframe.map_id < len(self.owner.atlas.maps) else None
             if m is not None and (packet.keyframe.id in m.keyframes or packet.keyframe.id in m.removed):
