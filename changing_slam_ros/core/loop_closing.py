@@ -14,7 +14,7 @@ For every new keyframe, `LoopCloser.process`:
 It returns a `LoopCorrection`; it never writes into keyframes except through `update_poses`. The map owner
 applies the correction (and fuses the duplicated points listed in it), then reports poses back with
 `update_poses` when keyframes are copies (ROS transport). `detect_merge` finds places shared by two maps of
-the Atlas; `relocalise` serves tracking when it is lost. `SlamMapLoopClosing` (end of module) binds all this
+the Atlas (applied by `core.map_merging.merge_maps`); `relocalise` serves tracking when it is lost. `SlamMapLoopClosing` (end of module) binds all this
 to the offline runner's `core.slam_map`.
 """
 
@@ -412,6 +412,8 @@ class SlamMapLoopClosing:
     the duplicated points, the loop edge, and fresh covisibility links around the query; then, when given a
     `GlobalBAConfig`, a global bundle adjustment (`backend.global_ba`). The latest
     correction is kept in `last_correction` (tracking moves its last frame with `pose_corrections`).
+    For the Atlas, `detect_merge_in(kf, atlas)` looks for a place of another map and `maps_merged` moves the
+    database entries after `SlamSystem` applied the merge (`core.map_merging`).
     """
 
     def __init__(self, closer: LoopCloser, max_candidates: int = 6, global_ba: GlobalBAConfig | None = None) -> None:
