@@ -14,7 +14,8 @@ For every new keyframe, `LoopCloser.process`:
 It returns a `LoopCorrection`; it never writes into keyframes except through `update_poses`. The map owner
 applies the correction (and fuses the duplicated points listed in it), then reports poses back with
 `update_poses` when keyframes are copies (ROS transport). `detect_merge` finds places shared by two maps of
-the Atlas (applied by `core.map_merging.merge_maps`); `relocalise` serves tracking when it is lost. `SlamMapLoopClosing` (end of module) binds all this
+the Atlas (applied by `core.map_merging.merge_maps`); `relocalise` serves tracking when it is lost.
+`SlamMapLoopClosing` (end of module) binds all this
 to the offline runner's `core.slam_map`.
 """
 
