@@ -45,7 +45,7 @@ $(STAMPS)/package: $(STAMPS)/venv setup.py setup.cfg | $(STAMPS)
 	@touch $@
 
 run: setup
-	@# The ROS 2 graph (bag_player, detection, tracking, object_map as separate processes) over the sample,
+	@# The ROS 2 graph (bag_player, detection, tracking, local_mapping, loop_closing, object_map as separate processes) over the sample,
 	@# lossless so every frame is processed; prints the ATE and where the outputs are.
 	$(PY) -m changing_slam_ros.cli graph $(SAMPLE) --out $(OUT) --config sim --lossless
 
