@@ -106,6 +106,13 @@ def model_detections(folder: Path, n_frames: int, detector: Detector,
     return out, median_ms
 
 
+def _run_task(task: tuple[str, Path, int, str, str, dict[int, tuple[Detection, ...]]]) -> dict[str, Any]:
+    name, folder, n_frames, det_name, row, dets = task
+    r = run_once(folder, n_frames, ROWS[row], dets)
+    r.update(scenario=name, detections="-" if row == "plain" else det_name, row=row)
+    return r
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("/tmp/sim"), help="folder holding one rendered folder per scenario")
@@ -113,39 +120,47 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=300, help="first N frames of each scenario (30 fps)")
     parser.add_argument("--detections", nargs="+", choices=["oracle", "model"], default=["oracle", "model"])
     parser.add_argument("--rows", nargs="+", choices=list(ROWS), default=list(ROWS))
+    parser.add_argument("--jobs", type=int, default=1, help="SLAM runs in parallel (processes)")
     parser.add_argument("--json", type=Path, default=None, help="also write every row here")
     parser.add_argument("--model-cache", type=Path, default=Path(tempfile.gettempdir()) / "changing_slam_bench_detections",
                         help="where model detections are cached between runs ('' = no cache)")
     args = parser.parse_args()
 
     detector = Detector(DetectorConfig()) if "model" in args.detections else None
-    results: list[dict[str, Any]] = []
-    header = (f"{'scenario':19s} {'detections':10s} {'row':21s} {'ATE cm':>7s} {'x lower':>8s} {'lost':>5s} "
-              f"{'maps':>4s} {'kept %':>6s} {'dyn ms':>6s} {'fps':>5s}")
-    print(header, flush=True)
+    tasks = []
     for name in args.scenarios:
         folder = args.root / name
-        oracle = read_detections_file(find_detections_file(folder)).frames
-        plain_ate = float("nan")
         for det_name in args.detections:
             if det_name == "model":
                 assert detector is not None
                 dets, det_ms = model_detections(folder, args.frames, detector, args.model_cache if str(args.model_cache) else None)
                 print(f"{name}: model detector {det_ms:.1f} ms/frame median (when computed)", flush=True)
             else:
-                dets = oracle
+                dets = read_detections_file(find_detections_file(folder)).frames
             for row in args.rows:
                 if row == "plain" and det_name != args.detections[0]:
                     continue  # plain ignores detections: one run per scenario
-                r = run_once(folder, args.frames, ROWS[row], dets)
-                if row == "plain":
-                    plain_ate = r["ate_m"]
-                ratio = plain_ate / r["ate_m"] if r["ate_m"] > 0 else float("nan")
-                r.update(scenario=name, detections="-" if row == "plain" else det_name, row=row, x_lower=ratio)
+                tasks.append((name, folder, args.frames, det_name, row, {} if row == "plain" else dets))
+    if args.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs) as pool:
+            results = []
+            for r in pool.map(_run_task, tasks):
                 results.append(r)
-                print(f"{name:19s} {r['detections']:10s} {row:21s} {100 * r['ate_m']:7.2f} {ratio:8.1f} "
-                      f"{r['frames'] - r['tracked']:5d} {r['maps']:4d} {100 * r['kept']:6.1f} "
-                      f"{r['dynamic_ms_median']:6.1f} {r['fps']:5.1f}", flush=True)
+                print(f"done: {r['scenario']} {r['detections']} {r['row']} {100 * r['ate_m']:.2f} cm", flush=True)
+    else:
+        results = [_run_task(t) for t in tasks]
+    header = (f"{'scenario':19s} {'detections':10s} {'row':22s} {'ATE cm':>7s} {'x lower':>8s} {'lost':>5s} "
+              f"{'maps':>4s} {'kept %':>6s} {'dyn ms':>6s} {'fps':>5s}")
+    print(header, flush=True)
+    plain = {r["scenario"]: r["ate_m"] for r in results if r["row"] == "plain"}
+    for r in results:
+        ratio = plain.get(r["scenario"], float("nan")) / r["ate_m"] if r["ate_m"] > 0 else float("nan")
+        r["x_lower"] = ratio
+        print(f"{r['scenario']:19s} {r['detections']:10s} {r['row']:22s} {100 * r['ate_m']:7.2f} {ratio:8.1f} "
+              f"{r['frames'] - r['tracked']:5d} {r['maps']:4d} {100 * r['kept']:6.1f} "
+              f"{r['dynamic_ms_median']:6.1f} {r['fps']:5.1f}", flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(results, indent=1) + "\n")
     return 0
