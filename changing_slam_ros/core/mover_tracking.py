@@ -261,7 +261,7 @@ class MoverTracker:
         for obj in self.live:
             if not obj.poses or len(obj.points_obj) < self.config.min_object_points:
                 continue
-            local = transform_points(invert(_extrapolate(obj.poses, stamp_ns)), world)
+            local = transform_points(invert(obj.predict(stamp_ns)), world)
             dist, _ = cKDTree(obj.points_obj).query(local, k=1, distance_upper_bound=self.config.model_radius_m)
             on[idx[np.isfinite(dist)]] = True
         return on
@@ -277,7 +277,7 @@ class MoverTracker:
         if radius <= 0.0 or not obj.poses or len(frame.point_ids) == 0:
             return frame
         by_id = obj.index_of(frame.point_ids)
-        local = transform_points(invert(_extrapolate(obj.poses, frame.stamp_ns)), transform_points(frame.T_world_cam, frame.points_cam))
+        local = transform_points(invert(obj.predict(frame.stamp_ns)), transform_points(frame.T_world_cam, frame.points_cam))
         dist, nn = cKDTree(obj.points_obj).query(local, k=1, distance_upper_bound=radius)
         candidate = (by_id < 0) & np.isfinite(dist) & ~np.isin(nn, by_id[by_id >= 0])
         cand = np.flatnonzero(candidate)
@@ -340,7 +340,7 @@ class MoverTracker:
         predicted = {}
         for obj in self.live:
             if stamp_ns not in obj.poses and obj.poses:
-                obj.poses[stamp_ns] = _extrapolate(obj.poses, stamp_ns)
+                obj.poses[stamp_ns] = obj.predict(stamp_ns)
                 predicted[obj.object_id] = len(obj.point_ids)
         merged = merge_objects(self.live + new, stamp_ns, cfg.merging)
         for obj in merged:
@@ -358,12 +358,3 @@ class MoverTracker:
         """The objects tracked in at least `min_track_frames` frames, as exportable tracks."""
         return [o.to_track() for o in self.objects() if len(o.poses) >= self.config.min_track_frames]
 
-
-def _extrapolate(poses: dict[int, F64], stamp_ns: int) -> F64:
-    """Pose at `stamp_ns` from the last two (stamp -> T_world_obj): constant translational velocity, last rotation."""
-    stamps = sorted(poses)
-    last = poses[stamps[-1]].copy()
-    if len(stamps) >= 2 and stamps[-1] > stamps[-2]:
-        velocity = (last[:3, 3] - poses[stamps[-2]][:3, 3]) / (stamps[-1] - stamps[-2])
-        last[:3, 3] += velocity * (stamp_ns - stamps[-1])
-    return last

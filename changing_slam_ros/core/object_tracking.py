@@ -44,6 +44,12 @@ class ObjectTrackingConfig:
       the last keypose are tracked ("the tracked features change significantly").
     - `window_keyposes`: keyposes in the sliding window of full object BA (the reference keypose is
       always kept, as it holds the gauge).
+    - `gate_m`, `gate_m_per_s`, `gate_rad`, `gate_rad_per_s`: beyond the paper, a motion gate. A pose from
+      eq. 7 further than gate_m + gate_m_per_s * dt (or turned more than gate_rad + gate_rad_per_s * dt)
+      from the pose extrapolated at constant velocity (dt since the last pose) is rejected (the frame is
+      not tracked), and a full BA (eq. 11) that moves a keypose by more than gate_m or gate_rad is not
+      applied. On unknown_mover a wrong eq. 7 solution turned the box by 40 degrees in one frame and
+      spoilt the rest of its trajectory. 0 for gate_m switches the gate off.
     - `ba`: noise model and solver of object BA.
     """
 
@@ -52,6 +58,10 @@ class ObjectTrackingConfig:
     keypose_rotation_rad: float = 0.1
     keypose_tracked_ratio: float = 0.7
     window_keyposes: int = 8
+    gate_m: float = 0.03
+    gate_m_per_s: float = 0.5
+    gate_rad: float = 0.2
+    gate_rad_per_s: float = 1.0
     ba: ObjectBAConfig = field(default_factory=ObjectBAConfig)
 
     def __post_init__(self) -> None:
@@ -159,6 +169,23 @@ class MovingObject:
         poses = np.stack([self.poses[s] for s in stamps]) if stamps else np.zeros((0, 4, 4))
         return MovingObjectTrack(self.object_id, class_id, np.array(stamps, dtype=np.int64), poses, len(self.point_ids))
 
+    def predict(self, stamp_ns: int, max_ratio: float = 3.0) -> F64:
+        """T_world_obj (4, 4) at `stamp_ns` from the last two poses at constant (linear and angular) velocity.
+
+        The extrapolation covers at most `max_ratio` times the interval between those two poses.
+        """
+        from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
+
+        stamps = [s for s in self.stamps_ns if s < stamp_ns] or self.stamps_ns
+        last = self.poses[stamps[-1]].copy()
+        if len(stamps) >= 2:
+            prev = self.poses[stamps[-2]]
+            ratio = min((stamp_ns - stamps[-1]) / (stamps[-1] - stamps[-2]), max_ratio)
+            last[:3, 3] += (last[:3, 3] - prev[:3, 3]) * ratio
+            turn = Rotation.from_matrix(prev[:3, :3].T @ last[:3, :3]).as_rotvec() * ratio
+            last[:3, :3] = last[:3, :3] @ Rotation.from_rotvec(turn).as_matrix()
+        return last
+
     def index_of(self, point_ids: I64) -> I64:
         """Indices (N,) into this object's points of `point_ids` (N,); -1 where a point is not the object's."""
         order = np.argsort(self.point_ids)
@@ -219,7 +246,7 @@ class ObjectTracker:
         init = align_points(obj.points_obj[obs.point_index], world)
         result = motion_only_object_ba(obj.points_obj, obs, init, self.camera, self.config.ba)
         n_in = int(result.inliers.sum())
-        if n_in < self.config.min_tracked_points:
+        if n_in < self.config.min_tracked_points or not self._within_gate(obj, frame.stamp_ns, result.T_world_obj):
             return TrackResult(False, n, n_in, False, None)
         obj.poses[frame.stamp_ns] = result.T_world_obj
         # A keypose keeps all the frame's measurements, not only eq. 7's inliers: a point whose shape is
@@ -228,6 +255,19 @@ class ObjectTracker:
         if keypose:
             obj.keyposes.append(obs)
         return TrackResult(True, n, n_in, keypose, result.T_world_obj)
+
+    def _within_gate(self, obj: MovingObject, stamp_ns: int, T_world_obj: F64) -> bool:
+        """The motion gate (see `ObjectTrackingConfig`) against the pose extrapolated to `stamp_ns`."""
+        cfg = self.config
+        earlier = [s for s in obj.poses if s < stamp_ns]
+        if cfg.gate_m <= 0.0 or not earlier:
+            return True
+        dt = (stamp_ns - max(earlier)) * 1e-9
+        delta = invert(obj.predict(stamp_ns)) @ T_world_obj
+        return bool(
+            np.linalg.norm(delta[:3, 3]) <= cfg.gate_m + cfg.gate_m_per_s * dt
+            and rotation_angle_rad(delta[:3, :3]) <= cfg.gate_rad + cfg.gate_rad_per_s * dt
+        )
 
     def _is_keypose(self, obj: MovingObject, obs: ObjectObservations, T_world_obj: F64) -> bool:
         if not obj.keyposes:
@@ -247,6 +287,11 @@ class ObjectTracker:
         window = [obj.keyposes[0]] + obj.keyposes[1:][-(self.config.window_keyposes - 1) :]
         init = np.stack([obj.poses[kp.stamp_ns] for kp in window])
         result = full_object_ba(obj.points_obj, window, init, self.camera, self.config.ba)
+        if self.config.gate_m > 0.0:
+            for before, after in zip(init, result.T_world_obj):
+                delta = invert(before) @ after
+                if np.linalg.norm(delta[:3, 3]) > self.config.gate_m or rotation_angle_rad(delta[:3, :3]) > self.config.gate_rad:
+                    return  # a keypose jumped: keep the previous estimate
         obj.points_obj = result.points_obj
         for kp, pose in zip(window, result.T_world_obj):
             obj.poses[kp.stamp_ns] = pose
