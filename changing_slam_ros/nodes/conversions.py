@@ -16,14 +16,18 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, Quaternion, Transform, Vector3
+from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Transform, Vector3
+from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import Header
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
 
 from changing_slam_msgs.msg import Detection as DetectionMsg
 from changing_slam_msgs.msg import DetectionArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection as LoopCorrectionMsg
+from changing_slam_msgs.msg import MovingObject as MovingObjectMsg
+from changing_slam_msgs.msg import MovingObjectArray
 from changing_slam_msgs.msg import ObjectState as ObjectStateMsg
 from changing_slam_msgs.msg import ObjectStateArray
 
@@ -32,6 +36,7 @@ from changing_slam_ros.core.detector import Detection, DetectionSet, class_name
 from changing_slam_ros.core.dynamic_objects import ObjectState
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.loop_closing import LoopCorrection
+from changing_slam_ros.core.object_tracking import MovingObjectTrack
 from changing_slam_ros.core.se3 import make_pose, quat_to_rot, rot_to_quat
 from changing_slam_ros.errors import BagError
 from changing_slam_ros.io.camera_info import camera_info_fields, intrinsics_from_camera_info
@@ -221,6 +226,66 @@ def object_state_to_msg(state: ObjectState, belief: float = 0.5, active: bool = 
 
 def object_states_to_msg(states: list[ObjectState], stamp_ns: int, frame_id: str) -> ObjectStateArray:
     return ObjectStateArray(header=make_header(stamp_ns, frame_id), objects=[object_state_to_msg(s) for s in states])
+
+
+# -- moving objects (class-agnostic movers, Dai et al.) ------------------------------------------
+def moving_objects_to_msg(
+    tracks: list[MovingObjectTrack], points_obj: Mapping[int, F64], header: Header
+) -> MovingObjectArray:
+    """Tracks -> MovingObjectArray: per object its latest pose, its trajectory (a Path in `header.frame_id`)
+    and its model points in the object frame (`points_obj[id]`, (P, 3); none when missing). Objects
+    without a pose are left out. The message has no class field: every mover is class-agnostic."""
+    out = MovingObjectArray(header=header)
+    for track in tracks:
+        if len(track.stamps_ns) == 0:
+            continue
+        poses = [PoseStamped(header=make_header(int(s), header.frame_id), pose=matrix_to_pose(T))
+                 for s, T in zip(track.stamps_ns, track.T_world_obj, strict=True)]  # fmt: skip
+        msg = MovingObjectMsg(header=make_header(track.last_stamp_ns, header.frame_id), id=int(track.object_id))
+        msg.pose = poses[-1].pose
+        msg.trajectory = PathMsg(header=make_header(track.last_stamp_ns, header.frame_id), poses=poses)
+        pts = points_obj.get(track.object_id)
+        if pts is not None:
+            msg.points = _array("f", np.asarray(pts, dtype=np.float32).reshape(-1), np.float32)
+        out.objects.append(msg)
+    return out
+
+
+def moving_objects_from_msg(msg: Any) -> list[tuple[MovingObjectTrack, F64]]:
+    """MovingObjectArray -> [(track, points (P, 3) in the object frame)], class_id -1; ValueError on a bad
+    point array or pose."""
+    out = []
+    for obj in msg.objects:
+        flat = np.asarray(obj.points, dtype=np.float64)
+        if flat.size % 3:
+            raise ValueError(f"moving object {obj.id}: {flat.size} point values, not a multiple of 3")
+        stamps = np.array([stamp_to_ns(p.header.stamp) for p in obj.trajectory.poses], dtype=np.int64)
+        poses = np.array([pose_to_matrix(p.pose) for p in obj.trajectory.poses]).reshape(-1, 4, 4)
+        out.append((MovingObjectTrack(int(obj.id), -1, stamps, poses, flat.size // 3), flat.reshape(-1, 3)))
+    return out
+
+
+def moving_object_markers(tracks: list[MovingObjectTrack], header: Header, width_m: float = 0.01) -> MarkerArray:
+    """MarkerArray: DELETEALL, then per object a LINE_STRIP of its trajectory (object origins) and a SPHERE at
+    its latest position, in a colour of its own (golden-angle hue by id)."""
+    import colorsys
+
+    out = MarkerArray(markers=[Marker(header=header, action=Marker.DELETEALL)])
+    for track in tracks:
+        if len(track.stamps_ns) == 0:
+            continue
+        r, g, b = colorsys.hsv_to_rgb((track.object_id * 0.618034) % 1.0, 0.9, 1.0)
+        colour = ColorRGBA(r=float(r), g=float(g), b=float(b), a=1.0)
+        line = Marker(header=header, ns="moving_object_trajectories", id=int(track.object_id),
+                      type=Marker.LINE_STRIP, action=Marker.ADD, color=colour)  # fmt: skip
+        line.pose.orientation.w = 1.0
+        line.scale.x = float(width_m)
+        line.points = [Point(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])) for T in track.T_world_obj]
+        head = Marker(header=header, ns="moving_objects", id=int(track.object_id), type=Marker.SPHERE,
+                      action=Marker.ADD, color=colour, pose=matrix_to_pose(track.T_world_obj[-1]))  # fmt: skip
+        head.scale.x = head.scale.y = head.scale.z = 5.0 * float(width_m)
+        out.markers += [line, head] if len(track.stamps_ns) > 1 else [head]
+    return out
 
 
 # -- loop corrections ----------------------------------------------------------------------------

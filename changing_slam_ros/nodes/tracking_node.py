@@ -52,8 +52,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
 
-from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArray, MapUpdate, ObjectStateArray
+from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArray, MapUpdate, MovingObjectArray
+from changing_slam_msgs.msg import ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
@@ -68,6 +70,8 @@ from changing_slam_ros.nodes.conversions import (
     make_header,
     matrix_to_pose,
     matrix_to_transform,
+    moving_object_markers,
+    moving_objects_to_msg,
     rgb_to_image,
     stamp_to_ns,
 )
@@ -123,6 +127,8 @@ class TrackingNode(Node):
             ("detections_wait_s", 0.2, "longest wait for a frame's detections once detections are flowing"),
             ("detections_required", False, "wait for detections from the first frame (a detection node is started)"),
             ("debug_image", True, "publish ~/debug_image (keypoints by class, detection boxes)"),
+            ("moving_objects_period_s", 0.5, "seconds between ~/moving_objects (+ markers) messages while the "
+                                             "config's dynamic.movers tracks class-agnostic movers (0 = every frame)"),
             ("output_dir", "", "write trajectories, semantic map and stats here on shutdown; empty = none"),
             ("reliable_images", False, "reliable image subscriptions (keep last image_queue_depth) instead of "
                                        "sensor-data best effort: large images across processes on Fast DDS arrive only this way"),
@@ -204,6 +210,13 @@ class TrackingNode(Node):
         self.object_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.debug_pub = self.create_publisher(Image, "~/debug_image", 2) if p["debug_image"] else None
+        self.movers = None if self.backend is None or self.backend.dynamic is None else self.backend.dynamic.movers
+        if self.movers is not None:  # class-agnostic movers (Dai et al.): tracked here, with camera tracking
+            self.movers_pub = self.create_publisher(MovingObjectArray, "~/moving_objects", output_qos)
+            self.mover_markers_pub = self.create_publisher(MarkerArray, "~/moving_object_markers", output_qos)
+        self._movers_sent_s = -float("inf")
+        self._movers_stamp_ns = 0
+        self.moving_objects_published = 0
         self.tf_pub = self.create_publisher(TFMessage, "/tf", 100) if p["publish_tf"] else None
         self.ack_pub = self.create_publisher(Header, p["ack_topic"], 100) if p["ack_topic"] else None
         self.path = PathMsg(header=Header(frame_id=p["map_frame"]))
@@ -406,6 +419,9 @@ class TrackingNode(Node):
             self.keyframe_pub.publish(keyframe_to_msg(out.keyframe, self.params["map_frame"]))
         if out.objects is not None:
             self.publish_semantic_map(item.stamp_ns)
+        self._movers_stamp_ns = item.stamp_ns
+        if self.movers is not None and time.monotonic() - self._movers_sent_s >= self.params["moving_objects_period_s"]:
+            self.publish_moving_objects(item.stamp_ns)
         if self.debug_pub is not None and self.debug_pub.get_subscription_count() > 0:
             self.debug_pub.publish(self._debug_image(frame, out, dets))
         self.process_ms.append((time.monotonic() - t0) * 1e3)
@@ -452,6 +468,21 @@ class TrackingNode(Node):
         smap = layer.semantic_map(self.backend.system.atlas.current.id, include_inactive=True)
         self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(stamp_ns, self.params["map_frame"])))
 
+    def publish_moving_objects(self, stamp_ns: int) -> None:
+        """~/moving_objects and ~/moving_object_markers: every mover tracked in at least the config's
+        `min_track_frames` frames, with its trajectory so far (sent only once there is one)."""
+        if self.movers is None:
+            return
+        objects = [o for o in self.movers.objects() if len(o.poses) >= self.movers.config.min_track_frames]
+        if not objects:
+            return
+        self._movers_sent_s = time.monotonic()
+        tracks = [o.to_track() for o in objects]
+        header = make_header(stamp_ns, self.params["map_frame"])
+        self.movers_pub.publish(moving_objects_to_msg(tracks, {o.object_id: o.points_obj for o in objects}, header))
+        self.mover_markers_pub.publish(moving_object_markers(tracks, header))
+        self.moving_objects_published += 1
+
     def _debug_image(self, frame: RgbdFrame, out: Any, dets: Any) -> Image:
         """Colour image with the keypoints tracking used (coloured by class) and the detection boxes (red)."""
         import cv2
@@ -492,6 +523,7 @@ class TrackingNode(Node):
             "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "frames_skipped_waiting_for_map": self.split.n_skipped if self.split is not None else None,
+            "moving_objects_messages": self.moving_objects_published,
             "latency_ms": [round(float(v), 2) for v in lat],
         }  # fmt: skip
 
@@ -512,11 +544,22 @@ class TrackingNode(Node):
         self._finished = True
         while self._pending:
             self._process(self._pending.popleft())
+        if self.movers is not None and self._movers_stamp_ns and self.context.ok():
+            try:
+                self.publish_moving_objects(self._movers_stamp_ns)  # the final trajectories
+            except Exception as err:  # noqa: BLE001 - shutting down: the file below still has them
+                self.get_logger().warning(f"tracking: last moving objects not published ({err})")
         if not self.params["output_dir"] or self.backend is None:
             return []
         from changing_slam_ros.nodes.slam_backend import write_backend_outputs
 
-        written = write_backend_outputs(Path(self.params["output_dir"]), self.backend, self.stats())
+        out_dir = Path(self.params["output_dir"])
+        written = write_backend_outputs(out_dir, self.backend, self.stats())
+        if self.movers is not None:
+            from changing_slam_ros.io.moving_objects_file import INDEX_NAME, write_moving_objects
+
+            write_moving_objects(out_dir, self.movers.tracks())
+            written.append(out_dir / INDEX_NAME)
         self.get_logger().info(f"tracking: wrote {', '.join(p.name for p in written)} to {self.params['output_dir']}")
         return written
 
