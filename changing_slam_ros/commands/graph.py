@@ -21,7 +21,9 @@ and loop verdict are in, so the run repeats the offline order of work. `in_proce
 DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, tracking_stats.json (from
 tracking), semantic_map.json and local_mapping_stats.json (from local_mapping; from tracking when in_process), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
 for evo and Foxglove, written after the run), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
-process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts).
+process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts), and with the
+config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's class-agnostic
+movers; in outputs.mcap as /moving_objects/object_<id>/pose, /tracking/moving_objects, /tracking/moving_object_markers).
 Drops: colour frames in the bag that did not become a pose (not received, not paired, or not tracked).
 """
 
@@ -343,6 +345,8 @@ class Graph:
         }  # fmt: skip
         summary.update(_evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = _write_outputs_mcap(self.bag, self.config, self.out)
+        movers = _read_json(self.out / "moving_objects.json")
+        summary["moving_objects"] = len(movers["objects"]) if movers else None
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
 
@@ -396,7 +400,46 @@ def _write_outputs_mcap(bag: str, config: str, out: Path) -> str | None:
         if gt is not None:
             for stamp_s, T in zip(gt.stamps_s, gt.poses(), strict=True):
                 writer.write_pose(round(float(stamp_s) * 1e9), T)
+        _write_moving_objects(writer, out)
     return str(path)
+
+
+def _write_moving_objects(writer: Any, out: Path) -> int:
+    """Tracking's moving_objects.json (class-agnostic movers) into the open mcap: every pose of object N as
+    /moving_objects/object_N/pose (PoseStamped, `map`; evo reads it), and at the last pose a
+    /tracking/moving_objects MovingObjectArray (full trajectories; no points: the file has none) and a
+    /tracking/moving_object_markers MarkerArray (line strips), as the tracking node published them last.
+    Returns the number of objects (0 without the file)."""
+    from rclpy.serialization import serialize_message
+
+    from changing_slam_ros.io.moving_objects_file import INDEX_NAME, read_moving_objects
+    from changing_slam_ros.io.msg_types import register_project_types
+    from changing_slam_ros.nodes.conversions import make_header, moving_object_markers, moving_objects_to_msg
+
+    index = out / INDEX_NAME
+    if not index.is_file():
+        return 0
+    tracks = [t for t in read_moving_objects(index) if len(t.stamps_ns)]
+    if not tracks:
+        return 0
+    store = writer.typestore
+    if "changing_slam_msgs/msg/MovingObjectArray" not in store.fielddefs:
+        register_project_types(store)
+    pose_type = "geometry_msgs/msg/PoseStamped"
+    for track in tracks:
+        msg = moving_objects_to_msg([track], {}, make_header(0, "map")).objects[0]
+        for pose in msg.trajectory.poses:
+            writer.write_message(f"/moving_objects/object_{track.object_id}/pose", pose_type,
+                                 store.deserialize_cdr(serialize_message(pose), pose_type),
+                                 pose.header.stamp.sec * 1_000_000_000 + pose.header.stamp.nanosec)  # fmt: skip
+    last_ns = max(t.last_stamp_ns for t in tracks)
+    header = make_header(last_ns, "map")
+    for topic, msg_type, msg in (
+        ("/tracking/moving_objects", "changing_slam_msgs/msg/MovingObjectArray", moving_objects_to_msg(tracks, {}, header)),
+        ("/tracking/moving_object_markers", "visualization_msgs/msg/MarkerArray", moving_object_markers(tracks, header)),
+    ):
+        writer.write_message(topic, msg_type, store.deserialize_cdr(serialize_message(msg), msg_type), last_ns)
+    return len(tracks)
 
 
 def _evaluate(bag: str, config: str, out: Path) -> dict[str, Any]:
