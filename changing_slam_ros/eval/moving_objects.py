@@ -66,11 +66,18 @@ def read_sim_movers(sim_dir: Path, class_id: int | None = -1) -> list[ObjectTrut
 
 
 def camera_alignment(gt: Trajectory, est: Trajectory) -> tuple[F64, float]:
-    """SE(3) S (4, 4) mapping the estimate's world onto the ground truth's, and the camera ATE RMSE (m)."""
+    """SE(3) S (4, 4) mapping the estimate's world onto the ground truth's, and the camera ATE RMSE (m).
+
+    S is the chordal mean of G_k E_k^-1 over the associated camera poses (orientations included), not the
+    ATE's position-only alignment: a nearly still camera leaves the latter's rotation ill-determined, and
+    a rotation error of S moves an object a metre away by centimetres.
+    """
     from changing_slam_ros.eval.ate import ate
 
     res = ate(gt, est)
-    return res.alignment.T_gt_est, float(np.sqrt(np.mean(res.errors_m**2)))
+    G, E = res.association.gt.poses(), res.association.est.poses()
+    S = _chordal_mean(np.einsum("nab,nbc->nac", G, np.linalg.inv(E)))
+    return S, float(np.sqrt(np.mean(res.errors_m**2)))
 
 
 def _chordal_mean(poses: F64) -> F64:

@@ -4,9 +4,10 @@ The test renders the first 200 frames of unknown_mover (seed 0, 640x480, 30 fps:
 table for 3 s, then is picked up and carried in front of the camera) and runs the engine with
 `dynamic.movers` on and no detector. Counting: every keypoint with depth in the frames where the box
 moves; positive = the instance mask under it is the box; flagged = `DynamicFrame.moving`.
-Measured (2026-11-21, commit of this test): moving keypoints precision 0.991 / recall 0.863 while the box
-is carried (recall is lowest in the first second of the lift, when the box moves slowly), one moving
-object from 4.47 s to the end with 2.23 cm ATE against the box, camera ATE 0.08 cm.
+Measured (2026-11-21, code of 0e74b84, `bench/eval_movers_sim.py SIM --frames 240`, the nearest run to this
+test's 200 frames): moving keypoints precision 0.996 / recall 0.891 while the box is carried (recall is
+lowest in the first second of the lift, when the box moves slowly), one moving object from 4.50 s on with
+0.59 cm ATE against the box, camera ATE 0.08 cm. Bounds: the issue's 3 cm for the object, margins on the rest.
 """
 
 from __future__ import annotations
