@@ -2,7 +2,7 @@
 
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
         [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
-        [--backend split|in_process]
+        [--backend split|in_process] [--map-in PREVIOUS/map.npz]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
 `tracking`, `local_mapping`, `loop_closing` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node --ros-args ...` processes on a
@@ -25,6 +25,11 @@ process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, late
 config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's class-agnostic
 movers; in outputs.mcap as /moving_objects/object_<id>/pose, /tracking/moving_objects, /tracking/moving_object_markers).
 Drops: colour frames in the bag that did not become a pose (not received, not paired, or not tracked).
+
+Multi-session (`--map-in PREVIOUS/map.npz`, as `changing-slam run --map-in`): tracking, local_mapping and
+loop_closing each load the map file at start (`nodes/split_backend.py`: replica + relocalisation index, the
+owned map + saved objects, the keyframe database), tracking relocalises in the loaded current map first and
+the poses stay in its frame; local_mapping publishes the loaded semantic map, so object_map starts from it.
 """
 
 from __future__ import annotations
@@ -75,6 +80,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", choices=BACKENDS, default="split",
                         help="split: local_mapping and loop_closing in their own processes (default); "
                              "in_process: tracking runs the whole SLAM system")
+    parser.add_argument("--map-in", metavar="MAP", default="",
+                        help="multi-session: start from a map saved by `changing-slam run` (its DIR/map.npz); "
+                             "tracking relocalises in it, poses stay in its frame")
     parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
                         help="fault injection: SIGKILL NODE S seconds after playback starts (repeatable)")
 
@@ -199,6 +207,12 @@ class Graph:
         self.config = str(Path(args.config).resolve()) if args.config and Path(args.config).is_file() else args.config
         self.detection = _uses_detections(self.config) if args.detection is None else args.detection
         self.kills = _parse_kills(args.kill)
+        self.map_in = ""
+        if args.map_in:
+            from changing_slam_ros.io.map_file import load_map
+
+            load_map(args.map_in)  # a bad map fails here, before any process starts
+            self.map_in = str(Path(args.map_in).resolve())
         domain = os.environ.get("ROS_DOMAIN_ID") or str(random.SystemRandom().randint(1, 99))
         self.env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                         PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0",
@@ -218,10 +232,10 @@ class Graph:
         if split:
             self.nodes["local_mapping"] = NodeProcess("local_mapping", _node_argv("local_mapping_node", {
                 "config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
-                "update_subscribers": 2}),
+                "update_subscribers": 2, "map_file": self.map_in}),
                 self.logs)  # fmt: skip
             self.nodes["loop_closing"] = NodeProcess("loop_closing", _node_argv("loop_closing_node", {
-                "config": self.config}), self.logs)  # fmt: skip
+                "config": self.config, "map_file": self.map_in}), self.logs)  # fmt: skip
         if self.detection:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
             self.nodes["detection"] = NodeProcess("detection", _node_argv("detection_node", {
@@ -230,7 +244,7 @@ class Graph:
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
             "in_process_backend": not split, "wait_for_map_updates": bool(a.lossless and split),
-            "reliable_images": True, "image_queue_depth": a.queue_depth,
+            "reliable_images": True, "image_queue_depth": a.queue_depth, "map_file": self.map_in,
         }), self.logs)  # fmt: skip
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
@@ -334,6 +348,7 @@ class Graph:
             "detection_delay_ms_median": stats.get("detection_delay_ms_median"),
             "loops_closed": stats.get("loops_closed_split") if stats.get("backend") == "split" else stats.get("loops_closed"),
             "backend": self.args.backend, "map_updates_applied": stats.get("map_updates_applied"),
+            "map_in": self.map_in or None,
             "map_update_latency_ms_median": stats.get("map_update_latency_ms_median"),
             "local_mapping": _read_json(self.out / "local_mapping_stats.json"), "play_wall_s": play_s, "startup_s": up_s,
             "bag_duration_s": self.info.duration_s, "detection_node": self.detection,

@@ -17,6 +17,8 @@ Outputs: ~/map_updates (MapUpdate, reliable), ~/semantic_map (MapObjectArray, tr
   keyframe the object layer worked on), ~/object_candidates (MapObjectArray), ~/map_cloud (PointCloud2 of the
   active points, at most every `map_cloud_period_s`), /diagnostics.
 On shutdown with `output_dir`: semantic_map.json and local_mapping_stats.json, written atomically.
+Multi-session (`map_file`, a `changing-slam run` map.npz): the map and the saved objects (decayed beliefs) are
+loaded before the first keyframe and the loaded semantic map is published at once (object_map starts from it).
 """
 
 from __future__ import annotations
@@ -72,11 +74,19 @@ class LocalMappingNode(Node):
             ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
             ("update_subscribers_wait_s", 15.0, "... waiting at most this long after start"),
+            ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz: the "
+                             "Atlas and the saved objects; tracking and loop_closing load the same file)"),
         ])  # fmt: skip
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import MapOwner
 
         self.owner = MapOwner.build(load_backend_config(p["config"]), objects=p["objects"])
+        if p["map_file"]:
+            from changing_slam_ros.io.map_file import load_map
+
+            self.owner.start_from_map(load_map(p["map_file"]))
+            self.get_logger().info(f"local_mapping: {self.owner.atlas.n_keyframes} keyframes, "
+                                   f"{len(self.owner.atlas.maps)} maps loaded from {p['map_file']}")  # fmt: skip
         self.keyframes_in = 0
         self.keyframes_rejected = 0
         self.loops_applied = 0
@@ -102,6 +112,11 @@ class LocalMappingNode(Node):
         self.create_timer(0.1, self._drain, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
+        if p["map_file"] and self.owner.backend.objects is not None:  # object_map starts from the loaded objects
+            from changing_slam_ros.nodes.object_map_node import semantic_map_to_msg
+
+            smap = self.owner.backend.objects.semantic_map(self.owner.atlas.current.id, include_inactive=True)
+            self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(0, p["map_frame"])))
         layer = "on" if self.owner.backend.objects is not None else "off"
         self.get_logger().info(f"local_mapping: started (owns the map; object layer {layer}; "
                                f"wait_for_loop_results {p['wait_for_loop_results']})")  # fmt: skip

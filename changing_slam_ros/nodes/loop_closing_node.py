@@ -44,11 +44,21 @@ class LoopClosingNode(Node):
             ("map_frame", "map", "frame of the corrected poses"),
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
             ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
+            ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz; "
+                             "tracking and local_mapping load the same file)"),
+            ("objects", "config", "the map owner's object layer (config, on, off): with map_file, the saved "
+                                  "objects' point flags are set here as local_mapping sets them"),
         ])  # fmt: skip
         from changing_slam_ros.nodes.slam_backend import load_backend_config
-        from changing_slam_ros.nodes.split_backend import LoopSide
+        from changing_slam_ros.nodes.split_backend import LoopSide, object_layer_for
 
-        self.side = LoopSide.build(load_backend_config(p["config"]))
+        cfg = load_backend_config(p["config"])
+        self.side = LoopSide.build(cfg)
+        if p["map_file"] and self.side is not None:
+            from changing_slam_ros.io.map_file import load_map
+
+            self.side.start_from_map(load_map(p["map_file"]), object_layer_for(cfg, p["objects"]))
+            self.get_logger().info(f"loop_closing: {self.side.atlas.n_keyframes} keyframes loaded from {p['map_file']}")
         self.keyframes_in = 0
         self.updates_in = 0
         self.rejected = 0

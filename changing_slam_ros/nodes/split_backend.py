@@ -17,6 +17,13 @@ positions, fusion) to its newer map. Either way the owner's delta of that step r
 
 The object layer runs in the map owner: it needs the mapped keyframe's points (before loop closing, as in
 `SlamSystem`), the keyframe's depth and the dynamic stage's objects, which the keyframe packet carries.
+
+Multi-session (`start_from_map`, a map file of `changing-slam run`): every side loads the same file itself, as
+`SlamSystem.start_from_map` does offline: the owner with its object layer (saved objects, decayed beliefs, the
+active flags of their points), tracking (replica, relocalisation index, next keyframe id) and the loop side
+(replica, keyframe database). The replicas set the same point flags as the owner by loading the saved objects
+into a scratch object layer (`replica_point_flags`: the same file and config give the same flags), so the
+three maps agree before the first frame without a message between them.
 """
 
 from __future__ import annotations
@@ -25,11 +32,13 @@ import copy
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.object_layer import ObjectLayer
 from changing_slam_ros.core.local_mapping import LocalMapper, MappingStats
 from changing_slam_ros.core.map_replication import (
     CounterTracker,
@@ -51,7 +60,22 @@ from changing_slam_ros.core.map_replication import (
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.system import FrameOutput, SlamSystem
+from changing_slam_ros.io.map_file import LoadedMap
 from changing_slam_ros.nodes.slam_backend import Backend, BackendConfig, build_backend
+
+
+def object_layer_for(cfg: BackendConfig, objects: str = "config") -> ObjectLayer | None:
+    """The map owner's object layer as `cfg` and the `objects` switch build it (None when off)."""
+    return build_backend(cfg, loop=False, dynamic="off", objects=objects).objects
+
+
+def replica_point_flags(layer: ObjectLayer | None, loaded: LoadedMap) -> None:
+    """On a replica's copy of a loaded map: the active point flags the owner's object layer sets when it loads
+    the saved objects (`ObjectLayer.load_objects`; `layer` is a scratch one, None = object layer off)."""
+    if layer is None:
+        return
+    for map_id, saved in loaded.objects.items():
+        layer.load_objects(map_id, saved, loaded.next_keyframe_id, loaded.atlas.maps[map_id].points)
 
 
 class _ReplicaInsert:
@@ -99,6 +123,18 @@ class TrackingSide:
     @property
     def system(self) -> SlamSystem:
         return self.backend.system
+
+    def start_from_map(self, loaded: LoadedMap, layer: ObjectLayer | None) -> None:
+        """Multi-session: the replica becomes the loaded Atlas (point flags as the owner sets them, `layer` a
+        scratch object layer or None), its keyframes go into the relocalisation index, and tracking
+        relocalises against the loaded current map first (`SlamSystem.start_from_map`)."""
+        replica_point_flags(layer, loaded)
+        self.system.start_from_map(loaded.atlas, loaded.next_keyframe_id)  # no object layer, no index here
+        if self.index is not None:
+            for m in self.system.atlas.maps:
+                for k in sorted(m.keyframes):
+                    self.index.add(m.keyframes[k])
+                self.index.refresh_active_points(m)
 
     def process(self, rgbd: RgbdFrame, detections: Any = None) -> tuple[FrameOutput | None, KeyframePacket | None]:
         """Track one frame; (None, None) when it is skipped because a new map has no points here yet (its
@@ -184,6 +220,10 @@ class MapOwner:
     def atlas(self) -> Atlas:
         return self.backend.system.atlas
 
+    def start_from_map(self, loaded: LoadedMap) -> None:
+        """Multi-session: the map and, with the object layer on, the saved objects (decayed beliefs, point flags)."""
+        self.backend.system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
+
     def on_keyframe(self, packet: KeyframePacket) -> MapUpdate:
         kf = packet.keyframe
         m = ensure_map(self.atlas, kf.map_id)
@@ -255,6 +295,16 @@ class LoopSide:
         backend = build_backend(cfg, loop=True, dynamic="off", objects="off")
         return None if backend.loop_closing is None else LoopSide(backend.loop_closing)
 
+    def start_from_map(self, loaded: LoadedMap, layer: ObjectLayer | None) -> None:
+        """Multi-session: the replica becomes the loaded Atlas (point flags as the owner sets them, `layer` a
+        scratch object layer or None) and every loaded keyframe goes into the database, as offline."""
+        replica_point_flags(layer, loaded)
+        vars(self.atlas).update(vars(loaded.atlas))
+        for m in self.atlas.maps:
+            for k in sorted(m.keyframes):
+                self.closing.add(m.keyframes[k])
+            self.closing.refresh_active_points(m)
+
     def restore(self, keyframes: list[Keyframe], delta: MapDelta) -> None:
         """After a restart: the replica rebuilt from tracking's, every keyframe indexed again."""
         m = restore(self.atlas, keyframes, delta)
@@ -321,6 +371,15 @@ class ChainedGraph:
     def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config", objects: str = "config") -> ChainedGraph:
         return ChainedGraph(TrackingSide.build(cfg, loop, dynamic, objects), MapOwner.build(cfg, objects),
                             LoopSide.build(cfg) if loop else None)  # fmt: skip
+
+    def start_from_map(self, path: str | Path, cfg: BackendConfig, objects: str = "config") -> None:
+        """Every side loads the map file itself, as the nodes do."""
+        from changing_slam_ros.io.map_file import load_map
+
+        self.owner.start_from_map(load_map(path))
+        self.tracking.start_from_map(load_map(path), object_layer_for(cfg, objects))
+        if self.loop is not None:
+            self.loop.start_from_map(load_map(path), object_layer_for(cfg, objects))
 
     def process(self, rgbd: RgbdFrame, detections: Any = None) -> FrameOutput:
         out, packet = self.tracking.process(rgbd, detections)

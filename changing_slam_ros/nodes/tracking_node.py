@@ -134,6 +134,8 @@ class TrackingNode(Node):
                                        "sensor-data best effort: large images across processes on Fast DDS arrive only this way"),
             ("image_queue_depth", 2, "reliable_images: frames queued while one is processed (more = fewer drops "
                                      "after slow keyframes, more latency)"),
+            ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz) and "
+                             "relocalise in it first; split backend: local_mapping and loop_closing load it too"),
         ])  # fmt: skip
         if p["reliable_images"]:
             image_qos = QoSProfile(depth=max(1, p["image_queue_depth"]), reliability=ReliabilityPolicy.RELIABLE)
@@ -180,6 +182,8 @@ class TrackingNode(Node):
                 from changing_slam_ros.nodes.map_resync import ResyncServer
 
                 self.resync = ResyncServer(self, self.split.snapshot, p["map_frame"], self._resend_unmapped)
+            if p["map_file"]:
+                self._start_from_map(cfg, p["map_file"])
             if intrinsics_from == "auto":
                 intrinsics_from = intrinsics_source(cfg)
             if intrinsics_from == "config":
@@ -236,6 +240,22 @@ class TrackingNode(Node):
         else:
             mode = "in-process backend (tracking + local mapping + objects + loop closing here)"
         self.get_logger().info(f"tracking: started, {mode}, intrinsics from {self.intrinsics_from}")
+
+    def _start_from_map(self, cfg: Any, map_file: str) -> None:
+        """Multi-session (as `changing-slam run --map-in`): the loaded Atlas becomes the map (split: the replica
+        and the relocalisation index, with the saved objects' point flags as local_mapping sets them)."""
+        from changing_slam_ros.io.map_file import load_map
+
+        loaded = load_map(map_file)
+        if self.split is not None:
+            from changing_slam_ros.nodes.split_backend import object_layer_for
+
+            self.split.start_from_map(loaded, object_layer_for(cfg, self.params["objects"]))
+        else:
+            self.backend.system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
+        atlas = self.backend.system.atlas
+        self.get_logger().info(f"tracking: {atlas.n_keyframes} keyframes in {len(atlas.maps)} maps loaded from "
+                               f"{map_file}; relocalising in map {atlas.current.id} first")  # fmt: skip
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_colour(self, msg: Any) -> None:
