@@ -73,8 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="start the object_map node (default on)")
     parser.add_argument("--detections-wait", type=float, default=None, metavar="S",
                         help="longest wait of tracking for a frame's detections (default 0.1 s; lossless 10 s)")
-    parser.add_argument("--queue-depth", type=int, default=2, metavar="N",
-                        help="colour/depth frames tracking queues while busy (default 2)")
+    parser.add_argument("--queue-depth", type=int, default=1, metavar="N",
+                        help="colour/depth frames the middleware keeps for tracking while it is busy (default 1: "
+                             "the newest only; real time tracks the newest frame, frame_policy latest)")
     parser.add_argument("--max-restarts", type=int, default=2, metavar="N", help="restarts per node (default 2)")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
     parser.add_argument("--backend", choices=BACKENDS, default="split",
@@ -245,6 +246,7 @@ class Graph:
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
             "in_process_backend": not split, "wait_for_map_updates": bool(a.lossless and split),
             "reliable_images": True, "image_queue_depth": a.queue_depth, "map_file": self.map_in,
+            "frame_policy": "all" if a.lossless else "latest",
         }), self.logs)  # fmt: skip
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
@@ -353,6 +355,7 @@ class Graph:
             "local_mapping": _read_json(self.out / "local_mapping_stats.json"), "play_wall_s": play_s, "startup_s": up_s,
             "bag_duration_s": self.info.duration_s, "detection_node": self.detection,
             "frames_without_detections": stats.get("frames_without_detections"),
+            "frames_dropped_stale": stats.get("frames_dropped_stale"),
             "restarts": dict(self.restarts), "exit_codes": codes,
             "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
             "detections_received": stats.get("detections_received"),

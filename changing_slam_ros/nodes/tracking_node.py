@@ -16,7 +16,10 @@ semantic map itself. `slam:=false`: frames are paired, converted and acknowledge
 Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour
 stamp for at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is
 there, or `detections_required:=true`), then goes through the system with them (or with none: the object EKFs
-then predict). Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto`
+then predict). `frame_policy:=latest` (real time): when several paired frames wait, the newest ready one (its
+detections in, or its wait over) is tracked and the older ones are dropped (`frames_dropped_stale`), so no
+queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
+only the newest image too. Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto`
 follows the config's `dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults).
 
 Inputs (defaults are the TUM bag names; remap with --ros-args -r):
@@ -125,6 +128,8 @@ class TrackingNode(Node):
             ("dynamic", "config", "dynamic-scene filter: config (the dynamic section's enabled), on, off"),
             ("objects", "config", "object layer (MapObjects, beliefs): config, on, off"),
             ("detections_wait_s", 0.2, "longest wait for a frame's detections once detections are flowing"),
+            ("frame_policy", "all", "'all': every paired frame in order (lossless); 'latest' (real time): when "
+                                    "frames pile up, the newest ready one is tracked and the older ones dropped"),
             ("detections_required", False, "wait for detections from the first frame (a detection node is started)"),
             ("debug_image", True, "publish ~/debug_image (keypoints by class, detection boxes)"),
             ("moving_objects_period_s", 0.5, "seconds between ~/moving_objects (+ markers) messages while the "
@@ -152,6 +157,9 @@ class TrackingNode(Node):
         self.process_cpu_ms: list[float] = []  # process CPU time per processed frame (load-independent)
         self.detection_delay_ms: list[float] = []  # colour received -> its detections received
         self.published_poses = 0
+        self.frames_dropped_stale = 0  # frame_policy latest: paired frames skipped for a newer one
+        if p["frame_policy"] not in ("all", "latest"):
+            raise SlamError(f"tracking: parameter frame_policy: '{p['frame_policy']}' unknown; expected all or latest")
         self._warned: set[str] = set()
         self._received_s: dict[int, float] = {}
         self._pending: deque[PendingFrame] = deque()
@@ -368,8 +376,17 @@ class TrackingNode(Node):
                 and (self._detections_seen or self.params["detections_required"]))  # fmt: skip
 
     def _drain(self) -> None:
-        """Process waiting frames in order: each when its detections are in, or at its deadline."""
+        """Process waiting frames in order: each when its detections are in, or at its deadline. frame_policy
+        latest: the frames older than the newest ready one (detections in or deadline passed) are dropped."""
         self._check_wait()
+        if self.params["frame_policy"] == "latest" and len(self._pending) > 1 and self._awaiting is None:
+            now = time.monotonic()
+            ready = [i for i, f in enumerate(self._pending) if f.stamp_ns in self.detections or now >= f.deadline_s]
+            for _ in range(ready[-1] if ready else 0):
+                stale = self._pending.popleft()
+                self.detections.pop(stale.stamp_ns, None)
+                self.frames_dropped_stale += 1
+                self._ack(stale.rgb_msg.header)
         while self._pending and self._awaiting is None:
             head = self._pending[0]
             if head.stamp_ns not in self.detections and time.monotonic() < head.deadline_s:
@@ -531,6 +548,7 @@ class TrackingNode(Node):
             "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
             "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
             "frames_without_detections": self.frames_without_detections,
+            "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
             "latency_ms_median": float(np.median(lat)) if lat.size else None,
             "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
             "process_ms_median": float(np.median(proc)) if proc.size else None,
@@ -551,7 +569,8 @@ class TrackingNode(Node):
         """Counts and latencies for /diagnostics (no per-frame lists)."""
         s = self.stats()
         keep = ("colour_received", "frames_converted", "poses_published", "unpaired_colour_dropped",
-                "unpaired_depth_dropped", "frames_rejected", "frames_without_detections", "latency_ms_median",
+                "unpaired_depth_dropped", "frames_rejected", "frames_without_detections", "frames_dropped_stale",
+                "latency_ms_median",
                 "latency_ms_p90", "process_ms_median", "process_cpu_ms_median", "detections_received", "map_updates_applied", "map_update_latency_ms_median")  # fmt: skip
         out = {k: s[k] for k in keep}
         out["dropped"] = self.colour_in - self.published_poses

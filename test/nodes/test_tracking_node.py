@@ -196,3 +196,41 @@ def test_tracking_node_rejects_malformed_images_and_survives_nan_depth(ros_conte
     executor.shutdown()
     tracking.destroy_node()
     probe.destroy_node()
+
+
+@pytest.mark.parametrize("policy", ["latest", "all"])
+def test_frame_policy_latest_tracks_the_newest_ready_frame_and_drops_the_older_ones(ros_context, policy):
+    """Three fr1 frames wait for their detections; those of the third come first. `latest` tracks the third at
+    once and drops the two older ones (real time: no queue behind them); `all` keeps waiting for the first."""
+    import itertools
+
+    from helpers import FR1_XYZ_10, require
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(itertools.islice(iter(src), 3))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=60.0),
+        Parameter("frame_policy", value=policy), Parameter("debug_image", value=False),
+    ])  # fmt: skip
+    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
+    for f in frames:
+        node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
+        node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
+    assert node.frames_in == 0 and len(node._pending) == 3  # noqa: SLF001 - all wait for their detections
+
+    def detections_for(k: int) -> None:
+        node.on_detections(DetectionArray(header=cv.make_header(frames[k].stamp_ns, "camera"), detections=[]))
+
+    detections_for(2)
+    if policy == "latest":
+        assert (node.frames_in, node.frames_dropped_stale, node.published_poses) == (1, 2, 1)
+        assert node.backend.system.records[0].stamp_ns == frames[2].stamp_ns
+        detections_for(0)  # late detections of a dropped frame change nothing
+        assert node.frames_in == 1
+    else:
+        assert (node.frames_in, node.frames_dropped_stale) == (0, 0)
+        detections_for(0)
+        assert node.frames_in == 1 and node.backend.system.records[0].stamp_ns == frames[0].stamp_ns
+    assert node.stats()["frames_dropped_stale"] == node.frames_dropped_stale
+    node.destroy_node()
