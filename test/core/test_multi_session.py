@@ -5,7 +5,8 @@ nearly the same robot loop; at 7.5 fps the `static` run itself drifts to 18 cm A
 the bench's), runs the engine with oracle detections, loop closing, the dynamic filter and the object layer on
 `static`, saves the map (`io.map_file`), loads it into a fresh system and runs `shift` from it. It asserts that
 the second session relocalises within the first 2 s, that its trajectory lies in the saved map's frame (errors
-against ground truth under the first session's alignment, not re-aligned), that the old places of the moved
+against ground truth under the first session's alignment, not re-aligned, within 1.5x the first session's own
+ATE + 2 cm), that the old places of the moved
 objects hold only low-belief, inactive objects and that the new places of the monitors and the suitcase hold a
 new object (bounds measured on this configuration, with margin; docs/multi_session.md has the figures).
 Several minutes on an idle 2-core machine.
@@ -29,6 +30,7 @@ from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerConfig, 
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.tracking import TrackingConfig, TrackingState
 from changing_slam_ros.core.vocabulary import Vocabulary
+from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.eval.multi_session import map_frame_errors_m, moved_places
 from changing_slam_ros.eval.object_metrics import load_ground_truth_objects
 from changing_slam_ros.io.dataset import open_dataset
@@ -36,7 +38,11 @@ from changing_slam_ros.io.detections_file import find_detections_file, read_dete
 from changing_slam_ros.io.map_file import load_map, save_map
 
 FPS, SECONDS = 15.0, 101.0
-MAP_FRAME_RMSE_M = 0.08  # measured 3.7 cm
+# the second session's error in the saved map's frame against the first session's own ATE: measured 3.7 / 3.6 cm
+# (morning rendering) and 10.5 / 12.7 cm (rendering and engine at 12:07); a relocalisation that left the saved
+# map's frame would add an offset of its own
+MAP_FRAME_VS_FIRST_ATE = 1.5
+MAP_FRAME_SLACK_M = 0.02
 # moved objects whose old place the robot sees again after the move (the cup on the suitcase is too small to be
 # expected: `min_projected_area_px`) and whose new place it sees (the chair's new place is only seen at the border)
 OLD_PLACES = ("chair", "teddy_bear", "monitor", "suitcase", "monitor_2")
@@ -107,6 +113,7 @@ def test_shift_from_the_static_map(scenes: Path, tmp_path: Path) -> None:
     assert gt1 is not None
     T_gt_map = trajectory_alignment(gt1, first.final_trajectory())
     assert T_gt_map is not None
+    first_ate_m = float(np.sqrt(np.mean(ate(gt1, first.final_trajectory()).errors_m ** 2)))
     path = tmp_path / "map.npz"
     save_map(path, first.atlas, first.object_layer, first.tracker.next_kf_id)
     n_saved = first.atlas.n_keyframes
@@ -127,7 +134,8 @@ def test_shift_from_the_static_map(scenes: Path, tmp_path: Path) -> None:
     assert gt2 is not None
     errors = map_frame_errors_m(gt2, second.final_trajectory(), T_gt_map)
     assert len(errors) >= 0.98 * len(second.records)
-    assert float(np.sqrt(np.mean(errors**2))) < MAP_FRAME_RMSE_M, float(np.sqrt(np.mean(errors**2)))
+    rmse_m = float(np.sqrt(np.mean(errors**2)))
+    assert rmse_m < MAP_FRAME_VS_FIRST_ATE * first_ate_m + MAP_FRAME_SLACK_M, (rmse_m, first_ate_m)
 
     # 3. moved objects: old places hold only low-belief, inactive objects; new places hold a new object (belief
     #    0.5: each new place is seen in one pass only, and beliefs move on long-term re-observations only)
