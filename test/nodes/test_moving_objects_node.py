@@ -4,7 +4,9 @@ In-process: 120 frames of the simulator's unknown_mover (320x240 at 15 fps: the 
 3 s, then is picked up and carried in front of a nearly still camera) are published frame by frame to a
 tracking node with its in-process backend and `dynamic.movers` on (no detector); each next frame goes out once
 the node has taken the last one (lossless). Offline, `changing-slam run` on the same frames and config gives
-12 tracks, the longest 51 poses with 4.6 cm RMSE against the box (camera ATE 0.13 cm).
+12 tracks, the longest 51 poses with 1.3 cm RMSE against the box (camera ATE 0.13 cm; `eval.moving_objects` as
+of 48b6fd3, 4.6 cm with its earlier alignment); `changing-slam graph` on an mcap of these frames (--lossless
+--no-detection) wrote the same 12 tracks (poses equal to 1e-8) into moving_objects.json.
 """
 
 from __future__ import annotations
@@ -94,7 +96,7 @@ def test_tracking_node_publishes_the_carried_box_and_its_trajectory(ros_context,
     S, camera_ate = camera_alignment(source.groundtruth, read_tum_trajectory(out / "trajectory_online.txt"))
     assert camera_ate < 0.01
     err = object_errors_m(track, S, truth)
-    assert len(err) >= 40 and float(np.sqrt(np.mean(err**2))) < 0.08
+    assert len(err) >= 40 and float(np.sqrt(np.mean(err**2))) < 0.04
     # The box moved: its trajectory spans more than its error.
     positions = track.T_world_obj[:, :3, 3]
     assert np.linalg.norm(positions.max(axis=0) - positions.min(axis=0)) > 0.2
