@@ -197,12 +197,17 @@ def _puc_objects(rng: np.random.Generator) -> dict[str, tuple[int, tuple[cat.Par
 def _puc_like(name: str, description: str, seed: int, keep: list[str],
               plan: Callable[[dict[str, F64], np.random.Generator], list[tuple[float, str, ChangeKind, F64 | None, str]]],
               extra: dict[str, tuple[int, tuple[cat.Part, ...]]] | None = None, n_sides: int = 7,
-              fps: float = 15.0) -> Scenario:
+              fps: float = 15.0,
+              place: Callable[[np.random.Generator], dict[str, F64]] | None = None) -> Scenario:
     """Build a robot-loop scenario with the objects `keep` of the standard layout and the changes
     `plan(initial_poses, rng)` returns as (t_s, actor, kind, new pose or None, other actor).
-    `extra` declares actors that appear only through an ADDED / REPLACED change."""
+    `extra` declares actors that appear only through an ADDED / REPLACED change; `place(rng)` overrides the
+    standard layout's initial poses of some actors (drawn after the layout, before the plan)."""
     rng = np.random.default_rng(seed)
     layout = _puc_objects(rng)
+    if place is not None:
+        for k, pose in place(rng).items():
+            layout[k] = (layout[k][0], layout[k][1], pose)
     initial = {k: layout[k][2] for k in keep}
     changes = plan(initial, rng)
     loop = RobotLoop(n_sides=n_sides, start_xy=(-0.4 + _jit(rng, 0.05), -0.4 + _jit(rng, 0.05)))
@@ -277,6 +282,37 @@ def _one_chair_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
 def _one_chair_static_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
     """No change, but the same random draws as `_one_chair_plan`: the same layout and the same robot path."""
     _one_chair_plan(p, rng)
+    return []
+
+
+# one_chair_closeup: the printed chair (with the teddy bear) stands on the robot's path, CLOSEUP_M in front of
+# the first corner (A, the robot faces east there), and is moved while the robot faces west to CLOSEUP_M in front
+# of the second corner (B, facing north). The robot sees A empty on its second east side (57.6-69.0 s) and then
+# drives up to the chair at B (72.0-83.4 s): its last views there show the chair as large, and from the same
+# distance and angle, as the last views of the first east side did, against another wall.
+CLOSEUP_M = 0.7  # chair front to the robot's stopping point, roughly; the robot turns in place 0.7 m from it
+
+
+def _closeup_place(rng: np.random.Generator) -> dict[str, F64]:
+    """Place A: on the line of the first (east) side, facing the robot (west)."""
+    chair = pose_xyz_rpy(0.4 + CLOSEUP_M + _jit(rng, 0.05), -0.4 + _jit(rng, 0.05), 0.0, yaw=np.pi + _jit(rng, 0.1))
+    return {"chair": chair, "teddy_bear": _on(chair, 0.5, 0.02)}
+
+
+def _closeup_b(rng: np.random.Generator) -> F64:
+    """Place B: on the line of the north sides (x = 0.4), facing the robot (south)."""
+    return pose_xyz_rpy(0.4 + _jit(rng, 0.05), 0.4 + CLOSEUP_M + _jit(rng, 0.05), 0.0,
+                        yaw=-np.pi / 2 + _jit(rng, 0.1))
+
+
+def _one_chair_closeup_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    chair = _closeup_b(rng)
+    return [(T_FACING_W1, "chair", M, chair, ""), (T_FACING_W1, "teddy_bear", M, _on(chair, 0.5, 0.02), "")]
+
+
+def _one_chair_closeup_static_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    """No change, the same random draws as `_one_chair_closeup_plan` (same layout, same robot path)."""
+    _one_chair_closeup_plan(p, rng)
     return []
 
 
@@ -404,8 +440,10 @@ class ScenarioInfo:
 
 
 def _puc(name: str, description: str, keep: list[str], plan: Callable[..., list],
-         extra: dict[str, tuple[int, tuple[cat.Part, ...]]] | None = None, n_sides: int = 7) -> ScenarioInfo:
-    return ScenarioInfo(description, lambda seed: _puc_like(name, description, seed, keep, plan, extra, n_sides))
+         extra: dict[str, tuple[int, tuple[cat.Part, ...]]] | None = None, n_sides: int = 7,
+         place: Callable[[np.random.Generator], dict[str, F64]] | None = None) -> ScenarioInfo:
+    return ScenarioInfo(description, lambda seed: _puc_like(name, description, seed, keep, plan, extra, n_sides,
+                                                            place=place))
 
 
 def _tum(name: str, description: str, camera_fn: Callable[[HandHeld, float], Track],
@@ -430,6 +468,14 @@ SCENARIOS: dict[str, ScenarioInfo] = {
     "one_chair_static": _puc("one_chair_static", "one_chair's room (chair, teddy bear, table) with nothing moved: "
                              "the control for one_chair's camera ATE", ["chair", "teddy_bear", "table"],
                              _one_chair_static_plan),
+    "one_chair_closeup": _puc("one_chair_closeup", "robot loop; the printed chair with the teddy bear stands "
+                              "0.7 m ahead of the first corner and is moved, out of view, 0.7 m ahead of the second: "
+                              "seen close-up at both, against different walls (a wrong loop on a moved object)",
+                              ["chair", "teddy_bear", "table"], _one_chair_closeup_plan, n_sides=6,
+                              place=_closeup_place),
+    "one_chair_closeup_static": _puc("one_chair_closeup_static", "one_chair_closeup with nothing moved (the chair "
+                                     "stays at the first corner): its control", ["chair", "teddy_bear", "table"],
+                                     _one_chair_closeup_static_plan, n_sides=6, place=_closeup_place),
     "vanishing": _puc("vanishing", "robot loop; objects are moved and removed one by one out of view",
                       ALL_PUC, _vanishing_plan, n_sides=8),
     "changing": _puc("changing", "robot loop; the teddy bear changes chair, objects are removed, replaced, added",
