@@ -246,7 +246,7 @@ class Graph:
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
             "in_process_backend": not split, "wait_for_map_updates": bool(a.lossless and split),
             "reliable_images": True, "image_queue_depth": a.queue_depth, "map_file": self.map_in,
-            "frame_policy": "all" if a.lossless else "latest",
+            "frame_policy": "all" if a.lossless else "latest", "detections_skip_late": not a.lossless,
         }), self.logs)  # fmt: skip
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
@@ -356,6 +356,7 @@ class Graph:
             "bag_duration_s": self.info.duration_s, "detection_node": self.detection,
             "frames_without_detections": stats.get("frames_without_detections"),
             "frames_dropped_stale": stats.get("frames_dropped_stale"),
+            "frames_not_waited_for_late_detections": stats.get("frames_not_waited_for_late_detections"),
             "restarts": dict(self.restarts), "exit_codes": codes,
             "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
             "detections_received": stats.get("detections_received"),

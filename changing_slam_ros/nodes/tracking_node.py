@@ -19,7 +19,9 @@ there, or `detections_required:=true`), then goes through the system with them (
 then predict). `frame_policy:=latest` (real time): when several paired frames wait, the newest ready one (its
 detections in, or its wait over) is tracked and the older ones are dropped (`frames_dropped_stale`), so no
 queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
-only the newest image too. Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto`
+only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window` detections
+all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once instead of
+waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again. Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto`
 follows the config's `dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults).
 
 Inputs (defaults are the TUM bag names; remap with --ros-args -r):
@@ -128,6 +130,10 @@ class TrackingNode(Node):
             ("dynamic", "config", "dynamic-scene filter: config (the dynamic section's enabled), on, off"),
             ("objects", "config", "object layer (MapObjects, beliefs): config, on, off"),
             ("detections_wait_s", 0.2, "longest wait for a frame's detections once detections are flowing"),
+            ("detections_skip_late", False, "do not wait for a frame's detections while the last "
+                                            "detections_late_window ones all came later than detections_wait_s "
+                                            "(the wait could not succeed; it only added latency)"),
+            ("detections_late_window", 5, "detections_skip_late: how many recent detection delays decide"),
             ("frame_policy", "all", "'all': every paired frame in order (lossless); 'latest' (real time): when "
                                     "frames pile up, the newest ready one is tracked and the older ones dropped"),
             ("detections_required", False, "wait for detections from the first frame (a detection node is started)"),
@@ -158,6 +164,9 @@ class TrackingNode(Node):
         self.detection_delay_ms: list[float] = []  # colour received -> its detections received
         self.published_poses = 0
         self.frames_dropped_stale = 0  # frame_policy latest: paired frames skipped for a newer one
+        self.frames_not_waited = 0  # detections_skip_late: frames tracked at once as detections came late
+        self._recent_delays_ms: deque[float] = deque(maxlen=max(1, p["detections_late_window"]))
+        self._processed_received_s: dict[int, float] = {}  # stamp -> colour received, of frames already tracked
         if p["frame_policy"] not in ("all", "latest"):
             raise SlamError(f"tracking: parameter frame_policy: '{p['frame_policy']}' unknown; expected all or latest")
         self._warned: set[str] = set()
@@ -291,9 +300,12 @@ class TrackingNode(Node):
         ds = detections_from_msg(msg)
         self._detections_seen = True
         self.detections_in += 1
-        if ds.stamp_ns in self._received_s or any(f.stamp_ns == ds.stamp_ns for f in self._pending):
-            received = self._received_s.get(ds.stamp_ns) or next(f.received_s for f in self._pending if f.stamp_ns == ds.stamp_ns)
-            self.detection_delay_ms.append((time.monotonic() - received) * 1e3)
+        received = self._received_s.get(ds.stamp_ns) or self._processed_received_s.get(ds.stamp_ns) or next(
+            (f.received_s for f in self._pending if f.stamp_ns == ds.stamp_ns), None)
+        if received is not None:  # also for frames tracked already: how late detections come
+            delay_ms = (time.monotonic() - received) * 1e3
+            self.detection_delay_ms.append(delay_ms)
+            self._recent_delays_ms.append(delay_ms)
         self.detections[ds.stamp_ns] = ds
         while len(self.detections) > 30:
             del self.detections[next(iter(self.detections))]
@@ -368,8 +380,19 @@ class TrackingNode(Node):
         now = time.monotonic()
         received = self._received_s.pop(stamp_ns, now)
         wait = self.params["detections_wait_s"] if self._wait_for_detections() else 0.0
+        if wait > 0 and self._detections_hopelessly_late(wait):
+            wait = 0.0
+            self.frames_not_waited += 1
+        self._processed_received_s[stamp_ns] = received
+        while len(self._processed_received_s) > 200:
+            del self._processed_received_s[next(iter(self._processed_received_s))]
         self._pending.append(PendingFrame(stamp_ns, rgb_msg, depth_msg, received, now + wait))
         self._drain()
+
+    def _detections_hopelessly_late(self, wait_s: float) -> bool:
+        """detections_skip_late: the last `detections_late_window` detections all came after `wait_s`."""
+        d = self._recent_delays_ms
+        return bool(self.params["detections_skip_late"] and len(d) == d.maxlen and min(d) > wait_s * 1e3)
 
     def _wait_for_detections(self) -> bool:
         return (self.backend is not None and self.backend.wants_detections
@@ -549,6 +572,7 @@ class TrackingNode(Node):
             "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
             "frames_without_detections": self.frames_without_detections,
             "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
+            "frames_not_waited_for_late_detections": self.frames_not_waited,
             "latency_ms_median": float(np.median(lat)) if lat.size else None,
             "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
             "process_ms_median": float(np.median(proc)) if proc.size else None,

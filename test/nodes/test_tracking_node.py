@@ -234,3 +234,47 @@ def test_frame_policy_latest_tracks_the_newest_ready_frame_and_drops_the_older_o
         assert node.frames_in == 1 and node.backend.system.records[0].stamp_ns == frames[0].stamp_ns
     assert node.stats()["frames_dropped_stale"] == node.frames_dropped_stale
     node.destroy_node()
+
+
+def test_detections_skip_late_stops_waiting_while_detections_come_too_late_and_resumes(ros_context):
+    """detections_skip_late with a window of 2: after two frames whose detections came after the 50 ms wait,
+    the next frame is tracked at once; a detection in time makes the wait resume."""
+    import itertools
+    import time
+
+    from helpers import FR1_XYZ_10, require
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(itertools.islice(iter(src), 4))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=0.05),
+        Parameter("detections_skip_late", value=True), Parameter("detections_late_window", value=2),
+        Parameter("debug_image", value=False),
+    ])  # fmt: skip
+    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
+
+    def frame(k: int) -> None:
+        node.on_colour(cv.rgb_to_image(frames[k].rgb, frames[k].stamp_ns, "camera"))
+        node.on_depth(cv.depth_to_image(frames[k].depth_m, frames[k].stamp_ns, "camera"))
+
+    def detections_for(k: int) -> None:
+        node.on_detections(DetectionArray(header=cv.make_header(frames[k].stamp_ns, "camera"), detections=[]))
+
+    for k in (0, 1):
+        frame(k)
+        assert node.frames_in == k  # waits for its detections
+        time.sleep(0.08)
+        node._drain()  # noqa: SLF001 - the timer's call: the wait is over
+        assert node.frames_in == k + 1
+        detections_for(k)  # too late (> 50 ms after the frame)
+    frame(2)
+    assert node.frames_in == 3 and node.frames_not_waited == 1  # no wait: it could not succeed
+    # Frame 3's detections come with its colour image, before its depth: in time, so it is waited for again.
+    node.on_colour(cv.rgb_to_image(frames[3].rgb, frames[3].stamp_ns, "camera"))
+    detections_for(3)
+    node.on_depth(cv.depth_to_image(frames[3].depth_m, frames[3].stamp_ns, "camera"))
+    assert node.frames_in == 4 and node.frames_not_waited == 1 and node.frames_without_detections == 3
+    assert node.stats()["frames_not_waited_for_late_detections"] == 1
+    assert len(node.detection_delay_ms) == 3 and min(node.detection_delay_ms[:2]) > 50.0 > node.detection_delay_ms[2]
+    node.destroy_node()
