@@ -9,7 +9,7 @@ Scenarios must be rendered first, e.g.
 
     changing-slam simulate walking_xyz --out /tmp/sim/walking_xyz --seed 0
     nice -n 10 .venv/bin/python bench/ablation_dynamic.py --root /tmp/sim --frames 300 \
-        [--scenarios walking_xyz ...] [--detections oracle model] [--rows plain +ekf_doc] [--json out.json]
+        [--scenarios walking_xyz ...] [--detections oracle model] [--rows plain +ekf_doc] [--jobs 2] [--json out.json]
 
 ATE is the RMSE of the final trajectory (each frame re-expressed from its reference keyframe) after SE(3)
 alignment to ground truth, over the frames tracked; "lost" counts frames not tracked. Loop closing is off.
