@@ -21,8 +21,13 @@ detections in, or its wait over) is tracked and the older ones are dropped (`fra
 queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
 only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window` detections
 all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once instead of
-waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again. Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto`
-follows the config's `dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults).
+waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again.
+Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto` follows the config's
+`dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults). `map_file`: multi-session
+(`SlamSystem.start_from_map`; see `nodes/split_backend.py`).
+
+With `dynamic.movers` on in the config: ~/moving_objects (MovingObjectArray) and ~/moving_object_markers
+(MarkerArray), every `moving_objects_period_s` and at the end; moving_objects.json on shutdown.
 
 Inputs (defaults are the TUM bag names; remap with --ros-args -r):
   /camera/rgb/image_color (Image, sensor-data QoS), /camera/depth/image (Image 32FC1 m or 16UC1 mm), or with
