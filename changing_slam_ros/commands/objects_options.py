@@ -188,8 +188,9 @@ def _main_map(layer: ObjectLayer) -> int:
 
 
 def object_metrics(layer: ObjectLayer, map_id: int, final: Trajectory, gt: Trajectory, gt_path: Path) -> dict[str, Any]:
-    """metrics.json `objects` entries: the semantic map (belief >= threshold) and the loose one (>= 0.5, also
-    objects seen in one pass only) against the ground truth present at the last frame."""
+    """metrics.json `objects` entries against the ground truth present at the last frame: the semantic map
+    (belief >= semantic_min_belief, 0.5 by default: also objects seen in one pass only, unconfirmed), the
+    confirmed objects (belief >= belief_threshold) and the loose map (>= 0.5, for runs of older configs)."""
     from changing_slam_ros.errors import EvalError
     from changing_slam_ros.eval.object_metrics import evaluate_objects, load_ground_truth_objects
 
@@ -203,7 +204,7 @@ def object_metrics(layer: ObjectLayer, map_id: int, final: Trajectory, gt: Traje
     objs = aligned_objects(layer.objects(map_id), T)
     cfg = layer.config.association
     out: dict[str, Any] = {"ground_truth": str(gt_path)}
-    for key, min_belief in (("semantic_map", None), ("loose", 0.5)):
+    for key, min_belief in (("semantic_map", None), ("confirmed", cfg.belief_threshold), ("loose", 0.5)):
         smap = build_semantic_map(objs, cfg, min_belief=min_belief)
         out[key] = evaluate_objects(smap.objects, truth).to_dict()
     return out
