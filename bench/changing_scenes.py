@@ -5,9 +5,13 @@ Per scenario and mode: camera ATE (final trajectory, SE(3)-aligned: RMSE, median
 trajectory), the RMSE relative to the `static` run of the
 same mode, loops accepted and how many are wrong (relative pose of the two keyframes off by more than 10 cm or
 5 degrees from ground truth), the largest loop error, and the semantic map against the simulator's objects at
-the last frame (objects with belief >= the threshold; "loose" also keeps belief 0.5, objects seen in one pass
-only): matched / stale (a removed or moved-away object kept) / spurious / missed, mean centroid error and
-mean 3D IoU of the matches, and the object layer's milliseconds per keyframe. Prints, never asserts.
+the last frame: the semantic map as shipped (belief >= `semantic_min_belief`, 0.5: also the objects seen in
+one pass only, flagged unconfirmed) and its confirmed part (belief >= `belief_threshold`): matched / stale (a
+removed or moved-away object kept) / spurious / missed, the present fixed-background objects (`structure`:
+the table, never a MapObject by design, see eval/object_metrics.py), mean centroid error and mean 3D IoU of
+the matches, and the object layer's milliseconds per keyframe. Prints, never asserts. The object columns are
+recomputed here from each run's object_map.json (the current config's thresholds), not read from an older
+run's metrics.json.
 
 Centroids are compared two ways (`eval/object_metrics.py`): with the ground-truth box centre (the volume
 centre; what metrics.json reports) and, fairly, with the ground-truth *visible-surface* centroid (the mean of
@@ -127,7 +131,7 @@ def fair_objects(root: Path, name: str, mode: str) -> dict[str, Any]:
     objs = aligned_objects(read_object_map(out / "object_map.json"), T)
     cfg = ObjectMapConfig()
     result: dict[str, Any] = {}
-    for key, min_belief in (("semantic_map", None), ("loose", 0.5)):
+    for key, min_belief in (("semantic_map", None), ("confirmed", cfg.belief_threshold)):
         smap = build_semantic_map(objs, cfg, min_belief=min_belief)
         result[key] = evaluate_objects(smap.objects, truth, surface_centroids=surf).to_dict()
     return result
@@ -138,7 +142,7 @@ def row(name: str, mode: str, m: dict[str, Any], static_ate: float | None,
     loops = m.get("loops", {})
     errs = [(x.get("error_m", math.nan), x.get("error_deg", math.nan)) for x in loops.get("loops", [])]
     obj = m.get("objects", {})
-    sm, loose = obj.get("semantic_map", {}), obj.get("loose", {})
+    sm, conf = (fair or {}).get("semantic_map", {}), (fair or {}).get("confirmed", {})
     ate = float(m.get("ate_rmse_m", math.nan))
     return {
         "scenario": name, "mode": mode, "tracked": f"{m['frames_tracked']}/{m['frames']}", "ate_cm": 100 * ate,
@@ -153,15 +157,14 @@ def row(name: str, mode: str, m: dict[str, Any], static_ate: float | None,
         "sm_spurious": len(sm.get("spurious", [])) if sm else None,
         "sm_centroid_cm": 100 * sm.get("mean_centroid_error_m", math.nan) if sm else math.nan,
         "sm_iou": sm.get("mean_iou", math.nan) if sm else math.nan,
-        "loose_matched": loose.get("matched"), "loose_stale": len(loose.get("stale", [])) if loose else None,
-        "loose_spurious": len(loose.get("spurious", [])) if loose else None,
-        "loose_centroid_cm": 100 * loose.get("mean_centroid_error_m", math.nan) if loose else math.nan,
-        "loose_iou": loose.get("mean_iou", math.nan) if loose else math.nan,
-        "missed": ",".join(loose.get("missed", [])) if loose else "",
+        "conf_matched": conf.get("matched"), "conf_stale": len(conf.get("stale", [])) if conf else None,
+        "conf_spurious": len(conf.get("spurious", [])) if conf else None,
+        "missed": ",".join(sm.get("missed", [])) if sm else "",
+        "structure": ",".join(sm.get("structure", [])) if sm else "",
+        "stale_names": ",".join(x["gt_name"] for x in sm.get("stale", [])) if sm else "",
         "layer_ms_kf": obj.get("layer", {}).get("ms_per_keyframe_mean", math.nan),
-        "sm_surface_cm": 100 * (fair or {}).get("semantic_map", {}).get("mean_surface_centroid_error_m", math.nan),
-        "loose_surface_cm": 100 * (fair or {}).get("loose", {}).get("mean_surface_centroid_error_m", math.nan),
-        "max_surface_cm": max((100 * x["surface_centroid_error_m"] for x in (fair or {}).get("loose", {}).get("matches", [])
+        "sm_surface_cm": 100 * sm.get("mean_surface_centroid_error_m", math.nan) if sm else math.nan,
+        "max_surface_cm": max((100 * x["surface_centroid_error_m"] for x in sm.get("matches", [])
                                if math.isfinite(x["surface_centroid_error_m"])), default=math.nan),
     }
 
@@ -201,10 +204,10 @@ def main() -> int:
                 static_ate = ates[name]
             fair = fair_objects(args.root, name, mode) if mode == "objects" else None
             rows.append(row(name, mode, m, static_ate, fair, ates.get(CONTROLS.get(name, ""))))
-    cols = ["scenario", "mode", "tracked", "ate_cm", "ate_median_cm", "ate_online_cm", "ate_vs_static", "ate_vs_control", "loops", "wrong_loops", "max_loop_err_cm",
-            "max_loop_err_deg", "sm_matched", "sm_stale", "sm_spurious", "sm_centroid_cm", "sm_iou", "loose_matched",
-            "loose_stale", "loose_spurious", "loose_centroid_cm", "loose_iou", "sm_surface_cm", "loose_surface_cm",
-            "max_surface_cm", "missed", "layer_ms_kf"]
+    cols = ["scenario", "mode", "tracked", "ate_cm", "ate_median_cm", "ate_online_cm", "ate_vs_static", "ate_vs_control",
+            "loops", "wrong_loops", "max_loop_err_cm", "max_loop_err_deg", "sm_matched", "sm_stale", "sm_spurious",
+            "conf_matched", "conf_stale", "conf_spurious", "missed", "structure", "stale_names", "sm_centroid_cm",
+            "sm_surface_cm", "max_surface_cm", "sm_iou", "layer_ms_kf"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

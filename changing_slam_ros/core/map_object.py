@@ -52,12 +52,24 @@ class ObjectMapConfig:
     - `occlusion_tolerance_m`: measured depth may be this much (plus half the object's largest box side)
       in front of the centroid before the object counts as occluded.
     - `depth_window_px`: half-size of the window whose median depth is read at the projected centroid.
-    - `min_projected_area_px`: an object whose box would cover fewer pixels than this ((fx / depth)^2 times
-      the product of its two largest box sides) is not expected: detectors miss objects of a few pixels (a
-      10 cm cup 2.6 m away covers about 20 px at 160x120). 100 px (10 x 10) suits 640x480 detectors; set it to
-      your detector's smallest reliable box.
+    - `min_projected_area_fraction`, `min_projected_area_px`: an object whose box would cover less than
+      max(min_projected_area_fraction * image width * height, min_projected_area_px) pixels ((fx / depth)^2
+      times the product of its two largest box sides) is not expected: detectors miss objects of a few pixels.
+      The limit is a fraction of the image because detectors resize their input to a fixed size (SSD 300x300,
+      YOLO's letterbox), so their smallest reliable box scales with the image. 5.2e-4 is the oracle
+      detector's 40-pixel minimum at 320x240 (the resolution the changing-scene bench runs at): 40 px there,
+      160 px at 640x480, 10 px at 160x120. A fixed 100 px (the earlier default) never expected a 10 cm cup
+      2.5 m away at 320x240 (under 100 px), so a removed cup was never missed and kept belief 0.5.
+      `min_projected_area_px` (0: none) is an absolute floor for a detector with a fixed pixel minimum.
     Semantic map (§4.8):
     - `min_points`: objects with fewer points are left out of the semantic map and never merged into.
+    - `semantic_min_belief`: the semantic map holds the objects with belief >= this (0.5: every object seen
+      and not contradicted), each flagged `confirmed` when its belief reaches `belief_threshold` (its points
+      are then active). Objects seen in one continuous pass only stay at 0.5 (Algorithm 1 updates a belief
+      only on a long-term re-observation), so with the map at `belief_threshold` a moved object seen once at
+      its new place would be missing; objects some evidence contradicts (belief < 0.5) are left out. The
+      semantic map answers "what is where", the threshold "which points may localise the robot" (see
+      docs/changing_scenes.md).
     """
 
     ltda_threshold_m: float = 0.5
@@ -75,8 +87,10 @@ class ObjectMapConfig:
     max_range_m: float = 4.0
     occlusion_tolerance_m: float = 0.2
     depth_window_px: int = 2
-    min_projected_area_px: float = 100.0
+    min_projected_area_fraction: float = 5.2e-4
+    min_projected_area_px: float = 0.0
     min_points: int = 5
+    semantic_min_belief: float = 0.5
 
     def __post_init__(self) -> None:
         where = "objects"
@@ -105,6 +119,12 @@ class ObjectMapConfig:
                 or self.min_projected_area_px < 0.0):
             raise ConfigError(f"{where}.margin_px, occlusion_tolerance_m, depth_window_px, min_projected_area_px: "
                               "expected >= 0")
+        if not 0.0 <= self.min_projected_area_fraction < 1.0:
+            raise ConfigError(f"{where}.min_projected_area_fraction: expected within [0, 1), got "
+                              f"{self.min_projected_area_fraction}")
+        if not self.belief_min <= self.semantic_min_belief <= self.belief_threshold:
+            raise ConfigError(f"{where}.semantic_min_belief: expected within [belief_min, belief_threshold], got "
+                              f"{self.semantic_min_belief}")
         if self.min_points < 1:
             raise ConfigError(f"{where}.min_points: expected >= 1, got {self.min_points}")
 

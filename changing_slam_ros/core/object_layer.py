@@ -352,7 +352,8 @@ class ObjectLayer:
 
     # --- results ---
     def semantic_map(self, map_id: int, min_belief: float | None = None, include_inactive: bool = False) -> SemanticMap:
-        """§4.8 semantic map of one map: objects with belief >= min_belief (default the belief threshold)."""
+        """§4.8 semantic map of one map: objects with belief >= min_belief (default `semantic_min_belief`,
+        0.5; each flagged `confirmed` at `belief_threshold`)."""
         return build_semantic_map(self.objects(map_id), self.config.association, include_inactive=include_inactive,
                                   min_belief=min_belief)
 

@@ -4,7 +4,8 @@ An object "should have been seen" when its centroid, transformed into the camera
 1. lies in front of the camera within [min_range_m, max_range_m] along the optical axis,
 2. projects inside the image with `margin_px` to spare on every side,
 3. would look large enough to be detected: its box (`box_size_m`, when the caller gives it) covers at
-   least `min_projected_area_px` pixels at that depth ((fx / z)^2 times its two largest sides), and
+   least `min_projected_area(config, camera)` pixels at that depth ((fx / z)^2 times its two largest
+   sides): a fraction of the image (`min_projected_area_fraction`), at least `min_projected_area_px`, and
 4. is not occluded: the measured depth around that pixel (median of the valid depths in a
    (2 w + 1)^2 window) is not much closer than the centroid:
        depth_measured >= z_centroid - (occlusion_tolerance_m + half the object's largest box side).
@@ -82,7 +83,7 @@ def check_visibility(centroid_w: F64, T_world_cam: F64, camera: CameraIntrinsics
     if box_size_m is not None:
         sides = np.sort(np.asarray(box_size_m, float).reshape(3))
         half_extent_m = 0.5 * float(sides[2])
-        if (camera.fx / z) * (camera.fy / z) * float(sides[1] * sides[2]) < config.min_projected_area_px:
+        if (camera.fx / z) * (camera.fy / z) * float(sides[1] * sides[2]) < min_projected_area(config, camera):
             return VisibilityCheck(Visibility.TOO_SMALL, uv, z, 0.0)
     if depth_m is None:
         return VisibilityCheck(Visibility.VISIBLE, uv, z, 0.0)
@@ -92,6 +93,11 @@ def check_visibility(centroid_w: F64, T_world_cam: F64, camera: CameraIntrinsics
     if measured < z - (config.occlusion_tolerance_m + half_extent_m):
         return VisibilityCheck(Visibility.OCCLUDED, uv, z, measured)
     return VisibilityCheck(Visibility.VISIBLE, uv, z, measured)
+
+
+def min_projected_area(config: ObjectMapConfig, camera: CameraIntrinsics) -> float:
+    """Smallest projected box (pixels) of an object that counts as expected in an image of `camera`'s size."""
+    return max(config.min_projected_area_fraction * camera.width * camera.height, config.min_projected_area_px)
 
 
 def window_depth_m(depth_m: npt.NDArray[np.floating], u: float, v: float, half_window_px: int) -> float:

@@ -2,9 +2,13 @@
 
 "The semantic map is composed of MapObjects with their respective centroids and 3D bounding boxes ...
 Only objects with a high belief are active in the map." `build_semantic_map` keeps the objects whose
-belief is at least `belief_threshold` and that hold at least `min_points` points, and turns each into a
-plain record (no point ids), ordered by id. `include_inactive=True` keeps every object (for debugging
-and for the plot, which draws low-belief objects dashed).
+belief is at least `semantic_min_belief` (0.5 by default: seen and not contradicted) and that hold at least
+`min_points` points, and turns each into a plain record (no point ids), ordered by id. Each record says
+whether the object is `confirmed`: its belief reached `belief_threshold` (a long-term re-observation), so
+its points are active. An unconfirmed object (belief in [semantic_min_belief, belief_threshold)) was seen
+in one continuous pass only, or its evidence is mixed: it is in the map, flagged, and its points do not
+localise the robot. `include_inactive=True` keeps every object (for debugging and for the plot, which draws
+low-belief objects dashed).
 """
 
 from __future__ import annotations
@@ -39,6 +43,11 @@ class SemanticObject:
     n_points: int
     first_seen_keyframe: int
     last_seen_keyframe: int
+
+    @property
+    def confirmed(self) -> bool:
+        """The belief reached BeliefThreshold (the object's points are active): re-observed on a later pass."""
+        return self.active
 
     @property
     def box_min_w(self) -> F64:
@@ -80,10 +89,10 @@ def semantic_object(obj: MapObject) -> SemanticObject:
 
 def build_semantic_map(objects: Iterable[MapObject], config: ObjectMapConfig, include_inactive: bool = False,
                        frame_id: str = "map", min_belief: float | None = None) -> SemanticMap:
-    """The high-belief objects (belief >= `min_belief`, by default config.belief_threshold, and at least
-    config.min_points points). `min_belief=0.5` also keeps objects never confirmed nor contradicted (seen in
-    one continuous pass only, which Algorithm 1 never updates)."""
-    threshold = config.belief_threshold if min_belief is None else float(min_belief)
+    """The objects with belief >= `min_belief` (by default config.semantic_min_belief: 0.5 keeps the objects
+    seen in one continuous pass only, which Algorithm 1 never updates, flagged unconfirmed) and at least
+    config.min_points points. `min_belief=config.belief_threshold` gives the confirmed objects only."""
+    threshold = config.semantic_min_belief if min_belief is None else float(min_belief)
     kept = [
         semantic_object(o) for o in sorted(objects, key=lambda o: o.id)
         if o.n_points >= config.min_points and (include_inactive or o.belief >= threshold)

@@ -17,6 +17,13 @@ with perfect points (a 44 cm plant seen from the front: 17 cm). For a fair compa
 camera pose) and each match also reports `surface_centroid_error_m`, the estimated centroid against the
 same quantity in ground truth. Matching itself stays on the box centre.
 
+Fixed-background classes (`structure_class_ids`, by default the dynamic stage's `fixed_class_ids`: bed,
+dining table, toilet, oven, sink, refrigerator) are structure by our design: the dynamic filter hands their
+boxes to nobody, so they never become MapObjects and their points are ordinary map points. A present
+ground-truth object of such a class that no estimate matches is listed in `structure`, not in `missed`, so
+"every present object matched" means every present object the layer is built to map; an estimate that does
+match one (a config without the class in `fixed_class_ids`) still counts as a match.
+
 Unmatched estimates are split into `stale` (within `max_distance_m` of a place a same-class object
 occupied earlier in the sequence and has since left: a removed or moved object wrongly kept) and
 `spurious` (anything else). Present ground-truth objects left unmatched are `missed` (this includes
@@ -121,14 +128,15 @@ class ObjectMatch:
 
 @dataclass(frozen=True)
 class ObjectMetrics:
-    """Matches, missed ground truth (names), stale estimates (estimate id, name of the object that left)
-    and spurious estimates (ids)."""
+    """Matches, missed ground truth (names), stale estimates (estimate id, name of the object that left),
+    spurious estimates (ids) and the present fixed-background objects left unmatched (`structure`, names)."""
 
     matches: tuple[ObjectMatch, ...]
     missed: tuple[str, ...]
     stale: tuple[tuple[int, str], ...]
     spurious: tuple[int, ...]
     frame: int
+    structure: tuple[str, ...] = ()
 
     @property
     def mean_centroid_error_m(self) -> float:
@@ -147,6 +155,7 @@ class ObjectMetrics:
         return {
             "frame": self.frame, "matched": len(self.matches), "missed": list(self.missed),
             "stale": [{"estimate_id": e, "gt_name": n} for e, n in self.stale], "spurious": list(self.spurious),
+            "structure": list(self.structure),
             "mean_centroid_error_m": self.mean_centroid_error_m, "mean_iou": self.mean_iou,
             "mean_surface_centroid_error_m": self.mean_surface_centroid_error_m,
             "matches": [m.__dict__ for m in self.matches],
@@ -156,9 +165,12 @@ class ObjectMetrics:
 def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects, frame: int = -1,
                      max_distance_m: float = DEFAULT_MAX_DISTANCE_M,
                      only_names: Iterable[str] | None = None, match_on: str = "centroid",
-                     surface_centroids: Mapping[str, F64] | None = None) -> ObjectMetrics:
+                     surface_centroids: Mapping[str, F64] | None = None,
+                     structure_class_ids: Iterable[int] | None = None) -> ObjectMetrics:
     """Match `estimates` to the ground truth present at `frame` (negative counts from the end).
-    `surface_centroids`: ground-truth name -> visible-surface centroid (3,) (see the module docstring)."""
+    `surface_centroids`: ground-truth name -> visible-surface centroid (3,) (see the module docstring).
+    `structure_class_ids`: fixed-background classes, unmatched ones go to `structure` (None: the dynamic
+    stage's default `fixed_class_ids`; () counts them as missed)."""
     if match_on not in ("centroid", "box_center"):
         raise EvalError(f"match_on: expected 'centroid' or 'box_center', got {match_on!r}")
     n = len(gt.stamps_ns)
@@ -198,7 +210,10 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
             box_iou_3d(e.box_min_w, e.box_max_w, box[0], box[1]),
             float("nan") if surface is None else float(np.linalg.norm(np.asarray(e.centroid_w) - surface)),
         ))
-    missed = tuple(present[j][0].name for j in range(len(present)) if j not in used_g)
+    structure_ids = set(default_structure_class_ids() if structure_class_ids is None else structure_class_ids)
+    unmatched = [present[j][0] for j in range(len(present)) if j not in used_g]
+    missed = tuple(o.name for o in unmatched if o.class_id not in structure_ids)
+    structure = tuple(o.name for o in unmatched if o.class_id in structure_ids)
     stale, spurious = [], []
     for i, e in enumerate(est):
         if i in used_e:
@@ -208,7 +223,15 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
             stale.append((e.id, left))
         else:
             spurious.append(e.id)
-    return ObjectMetrics(tuple(sorted(matches, key=lambda m: m.estimate_id)), missed, tuple(stale), tuple(spurious), f)
+    return ObjectMetrics(tuple(sorted(matches, key=lambda m: m.estimate_id)), missed, tuple(stale), tuple(spurious), f,
+                         structure)
+
+
+def default_structure_class_ids() -> tuple[int, ...]:
+    """The dynamic stage's default fixed-background classes (`DynamicConfig.fixed_class_ids`)."""
+    from changing_slam_ros.core.dynamic_filter import DynamicConfig
+
+    return tuple(DynamicConfig().fixed_class_ids)
 
 
 def _left_place(e: SemanticObject, pool: list[GroundTruthObject], frame: int, max_distance_m: float,

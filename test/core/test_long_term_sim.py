@@ -153,13 +153,19 @@ def test_vanishing_removed_objects_end_below_the_threshold_and_present_ones_abov
     for name in ("chair", "monitor"):
         obj = _object_for(run, name, -1, 0.3)
         assert obj is not None and obj.belief == 0.5, name
+    confirmed = evaluate_objects(build_semantic_map(run.lta.objects.values(), cfg, min_belief=cfg.belief_threshold)
+                                 .objects, run.gt)
+    assert confirmed.stale == ()  # no removed or moved-away object is kept
+    assert {x.gt_name for x in confirmed.matches} == {"chair_2", "plant"}
+    assert all(x.centroid_error_m < 0.2 and x.iou > 0.4 for x in confirmed.matches)
+    # the semantic map (belief >= semantic_min_belief, 0.5): every present object, the new places unconfirmed;
+    # the table is mapped here (no dynamic stage) but its point centroid is > 0.3 m off its box centre
     smap = build_semantic_map(run.lta.objects.values(), cfg)
-    m = evaluate_objects(smap.objects, run.gt)
-    assert m.stale == ()  # no removed or moved-away object is kept
-    assert {x.gt_name for x in m.matches} == {"chair_2", "plant"}
-    assert all(x.centroid_error_m < 0.2 and x.iou > 0.4 for x in m.matches)
-    loose = evaluate_objects(build_semantic_map(run.lta.objects.values(), cfg, min_belief=0.5).objects, run.gt)
-    assert loose.stale == () and {x.gt_name for x in loose.matches} == {"chair_2", "plant", "chair", "monitor"}
+    m = evaluate_objects(smap.objects, run.gt, structure_class_ids=())
+    assert m.stale == () and {x.gt_name for x in m.matches} == {"chair_2", "plant", "chair", "monitor"}
+    assert m.missed == ("table",)
+    assert {o.id: o.confirmed for o in smap.objects if o.belief == 0.5} and not any(
+        o.confirmed for o in smap.objects if o.belief < cfg.belief_threshold)
 
 
 @pytest.mark.slow
@@ -175,7 +181,7 @@ def test_shift_old_places_drop_and_new_places_are_kept() -> None:
         assert new.belief >= 0.5, (name, new.belief)  # 0.5 (one pass) or confirmed
     loose = evaluate_objects(build_semantic_map(run.lta.objects.values(), cfg, min_belief=0.5).objects, run.gt)
     assert loose.stale == ()
-    assert len(loose.matches) == 10 and loose.missed == ("table",)
+    assert len(loose.matches) == 10 and loose.missed == () and loose.structure == ("table",)
     assert np.median([x.centroid_error_m for x in loose.matches]) < 0.1
 
 

@@ -8,7 +8,7 @@ import pytest
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.map_object import ObjectMapConfig
 from changing_slam_ros.core.object_visibility import (
-    Visibility, check_visibility, depth_from_keypoints, window_depth_m,
+    Visibility, check_visibility, depth_from_keypoints, min_projected_area, window_depth_m,
 )
 
 CAM = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
@@ -84,10 +84,25 @@ def test_sparse_depth_from_keypoints_gives_the_occlusion_test_keypoint_depths() 
     assert check_visibility(np.array([0.6, -0.1, 2.5]), I4, CAM, depth, CFG).visibility is Visibility.NO_DEPTH
 
 
-def test_object_too_small_to_be_detected_is_not_expected() -> None:
-    # a cup 0.05 x 0.08 x 0.1 m: (131.25 / 2.6)^2 * 0.008 = 20.4 px < 100 px; at 1.2 m: 95.7 px; at 1.1 m: 113.9 px
+def test_object_too_small_to_be_detected_is_not_expected_and_the_limit_scales_with_the_image() -> None:
+    # a cup 0.05 x 0.08 x 0.1 m; the default limit is 5.2e-4 of the image: 9.98 px at 160x120, 159.7 px at 640x480
     cup = np.array([0.05, 0.08, 0.1])
-    far = check_visibility(np.array([0.0, 0.0, 2.6]), I4, CAM, _wall(4.0), CFG, box_size_m=cup)
+    cam640 = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
+    cfg640 = ObjectMapConfig(margin_px=40.0, min_range_m=0.3, max_range_m=4.0, occlusion_tolerance_m=0.2)
+    for z, expected in ((2.6, True), (3.7, True), (3.8, False)):
+        # 160x120: (131.25 / z)^2 * 0.008 = 20.4, 10.07, 9.54 px; 640x480: (525 / z)^2 * 0.008 = 326, 161.1, 152.7 px
+        small = check_visibility(np.array([0.0, 0.0, z]), I4, CAM, _wall(4.5), CFG, box_size_m=cup)
+        large = check_visibility(np.array([0.0, 0.0, z]), I4, cam640, np.full((480, 640), 4.5, np.float32), cfg640,
+                                 box_size_m=cup)
+        assert small.expected is expected and large.expected is expected, z
+        if not expected:
+            assert small.visibility is Visibility.TOO_SMALL and large.visibility is Visibility.TOO_SMALL
+    # an absolute floor (a detector with a fixed pixel minimum): 100 px at 160x120
+    floor = ObjectMapConfig(margin_px=10.0, min_projected_area_px=100.0)
+    # (131.25 / 2.6)^2 * 0.008 = 20.4 px < 100 px; at 1.2 m: 95.7 px; at 1.1 m: 113.9 px
+    far = check_visibility(np.array([0.0, 0.0, 2.6]), I4, CAM, _wall(4.0), floor, box_size_m=cup)
     assert far.visibility is Visibility.TOO_SMALL and not far.expected
-    assert not check_visibility(np.array([0.0, 0.0, 1.2]), I4, CAM, _wall(4.0), CFG, box_size_m=cup).expected
-    assert check_visibility(np.array([0.0, 0.0, 1.1]), I4, CAM, _wall(4.0), CFG, box_size_m=cup).expected
+    assert not check_visibility(np.array([0.0, 0.0, 1.2]), I4, CAM, _wall(4.0), floor, box_size_m=cup).expected
+    assert check_visibility(np.array([0.0, 0.0, 1.1]), I4, CAM, _wall(4.0), floor, box_size_m=cup).expected
+    assert min_projected_area(floor, CAM) == 100.0
+    assert min_projected_area(ObjectMapConfig(), cam640) == pytest.approx(159.744)

@@ -89,6 +89,24 @@ def test_matching_errors_iou_stale_and_spurious_on_a_constructed_case(tmp_path: 
     assert json.loads(json.dumps(m.to_dict()))["matched"] == 2
 
 
+def test_unmatched_fixed_background_objects_are_structure_not_missed(tmp_path: Path) -> None:
+    doc = json.loads(_gt_file(tmp_path).read_text())
+    doc["objects"].append({"id": 9, "name": "table", "class_id": 60, "class_name": "dining table", "moving": False,
+                           "box_min_m": [-0.6, -0.4, 0.0], "box_max_m": [0.6, 0.4, 0.75],
+                           "poses": [[0, 2, 0, 0, 0, 0, 1], [0, 2, 0, 0, 0, 0, 1]]})
+    p = tmp_path / "with_table.json"
+    p.write_text(json.dumps(doc))
+    gt = load_ground_truth_objects(p)
+    m = evaluate_objects([], gt)
+    assert m.missed == ("chair", "monitor") and m.structure == ("table",)  # dining table (60) is fixed background
+    assert m.to_dict()["structure"] == ["table"]
+    assert evaluate_objects([], gt, structure_class_ids=()).missed == ("chair", "monitor", "table")
+    # a table the layer did map (a config without it in fixed_class_ids) is a match, not structure
+    table = _est(5, 60, [0.05, 2.0, 0.4], [0.0, 2.0, 0.375], [1.2, 0.8, 0.75])
+    m2 = evaluate_objects([table], gt)
+    assert [x.gt_name for x in m2.matches] == ["table"] and m2.structure == ()
+
+
 def test_bad_ground_truth_files_raise_eval_errors(tmp_path: Path) -> None:
     with pytest.raises(EvalError, match="nope.json: cannot read"):
         load_ground_truth_objects(tmp_path / "nope.json")

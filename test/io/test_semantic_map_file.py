@@ -28,7 +28,7 @@ def _objects() -> list[MapObject]:
 
 
 def test_semantic_map_keeps_only_high_belief_objects_ordered_by_id() -> None:
-    smap = build_semantic_map(_objects(), ObjectMapConfig(belief_threshold=0.6))
+    smap = build_semantic_map(_objects(), ObjectMapConfig(belief_threshold=0.6), min_belief=0.6)
     assert [(o.id, o.class_name) for o in smap.objects] == [(1, "tv"), (3, "chair")]
     chair = smap.by_id(3)
     assert chair is not None and chair.n_points == 30 and chair.belief == 0.9
