@@ -14,6 +14,14 @@ which runs (when their metrics.json is missing, or with --rerun)
     changing-slam run /tmp/simobj/static --out /tmp/ms/static --detections oracle --objects
     changing-slam run /tmp/simobj/shift --out /tmp/ms/shift-from-static --detections oracle --objects \\
         --map-in /tmp/ms/static/map.npz
+
+`--second shift_final`: the second session runs in the `shift` room as it stands after every move, from its
+first frame (each object frozen at its last pose of `shift`; same seed, camera path and rate), rendered by this
+script into ROOT/shift_final when missing. In `shift` itself the objects move during the second session, so
+the robot passes each new place once after the move, and Algorithm 1 raises a belief only on a long-term
+re-observation: new places end at 0.5 there. In `shift_final` the room changed *between* the sessions (the
+multi-session case of issue 6), the robot sees each new place on both laps, and the new places can be
+confirmed. The old and new places are still those of `shift`'s ground truth.
 """
 
 from __future__ import annotations
@@ -42,11 +50,41 @@ def _run(source: Path, out: Path, rerun: bool, *extra: str) -> dict[str, Any]:
     return result
 
 
-def evaluate(root: Path, out: Path, rerun: bool) -> dict[str, Any]:
-    first, second = out / "static", out / "shift-from-static"
+def render_changed_room(root: Path, width: int = 320, height: int = 240, seed: int = 0) -> Path:
+    """ROOT/shift_final: `shift` with every object frozen at its last pose from the first frame (see the docstring)."""
+    import dataclasses
+    import shutil
+
+    from changing_slam_ros.sim.scenarios import build_scenario
+    from changing_slam_ros.sim.sequence import RenderOptions, simulate
+    from changing_slam_ros.sim.track import Track
+
+    folder = root / "shift_final"
+    if (folder / "objects.json").is_file():
+        return folder
+    sc = build_scenario("shift", seed)
+    end_s = (sc.n_frames() - 1) / sc.fps
+    actors = []
+    for a in sc.actors:
+        pose = a.track.pose_at(end_s)
+        if pose is None:
+            raise SystemExit(f"shift: {a.name} has no pose at the end; shift_final expects moved, not removed, objects")
+        actors.append(dataclasses.replace(a, track=Track.static(pose)))
+    frozen = dataclasses.replace(sc, name="shift_final", actors=tuple(actors), changes=())
+    tmp = root / ".shift_final.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    simulate(frozen, tmp, RenderOptions(width=width, height=height), seed)
+    tmp.rename(folder)
+    return folder
+
+
+def evaluate(root: Path, out: Path, rerun: bool, second_scene: str = "shift") -> dict[str, Any]:
+    first, second = out / "static", out / f"{second_scene}-from-static"
+    if second_scene == "shift_final":
+        render_changed_room(root)
     m1 = _run(root / "static", first, rerun)
-    m2 = _run(root / "shift", second, rerun, "--map-in", str(first / "map.npz"))
-    gt1, gt2 = (read_tum_trajectory(root / s / "groundtruth.txt") for s in ("static", "shift"))
+    m2 = _run(root / second_scene, second, rerun, "--map-in", str(first / "map.npz"))
+    gt1, gt2 = (read_tum_trajectory(root / s / "groundtruth.txt") for s in ("static", second_scene))
     T_gt_map = trajectory_alignment(gt1, read_tum_trajectory(first / "trajectory.txt"))
     if T_gt_map is None:
         raise SystemExit("the first session's trajectory cannot be aligned with its ground truth")
@@ -75,11 +113,13 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path("/tmp/ms"), help="where the two runs go")
     ap.add_argument("--rerun", action="store_true", help="run both sessions again")
     ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--second", choices=("shift", "shift_final"), default="shift",
+                    help="the second session's scene (shift_final: the room changed between the sessions)")
     args = ap.parse_args()
-    r = evaluate(args.root, args.out, args.rerun)
+    r = evaluate(args.root, args.out, args.rerun, args.second)
     ms = r["second"]["multi_session"]
     print(f"first session (static): ATE {100 * r['first']['ate_rmse_m']:.2f} cm, {r['first']['keyframes']} keyframes")
-    print(f"second session (shift from static's map): relocalised at frame {ms['relocalised_frame']} "
+    print(f"second session ({args.second} from static's map): relocalised at frame {ms['relocalised_frame']} "
           f"({ms['relocalised_after_s']} s), {r['second']['frames_tracked']}/{r['second']['frames']} tracked, "
           f"{r['second']['maps']} maps, loops {r['second']['loops']['accepted']} (wrong {r['second']['loops'].get('wrong')})")
     mf = r["map_frame"]
