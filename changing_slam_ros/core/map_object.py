@@ -122,8 +122,8 @@ class ObjectMapConfig:
         if not 0.0 <= self.min_projected_area_fraction < 1.0:
             raise ConfigError(f"{where}.min_projected_area_fraction: expected within [0, 1), got "
                               f"{self.min_projected_area_fraction}")
-        if not self.belief_min <= self.semantic_min_belief <= self.belief_threshold:
-            raise ConfigError(f"{where}.semantic_min_belief: expected within [belief_min, belief_threshold], got "
+        if not self.belief_min <= self.semantic_min_belief <= self.belief_max:
+            raise ConfigError(f"{where}.semantic_min_belief: expected within [belief_min, belief_max], got "
                               f"{self.semantic_min_belief}")
         if self.min_points < 1:
             raise ConfigError(f"{where}.min_points: expected >= 1, got {self.min_points}")

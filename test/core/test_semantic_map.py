@@ -35,9 +35,12 @@ def test_default_map_keeps_unconfirmed_objects_flagged_and_drops_contradicted_on
     assert [o.id for o in build_semantic_map(_objects(strict), strict).objects] == [4]
 
 
-def test_semantic_min_belief_must_lie_between_belief_min_and_the_threshold() -> None:
+def test_semantic_min_belief_must_lie_within_the_belief_clamp() -> None:
     with pytest.raises(ConfigError, match="objects.semantic_min_belief"):
-        ObjectMapConfig(semantic_min_belief=0.7)
+        ObjectMapConfig(semantic_min_belief=0.995)
+    with pytest.raises(ConfigError, match="objects.semantic_min_belief"):
+        ObjectMapConfig(semantic_min_belief=0.0)
+    assert ObjectMapConfig(belief_threshold=0.4).semantic_min_belief == 0.5  # a low threshold stays valid
     with pytest.raises(ConfigError, match="objects.min_projected_area_fraction"):
         object_map_config({"min_projected_area_fraction": 1.5})
     assert object_map_config({"semantic_min_belief": 0.3}).semantic_min_belief == 0.3
