@@ -131,6 +131,7 @@ class RobotLoop:
     height_m: float = 0.75
     tilt_deg: float = 4.0  # camera pitched slightly down
     vibration: bool = True  # floor irregularities: ~0.5 mm and ~0.15 deg of shake, as the paper notes
+    pause_s: float = 0.0  # the robot stands still this long at the end of each side, before it turns
 
 
 def robot_loop(loop: RobotLoop) -> tuple[Track, list[tuple[float, float, float]]]:
@@ -153,6 +154,9 @@ def robot_loop(loop: RobotLoop) -> tuple[Track, list[tuple[float, float, float]]
         segments.append((t, t + drive_s, yaw))
         t += drive_s
         keys.append(PoseKey(t, cam(x2, y2, yaw)))
+        if loop.pause_s > 0:
+            t += loop.pause_s
+            keys.append(PoseKey(t, cam(x2, y2, yaw)))
         x, y = x2, y2
         # turn in place, in 3 steps so the slerp follows the +90 deg direction
         for k in range(1, 4):

@@ -203,11 +203,13 @@ def _puc_like(name: str, description: str, seed: int, keep: list[str],
               plan: Callable[[dict[str, F64], np.random.Generator], list[tuple[float, str, ChangeKind, F64 | None, str]]],
               extra: dict[str, tuple[int, tuple[cat.Part, ...]]] | None = None, n_sides: int = 7,
               fps: float = 15.0,
-              place: Callable[[np.random.Generator], dict[str, F64]] | None = None) -> Scenario:
+              place: Callable[[np.random.Generator], dict[str, F64]] | None = None,
+              pause_s: float = 0.0) -> Scenario:
     """Build a robot-loop scenario with the objects `keep` of the standard layout and the changes
     `plan(initial_poses, rng)` returns as (t_s, actor, kind, new pose or None, other actor).
     `extra` declares actors that appear only through an ADDED / REPLACED change; `place(rng)` overrides the
-    standard layout's initial poses of some actors (drawn after the layout, before the plan)."""
+    standard layout's initial poses of some actors (drawn after the layout, before the plan); `pause_s`: the
+    robot stands still that long at the end of each side (`RobotLoop.pause_s`)."""
     rng = np.random.default_rng(seed)
     layout = _puc_objects(rng)
     if place is not None:
@@ -215,7 +217,7 @@ def _puc_like(name: str, description: str, seed: int, keep: list[str],
             layout[k] = (layout[k][0], layout[k][1], pose)
     initial = {k: layout[k][2] for k in keep}
     changes = plan(initial, rng)
-    loop = RobotLoop(n_sides=n_sides, start_xy=(-0.4 + _jit(rng, 0.05), -0.4 + _jit(rng, 0.05)))
+    loop = RobotLoop(n_sides=n_sides, start_xy=(-0.4 + _jit(rng, 0.05), -0.4 + _jit(rng, 0.05)), pause_s=pause_s)
     camera, _ = robot_loop(loop)
     duration_s = camera.end_s
     per_actor: dict[str, list[tuple[float, F64 | None]]] = {}
@@ -296,6 +298,12 @@ def _one_chair_static_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
 # drives up to the chair at B (72.0-83.4 s): its last views there show the chair as large, and from the same
 # distance and angle, as the last views of the first east side did, against another wall.
 CLOSEUP_M = 0.7  # chair front to the robot's stopping point, roughly; the robot turns in place 0.7 m from it
+# The robot stops CLOSEUP_PAUSE_S at each corner before turning (a cautious robot in front of an obstacle): with a
+# keyframe every 2 s, the 6 s of close-up approach alone give 3 keyframes, one short of loop closing's 4
+# consecutive consistent queries (consistency_threshold 3); the pause adds two.
+CLOSEUP_PAUSE_S = 4.0
+_SIDE_S = ROBOT_LOOP.side_m / ROBOT_LOOP.speed_m_s + CLOSEUP_PAUSE_S + 90.0 / ROBOT_LOOP.turn_deg_s
+T_CLOSEUP_MOVE = 2 * _SIDE_S + 0.5 * ROBOT_LOOP.side_m / ROBOT_LOOP.speed_m_s  # half-way along the first west side
 
 
 def _closeup_place(rng: np.random.Generator) -> dict[str, F64]:
@@ -312,7 +320,7 @@ def _closeup_b(rng: np.random.Generator) -> F64:
 
 def _one_chair_closeup_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
     chair = _closeup_b(rng)
-    return [(T_FACING_W1, "chair", M, chair, ""), (T_FACING_W1, "teddy_bear", M, _on(chair, 0.5, 0.02), "")]
+    return [(T_CLOSEUP_MOVE, "chair", M, chair, ""), (T_CLOSEUP_MOVE, "teddy_bear", M, _on(chair, 0.5, 0.02), "")]
 
 
 def _one_chair_closeup_static_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
@@ -446,9 +454,9 @@ class ScenarioInfo:
 
 def _puc(name: str, description: str, keep: list[str], plan: Callable[..., list],
          extra: dict[str, tuple[int, tuple[cat.Part, ...]]] | None = None, n_sides: int = 7,
-         place: Callable[[np.random.Generator], dict[str, F64]] | None = None) -> ScenarioInfo:
+         place: Callable[[np.random.Generator], dict[str, F64]] | None = None, pause_s: float = 0.0) -> ScenarioInfo:
     return ScenarioInfo(description, lambda seed: _puc_like(name, description, seed, keep, plan, extra, n_sides,
-                                                            place=place))
+                                                            place=place, pause_s=pause_s))
 
 
 def _tum(name: str, description: str, camera_fn: Callable[[HandHeld, float], Track],
@@ -477,10 +485,11 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                               "0.7 m ahead of the first corner and is moved, out of view, 0.7 m ahead of the second: "
                               "seen close-up at both, against different walls (a wrong loop on a moved object)",
                               ["chair", "teddy_bear", "table"], _one_chair_closeup_plan, n_sides=6,
-                              place=_closeup_place),
+                              place=_closeup_place, pause_s=CLOSEUP_PAUSE_S),
     "one_chair_closeup_static": _puc("one_chair_closeup_static", "one_chair_closeup with nothing moved (the chair "
                                      "stays at the first corner): its control", ["chair", "teddy_bear", "table"],
-                                     _one_chair_closeup_static_plan, n_sides=6, place=_closeup_place),
+                                     _one_chair_closeup_static_plan, n_sides=6, place=_closeup_place,
+                                     pause_s=CLOSEUP_PAUSE_S),
     "vanishing": _puc("vanishing", "robot loop; objects are moved and removed one by one out of view",
                       ALL_PUC, _vanishing_plan, n_sides=8),
     "changing": _puc("changing", "robot loop; the teddy bear changes chair, objects are removed, replaced, added",

@@ -11,7 +11,7 @@ from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim.actors import ChangeKind
 from changing_slam_ros.sim.oracle import oracle_detections
 from changing_slam_ros.sim.renderer import SimRenderer
-from changing_slam_ros.sim.scenarios import SCENARIOS, build_scenario
+from changing_slam_ros.sim.scenarios import SCENARIOS, T_CLOSEUP_MOVE, build_scenario
 from changing_slam_ros.sim.scene import SceneSpec
 from changing_slam_ros.sim.track import PoseKey, Track, pose_xyz_rpy
 
@@ -188,14 +188,14 @@ def test_track_interpolates_and_jumps() -> None:
 
 def test_one_chair_closeup_moves_the_chair_between_two_close_up_places_seen_alike() -> None:
     """Ground truth: the chair (and the teddy bear on it) stands at A, 0.7 m ahead of the first corner, until the
-    robot faces west, then at B, 0.7 m ahead of the second corner. Rendered: the chair and bear fill a large part
+    robot faces west, then at B, 0.7 m ahead of the second corner; the robot stops 4 s at each corner. Rendered: the chair and bear fill a large part
     of the last views before each corner, the camera sees them from nearly the same relative pose at A (first
     east side) and B (second north side), while the two camera poses differ by 90 deg and about 0.8 m: a loop
     verified on the chair alone would be that far off. The robot sees A empty in between (second east side)."""
     s = build_scenario("one_chair_closeup", 0)
     chair, bear = s.actor_index("chair"), s.actor_index("teddy_bear")
     change = next(c for c in s.changes if c.actor == "chair")
-    assert change.kind is ChangeKind.MOVED and change.t_s == pytest.approx(34.0)
+    assert change.kind is ChangeKind.MOVED and change.t_s == pytest.approx(T_CLOSEUP_MOVE)
     a, b = s.actors[chair].track.pose_at(0.0), s.actors[chair].track.pose_at(s.duration_s)
     assert a is not None and b is not None
     assert np.allclose(s.actors[chair].track.pose_at(change.t_s - 0.01), a)
@@ -204,7 +204,8 @@ def test_one_chair_closeup_moves_the_chair_between_two_close_up_places_seen_alik
     for t in (0.0, s.duration_s):  # the bear rides on the seat
         bear_pose, chair_pose = s.actors[bear].track.pose_at(t), s.actors[chair].track.pose_at(t)
         assert np.linalg.norm(bear_pose[:2, 3] - chair_pose[:2, 3]) < 0.05
-    t_a, t_b, t_empty = 11.0, 83.0, 68.0  # end of the first east side, of the second north side; second east
+    # standing at the first corner, at the second corner of the second lap; on the second east side
+    t_a, t_b, t_empty = 13.0, 105.5, 84.0
     cam_a, cam_b = s.camera.pose_at(t_a), s.camera.pose_at(t_b)
     rel_to_chair_a, rel_to_chair_b = invert(a) @ cam_a, invert(b) @ cam_b
     assert np.linalg.norm(rel_to_chair_a[:3, 3] - rel_to_chair_b[:3, 3]) < 0.3  # placement jitter +-5 cm each
