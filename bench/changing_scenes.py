@@ -29,6 +29,8 @@ Each cell is one `changing-slam run` (the same command a user types), whose metr
 
     nice -n 10 .venv/bin/python bench/changing_scenes.py --root /tmp/simobj [--render] [--rerun]
         [--scenarios static one_chair ...] [--width 320 --height 240] [--json table.json]
+    .venv/bin/python bench/changing_scenes.py --root /tmp/simobj --scenarios vanishing shift --views
+        # frame ranges where each object is in full view (how many passes the robot makes past each place)
 
 Runs whose metrics.json already exists under ROOT/runs are reused unless --rerun; --render renders missing
 scenarios first.
@@ -105,6 +107,37 @@ def surface_centroids(root: Path, name: str) -> dict[str, list[float]]:
     cache.parent.mkdir(parents=True, exist_ok=True)
     cache.write_text(json.dumps(found, indent=1) + "\n")
     return found
+
+
+def full_view_ranges(folder: Path, stride: int = 5, min_pixels: int = 150, gap: int = 10) -> dict[str, list[tuple[int, int]]]:
+    """Per simulated object, the frame ranges (first, last) where it is in full view: its mask wholly inside the
+    image (no pixel on the border) and at least `min_pixels` pixels, read every `stride` frames; ranges closer
+    than `gap` frames are joined. Tells how many passes the robot makes past each (new) place."""
+    import cv2
+    import numpy as np
+
+    doc = json.loads((folder / "objects.json").read_text())
+    names = {int(o["id"]): str(o["name"]) for o in doc["objects"]}
+    hits: dict[str, list[int]] = {n: [] for n in names.values()}
+    for i in range(0, len(doc["stamps_ns"]), stride):
+        ids = cv2.imread(str(folder / "masks" / f"{doc['stamps_ns'][i] * 1e-9:.6f}.png"), cv2.IMREAD_UNCHANGED)
+        if ids is None:
+            continue
+        h, w = ids.shape[:2]
+        for oid, name in names.items():
+            vv, uu = np.nonzero(ids == oid)
+            if len(vv) >= min_pixels and uu.min() > 0 and vv.min() > 0 and uu.max() < w - 1 and vv.max() < h - 1:
+                hits[name].append(i)
+    out: dict[str, list[tuple[int, int]]] = {}
+    for name, frames in hits.items():
+        ranges: list[list[int]] = []
+        for f in frames:
+            if ranges and f - ranges[-1][1] <= gap:
+                ranges[-1][1] = f
+            else:
+                ranges.append([f, f])
+        out[name] = [(a, b) for a, b in ranges]
+    return out
 
 
 def fair_objects(root: Path, name: str, mode: str) -> dict[str, Any]:
@@ -187,7 +220,15 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    ap.add_argument("--views", action="store_true",
+                    help="only print, per scenario and object, the frame ranges where it is in full view")
     args = ap.parse_args()
+    if args.views:
+        for name in args.scenarios:
+            if (args.root / name / "objects.json").is_file():
+                for obj, ranges in full_view_ranges(args.root / name).items():
+                    print(f"{name} {obj}: " + ", ".join(f"{a}-{b}" for a, b in ranges))
+        return 0
     rows = []
     for mode in args.modes:
         static_ate = None
