@@ -255,7 +255,9 @@ class ObjectLayer:
         mo = self._for(slam_map.id)
         mo.lta.refresh_points(lambda ids: self._positions(mo, slam_map, ids))
         cands = self._candidates(mo, kf, slam_map, depth_m, short_term_objects)
-        res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m)
+        flagged = [(int(o.class_id), tuple(float(v) for v in o.box_xyxy)) for o in short_term_objects if o.is_dynamic]
+        res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
+                                      detected_boxes=flagged)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)

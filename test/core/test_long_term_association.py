@@ -130,6 +130,20 @@ def test_a_same_class_box_over_the_object_explains_a_miss_and_truncated_candidat
     assert [c.reason for c in res.belief_changes] == ["missed"]
 
 
+def test_a_same_class_detection_that_is_no_candidate_explains_a_miss_too() -> None:
+    cfg = ObjectMapConfig(n_keyframes_unseen=2, min_projected_area_px=40.0)
+    lta = LongTermAssociation(cfg)
+    lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
+    # kf 10: no candidate, but a chair detection (flagged dynamic this keyframe) covers (79.5, 59.5): no miss
+    res = lta.process_keyframe(10, [], LOOK_Z, CAM, WALL, detected_boxes=[(CHAIR, (40.0, 20.0, 120.0, 100.0))])
+    assert res.belief_changes == () and lta.objects[0].belief == 0.5
+    # a cup detection there, or a chair detection elsewhere, does not: missed, 0.5 -> 0.2 * 0.5 / (0.2 * 0.5 + 0.9 * 0.5)
+    res = lta.process_keyframe(13, [], LOOK_Z, CAM, WALL,
+                               detected_boxes=[(CUP, (40.0, 20.0, 120.0, 100.0)), (CHAIR, (100.0, 10.0, 150.0, 50.0))])
+    assert [c.reason for c in res.belief_changes] == ["missed"]
+    assert lta.objects[0].belief == pytest.approx(0.1 / 0.55)
+
+
 def test_occluded_or_out_of_range_objects_keep_their_belief() -> None:
     lta = LongTermAssociation(CFG)
     lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
