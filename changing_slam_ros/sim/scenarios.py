@@ -7,9 +7,10 @@ PUC-USP-like (`static`, `one_chair`, `vanishing`, `changing`, `shift`, `replacin
 wheeled robot (0.07 m/s, turning 30 deg/s in place) drives 7 or 8 sides of a 0.8 m square, facing the
 walls in turn so that each changed place is seen before and after its change (101 or 115 s, 15 Hz);
 objects are moved, removed, replaced or added while the robot faces away, and every change is checked
-to be out of view when it happens. `one_chair_closeup` (6 sides, 86.6 s) is the paper's wrong-loop case made
-explicit: the printed chair with the teddy bear stands 0.7 m ahead of the first corner (facing east), is moved
-while the robot faces west to 0.7 m ahead of the second corner (facing north), and the robot's last views before
+to be out of view when it happens. `one_chair_closeup` (6 sides, stopping 4 s at each corner, 110.6 s) is the
+paper's wrong-loop case made explicit: the printed chair with the teddy bear stands 0.7 m ahead of the first corner
+(facing east), is moved while the robot faces west to 0.7 m ahead of the second corner (facing north), and the
+robot's last views before
 each corner show it as large and from the same side (more than 30 % of the image) against different walls; it
 sees the old place empty (second east side) before it reaches the new one (second north side);
 `one_chair_closeup_static` keeps the chair at the first corner (its control). `office_xyz` is `walking_xyz` without people (its control). Dai-like
