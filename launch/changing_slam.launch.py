@@ -3,7 +3,10 @@
     ros2 launch changing_slam_ros changing_slam.launch.py bag:=bags/tum_fr1_xyz_first10.mcap config:=tum_fr1
 
 Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_player waits for tracking's
-per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock).
+per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock), map_file (multi-session:
+start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz). Out of lossless mode tracking
+runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest) and no waiting for
+detections that keep arriving late.
 Without ROS 2 launch, `changing-slam graph BAG` (issue 7) starts the same processes.
 """
 
@@ -22,6 +25,9 @@ def generate_launch_description() -> LaunchDescription:
     rate = LaunchConfiguration("rate")
     lossless = LaunchConfiguration("lossless")
     use_sim_time = LaunchConfiguration("use_sim_time")
+    map_file = LaunchConfiguration("map_file")
+    real_time = PythonExpression(["'", lossless, "' != 'true'"])
+    frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
     sim_time = {"use_sim_time": use_sim_time}
     ack_topic = PythonExpression(["'/bag_player/ack' if '", lossless, "' == 'true' else ''"])
@@ -32,6 +38,7 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("rate", default_value="1.0", description="bag playback rate"),
         DeclareLaunchArgument("lossless", default_value="false", description="bag_player waits for tracking"),
         DeclareLaunchArgument("use_sim_time", default_value="true", description="follow /clock from the bag"),
+        DeclareLaunchArgument("map_file", default_value="", description="start from this map.npz (multi-session)"),
         Node(
             package=PACKAGE, executable="bag_player", name="bag_player", output="screen", condition=IfCondition(has_bag),
             parameters=[{"bag": bag, "rate": rate, "lossless": lossless,
@@ -41,11 +48,12 @@ def generate_launch_description() -> LaunchDescription:
              parameters=[{"config": config}, sim_time], remappings=[("image", "/camera/rgb/image_color")]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
-                          "wait_for_map_updates": lossless}, sim_time]),
+                          "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
+                          "detections_skip_late": real_time}, sim_time]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
-             parameters=[{"config": config, "wait_for_loop_results": lossless}, sim_time]),
+             parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file}, sim_time]),
         Node(package=PACKAGE, executable="loop_closing", name="loop_closing", output="screen",
-             parameters=[{"config": config}, sim_time]),
+             parameters=[{"config": config, "map_file": map_file}, sim_time]),
         Node(package=PACKAGE, executable="object_map", name="object_map", output="screen",
              parameters=[{"config": config}, sim_time],
              remappings=[("/tracking/semantic_map", "/local_mapping/semantic_map")]),  # the object layer's map

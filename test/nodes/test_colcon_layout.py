@@ -141,3 +141,37 @@ def test_installed_graph_nodes_start_and_exit_cleanly_on_sigterm(colcon_install,
             proc.kill()
             proc.wait()
     assert rc == 0, out + (proc.stdout.read() if proc.stdout else "")
+
+
+def _declared_parameters(node: str) -> set[str]:
+    """The names a node module spells as parameter specs, `(name, default, description)` tuples (what
+    `node_runner.declare_parameters` takes; bag_player builds its list in a variable first)."""
+    import ast
+
+    tree = ast.parse((REPO / "changing_slam_ros" / "nodes" / f"{node}_node.py").read_text())
+    return {
+        item.elts[0].value
+        for item in ast.walk(tree)
+        if isinstance(item, ast.Tuple) and len(item.elts) == 3
+        and isinstance(item.elts[0], ast.Constant) and isinstance(item.elts[0].value, str)
+    }  # fmt: skip
+
+
+def test_every_parameter_the_launch_file_sets_is_declared_by_its_node():
+    """A misspelt or removed parameter in the launch file would be silently ignored by rclpy on a ROS 2 machine."""
+    import ast
+
+    tree = ast.parse((REPO / "launch" / "changing_slam.launch.py").read_text())
+    checked = 0
+    for call in ast.walk(tree):
+        if not (isinstance(call, ast.Call) and getattr(call.func, "id", "") == "Node"):
+            continue
+        kw = {k.arg: k.value for k in call.keywords}
+        node = kw["executable"].value
+        declared = _declared_parameters(node) | {"use_sim_time"}
+        assert len(declared) > 3, node
+        for d in (e for e in kw["parameters"].elts if isinstance(e, ast.Dict)):
+            for key in d.keys:
+                assert key.value in declared, f"launch file sets {node}.{key.value}, which {node} does not declare"
+                checked += 1
+    assert checked >= 12
