@@ -80,7 +80,7 @@ def append_points(target: PointStore, source: PointStore, T_target_source: F64) 
     target.add(np.zeros((n, 3)), np.zeros((n, 32), np.uint8), 0, np.zeros(n, np.int64), np.zeros(3),
                np.zeros(n, np.int64), np.ones(1))
     rows = slice(offset, offset + n)
-    for name in PointStore._COLUMNS:  # every per-point column, whatever the store holds
+    for name in PointStore.COLUMNS:  # every per-point column, whatever the store holds
         getattr(target, name)[rows] = getattr(source, name)[:n]
     R, t = T_target_source[:3, :3], T_target_source[:3, 3]
     target.positions[rows] = source.positions[:n] @ R.T + t

@@ -140,6 +140,13 @@ class PointStore:
     # Serialisation (a saved map, `io.map_file`) ------------------------------------------------------
     COLUMNS = _COLUMNS
 
+    @classmethod
+    def column_specs(cls) -> tuple[tuple[str, tuple[int, ...], np.dtype], ...]:
+        """(name, per-row shape, dtype) of every column (`COLUMNS`), read off an empty store so that the
+        schema is written once, in `__init__`."""
+        empty = cls(1)
+        return tuple((name, getattr(empty, name).shape[1:], getattr(empty, name).dtype) for name in cls._COLUMNS)
+
     def column_arrays(self) -> dict[str, npt.NDArray[np.generic]]:
         """Every column cut to `size` rows (copies), by column name (`COLUMNS`)."""
         return {name: getattr(self, name)[: self.size].copy() for name in self._COLUMNS}

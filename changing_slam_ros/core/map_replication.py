@@ -39,13 +39,8 @@ from changing_slam_ros.errors import SlamError
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
-# PointStore columns a delta carries, with their per-row shape and dtype (the store's own names).
-POINT_COLUMNS: tuple[tuple[str, tuple[int, ...], Any], ...] = (
-    ("positions", (3,), np.float64), ("descriptors", (32,), np.uint8), ("normals", (3,), np.float64),
-    ("min_dist", (), np.float64), ("max_dist", (), np.float64), ("n_visible", (), np.int64),
-    ("n_found", (), np.int64), ("first_kf", (), np.int64), ("ref_kf", (), np.int64), ("class_id", (), np.int64),
-    ("object_id", (), np.int64), ("active", (), np.bool_), ("bad", (), np.bool_), ("last_seen_frame", (), np.int64),
-)  # fmt: skip
+# PointStore columns a delta carries, with their per-row shape and dtype (the store's own schema).
+POINT_COLUMNS: tuple[tuple[str, tuple[int, ...], Any], ...] = PointStore.column_specs()
 
 
 class ReplicationError(SlamError):
@@ -242,7 +237,7 @@ def snapshot(m: SlamMap) -> MapSnapshot:
     n = m.points.size
     return MapSnapshot(
         m.id, m.origin_kf_id, {k: _kf_state(m, k) for k in m.keyframes}, frozenset(m.removed), n,
-        {name: getattr(m.points, name)[:n].copy() for name, _, _ in POINT_COLUMNS},
+        m.points.column_arrays(),
         [tuple(o.items()) for o in m.points.observations[:n]],
     )
 
