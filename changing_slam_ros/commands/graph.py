@@ -56,6 +56,8 @@ READY_MARKERS = {
     "local_mapping": "local_mapping: started",
     "loop_closing": "loop_closing: started",
 }
+# What nodes.map_resync logs when a (re)started map owner has its map back from tracking, or starts empty.
+RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
 
@@ -99,13 +101,15 @@ class NodeProcess:
     proc: subprocess.Popen[bytes] | None = None
     log_path: Path | None = None
     exit_codes: list[int] = field(default_factory=list)
+    restart_argv: list[str] | None = None  # the command of a restart, when it differs from the first start's
 
     def start(self, env: dict[str, str]) -> None:
         suffix = "" if self.starts == 0 else f".{self.starts}"
         self.log_path = self.log_dir / f"{self.name}{suffix}.log"
+        argv = self.restart_argv if self.starts > 0 and self.restart_argv is not None else self.argv
         log = open(self.log_path, "wb")  # noqa: SIM115 - the child keeps writing it
         try:
-            self.proc = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+            self.proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         finally:
             log.close()
         self.starts += 1
@@ -231,12 +235,15 @@ class Graph:
             self.nodes["object_map"] = NodeProcess("object_map", _node_argv("object_map_node", {
                 "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
         if split:
-            self.nodes["local_mapping"] = NodeProcess("local_mapping", _node_argv("local_mapping_node", {
-                "config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
-                "update_subscribers": 2, "map_file": self.map_in}),
-                self.logs)  # fmt: skip
-            self.nodes["loop_closing"] = NodeProcess("loop_closing", _node_argv("loop_closing_node", {
-                "config": self.config, "map_file": self.map_in}), self.logs)  # fmt: skip
+            # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
+            mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
+                       "update_subscribers": 2}  # fmt: skip
+            self.nodes["local_mapping"] = NodeProcess(
+                "local_mapping", _node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
+                restart_argv=_node_argv("local_mapping_node", {**mapping, "map_file": ""}))  # fmt: skip
+            self.nodes["loop_closing"] = NodeProcess(
+                "loop_closing", _node_argv("loop_closing_node", {"config": self.config, "map_file": self.map_in}),
+                self.logs, restart_argv=_node_argv("loop_closing_node", {"config": self.config, "map_file": ""}))  # fmt: skip
         if self.detection:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
             self.nodes["detection"] = NodeProcess("detection", _node_argv("detection_node", {
@@ -296,6 +303,23 @@ class Graph:
                 self._start(node, 180.0)
             time.sleep(0.2)
 
+    def _wait_resynced(self, timeout_s: float) -> None:
+        """A map owner restarted near the end may not have its map back from tracking yet: wait for its resync
+        (the log line `nodes.map_resync` writes when it has restored or started empty) before shutting down, so
+        that what it writes at the end is the whole map, not an empty one."""
+        deadline = time.monotonic() + timeout_s
+        for name in ("local_mapping", "loop_closing"):
+            node = self.nodes.get(name)
+            if node is None or node.starts < 2:
+                continue
+            while node.running() and not any(m in node.log_text() for m in RESYNC_DONE_MARKERS):
+                if time.monotonic() > deadline:
+                    print(f"graph: {name} restarted but not resynced after {timeout_s:.0f} s; shutting down anyway",
+                          flush=True)  # fmt: skip
+                    return
+                time.sleep(0.1)
+            print(f"graph: {name} (restarted) has its map back from tracking", flush=True)
+
     def shutdown(self) -> dict[str, int | None]:
         """Tracking first (SIGINT: it writes its outputs), then the others; escalate to SIGTERM, SIGKILL."""
         codes: dict[str, int | None] = {}
@@ -329,6 +353,7 @@ class Graph:
                 raise SlamError(f"graph: bag_player failed (exit {self.player.proc.returncode}); see {self.player.log_path}")
             if not self.args.lossless:
                 time.sleep(1.0 if self.args.backend == "in_process" else 3.0)  # frames, keyframes, map updates in flight
+            self._wait_resynced(120.0)
         finally:
             codes = self.shutdown()
         return self._summary(play_s, up_s, codes)

@@ -75,7 +75,8 @@ class LocalMappingNode(Node):
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
             ("update_subscribers_wait_s", 15.0, "... waiting at most this long after start"),
             ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz: the "
-                             "Atlas and the saved objects; tracking and loop_closing load the same file)"),
+                             "Atlas and the saved objects; tracking and loop_closing load the same file; the map is then not asked of tracking, so a node restarted "
+                             "in a running graph is started without it and gets the current map from tracking)"),
         ])  # fmt: skip
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import MapOwner
@@ -108,6 +109,8 @@ class LocalMappingNode(Node):
 
         # After a restart the map comes back from tracking's replica; keyframes wait for it (see map_resync).
         self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"])
+        if p["map_file"]:  # the map comes from the file, not from tracking's replica of it (see map_file)
+            self.resync.skip()
         self._started_s = time.monotonic()
         self.create_timer(0.1, self._drain, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])

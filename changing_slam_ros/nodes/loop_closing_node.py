@@ -45,7 +45,8 @@ class LoopClosingNode(Node):
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
             ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
             ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz; "
-                             "tracking and local_mapping load the same file)"),
+                             "tracking and local_mapping load the same file; a node restarted in a running graph is started "
+                             "without it and gets the current map from tracking)"),
             ("objects", "config", "the map owner's object layer (config, on, off): with map_file, the saved "
                                   "objects' point flags are set here as local_mapping sets them"),
         ])  # fmt: skip
@@ -72,8 +73,8 @@ class LoopClosingNode(Node):
         from changing_slam_ros.nodes.map_resync import ResyncClient
 
         self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"])
-        if self.side is None:
-            self.resync.ready = True
+        if self.side is None or p["map_file"]:  # nothing to map, or the map comes from the file (see map_file)
+            self.resync.skip()
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
         state = "on" if self.side is not None else "OFF (the config's loop.enabled is false): every keyframe answered 'no loop'"

@@ -61,6 +61,10 @@ class ResyncClient:
             return
         self._request_pub.publish(Header(frame_id=self.node.get_name()))
 
+    def skip(self) -> None:
+        """The node has its map already (loaded from a file): no snapshot is asked for, keyframes flow at once."""
+        self._finish()
+
     def _finish(self) -> None:
         self.ready = True
         self._timer.cancel()
