@@ -193,6 +193,13 @@ class Atlas:
         self.current: SlamMap = self.maps[0]
         self.merged_into: dict[int, int] = {}  # map id -> the map it was merged into (`core.map_merging`)
 
+    def adopt(self, other: Atlas) -> None:
+        """Take over `other`'s maps, current map and merge records (multi-session: a loaded Atlas becomes this one,
+        so that everything holding a reference to this Atlas sees the loaded maps)."""
+        self.maps = other.maps
+        self.current = other.current
+        self.merged_into = dict(other.merged_into)
+
     def new_map(self) -> SlamMap:
         m = SlamMap(len(self.maps))
         self.maps.append(m)

@@ -129,7 +129,7 @@ class SlamSystem:
         layer starts from the saved objects and beliefs. Poses stay in the loaded map's frame."""
         if self.records:
             raise RuntimeError("start_from_map must be called before the first frame")
-        vars(self.atlas).update(vars(atlas))  # every field of the loaded Atlas: maps, current map, merges
+        self.atlas.adopt(atlas)
         if self.object_layer is not None and self.object_layer.enabled:  # first: it may deactivate points
             for map_id, saved in (objects or {}).items():
                 self.object_layer.load_objects(map_id, saved, next_keyframe_id, self.atlas.maps[map_id].points)
