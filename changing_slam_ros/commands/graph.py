@@ -19,7 +19,8 @@ and loop verdict are in, so the run repeats the offline order of work. `in_proce
 `SlamSystem` itself (`nodes/slam_backend.py`) and local_mapping / loop_closing are not started.
 
 DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, tracking_stats.json (from
-tracking), semantic_map.json and local_mapping_stats.json (from local_mapping; from tracking when in_process), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
+tracking), semantic_map.json, local_mapping_stats.json and map.npz (from local_mapping, the split backend's map owner: the
+whole map in `changing-slam run`'s format, for a later `--map-in`; semantic_map.json from tracking when in_process), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
 for evo and Foxglove, written after the run), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
 process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts), and with the
 config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's class-agnostic
@@ -237,7 +238,7 @@ class Graph:
         if split:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
             mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
-                       "update_subscribers": 2}  # fmt: skip
+                       "update_subscribers": 2, "map_out": str(self.out / "map.npz")}  # fmt: skip
             self.nodes["local_mapping"] = NodeProcess(
                 "local_mapping", _node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
                 restart_argv=_node_argv("local_mapping_node", {**mapping, "map_file": ""}))  # fmt: skip
@@ -389,6 +390,7 @@ class Graph:
         }  # fmt: skip
         summary.update(_evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = _write_outputs_mcap(self.bag, self.config, self.out)
+        summary["map_out"] = str(self.out / "map.npz") if (self.out / "map.npz").is_file() else None
         movers = _read_json(self.out / "moving_objects.json")
         summary["moving_objects"] = len(movers["objects"]) if movers else None
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")

@@ -16,7 +16,10 @@ Inputs: /tracking/keyframes (Keyframe, reliable, deep queue), /loop_closing/loop
 Outputs: ~/map_updates (MapUpdate, reliable), ~/semantic_map (MapObjectArray, transient-local, after each
   keyframe the object layer worked on), ~/object_candidates (MapObjectArray), ~/map_cloud (PointCloud2 of the
   active points, at most every `map_cloud_period_s`), /diagnostics.
-On shutdown with `output_dir`: semantic_map.json and local_mapping_stats.json, written atomically.
+On shutdown with `output_dir`: semantic_map.json and local_mapping_stats.json, written atomically; with
+`map_out`, the whole map (Atlas, MapObjects and beliefs: `changing-slam run`'s map.npz format, atomic), which
+`map_file` / `changing-slam run --map-in` / `graph --map-in` start a later session from.
+Service ~/save_map (SaveMap): the same file now, to the request's path or `map_out`.
 Multi-session (`map_file`, a `changing-slam run` map.npz): the map and the saved objects (decayed beliefs) are
 loaded before the first keyframe and the loaded semantic map is published at once (object_map starts from it).
 """
@@ -38,6 +41,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection, MapObjectArray, MapUpdate, ObjectStateArray
+from changing_slam_msgs.srv import SaveMap
 from changing_slam_ros.core.map_replication import KeyframePacket, LoopResult
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import make_header
@@ -70,6 +74,8 @@ class LocalMappingNode(Node):
                                              "one (lossless graph: the offline order of work)"),
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
             ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
+            ("map_out", "", "on shutdown, save the whole map here (map.npz format of `changing-slam run`, atomic); "
+                            "also the default path of ~/save_map"),
             ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
             ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
@@ -113,6 +119,7 @@ class LocalMappingNode(Node):
             self.resync.skip()
         self._started_s = time.monotonic()
         self.create_timer(0.1, self._drain, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.create_service(SaveMap, "~/save_map", self.on_save_map)
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
         if p["map_file"] and self.owner.backend.objects is not None:  # object_map starts from the loaded objects
@@ -150,6 +157,26 @@ class LocalMappingNode(Node):
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # beliefs and active flags are the object layer's, which runs here (see the module doc)
+
+    def on_save_map(self, request: Any, response: Any) -> Any:
+        path = request.path or self.params["map_out"]
+        if not path:
+            response.success, response.message = False, "local_mapping: no path given and no map_out parameter"
+            return response
+        try:
+            self.save_map(Path(path))
+            response.success = True
+            response.message = f"local_mapping: saved {self.owner.atlas.n_keyframes} keyframes to {path}"
+        except (SlamError, OSError) as err:
+            response.success, response.message = False, f"local_mapping: map not saved to {path}: {err}"
+        return response
+
+    def save_map(self, path: Path) -> None:
+        """The owner's Atlas and object layer (MapObjects, beliefs), atomically (`io.map_file.save_map`)."""
+        from changing_slam_ros.io.map_file import save_map
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_map(path, self.owner.atlas, self.owner.backend.objects)
 
     # -- work -----------------------------------------------------------------------------------
     def _restore(self, keyframes: list[Any], delta: Any) -> None:
@@ -240,6 +267,12 @@ class LocalMappingNode(Node):
         self._finished = True
         while self.queue:
             self.map_keyframe(self.queue.popleft())
+        if self.params["map_out"]:
+            try:
+                self.save_map(Path(self.params["map_out"]))
+                self.get_logger().info(f"local_mapping: map saved to {self.params['map_out']}")
+            except (SlamError, OSError) as err:
+                self.get_logger().error(f"local_mapping: map not saved to {self.params['map_out']}: {err}")
         if not self.params["output_dir"]:
             return []
         from changing_slam_ros.io.atomic import atomic_write_text

@@ -72,6 +72,20 @@ def test_graph_without_detections_reproduces_the_offline_runner_byte_for_byte(tm
     for name in ("trajectory.txt", "trajectory_online.txt", "keyframes.txt"):
         text = (graph / name).read_text()
         assert len(text.splitlines()) >= 2 and text == (offline / name).read_text(), name
+    # local_mapping saved the map it owns at shutdown (map.npz, the offline format): the same keyframes, points,
+    # descriptors, objects and graph as the offline map, all but tracking's per-point counters since the last
+    # keyframe (they reach the owner with the next keyframe packet, and there is none after the last).
+    import numpy as np
+
+    counters = {"pt_n_found", "pt_n_visible", "pt_last_seen_frame"}
+    with np.load(graph / "map.npz") as g, np.load(offline / "map.npz") as o:
+        assert sorted(g.files) == sorted(o.files)
+        for name in g.files:
+            if name.split("_", 1)[1] in counters:
+                assert g[name].shape == o[name].shape and np.all(g[name] <= o[name]), name
+            else:
+                np.testing.assert_array_equal(g[name], o[name], err_msg=name)
+        assert not np.array_equal(g["m0_pt_n_visible"], o["m0_pt_n_visible"])  # 8 frames after the one keyframe
     assert json.loads((graph / "graph_summary.json").read_text())["poses_published"] == 9
 
 
