@@ -26,6 +26,7 @@ def generate_launch_description() -> LaunchDescription:
     lossless = LaunchConfiguration("lossless")
     use_sim_time = LaunchConfiguration("use_sim_time")
     map_file = LaunchConfiguration("map_file")
+    map_out = LaunchConfiguration("map_out")
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
@@ -39,6 +40,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("lossless", default_value="false", description="bag_player waits for tracking"),
         DeclareLaunchArgument("use_sim_time", default_value="true", description="follow /clock from the bag"),
         DeclareLaunchArgument("map_file", default_value="", description="start from this map.npz (multi-session)"),
+        DeclareLaunchArgument("map_out", default_value="", description="local_mapping saves the map here at shutdown "
+                              "(and on ~/save_map); start the next session from it with map_file"),
         Node(
             package=PACKAGE, executable="bag_player", name="bag_player", output="screen", condition=IfCondition(has_bag),
             parameters=[{"bag": bag, "rate": rate, "lossless": lossless,
@@ -51,7 +54,8 @@ def generate_launch_description() -> LaunchDescription:
                           "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
                           "detections_skip_late": real_time}, sim_time]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
-             parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file}, sim_time]),
+             parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file,
+                         "map_out": map_out}, sim_time]),
         Node(package=PACKAGE, executable="loop_closing", name="loop_closing", output="screen",
              parameters=[{"config": config, "map_file": map_file}, sim_time]),
         Node(package=PACKAGE, executable="object_map", name="object_map", output="screen",
