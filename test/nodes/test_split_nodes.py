@@ -75,7 +75,7 @@ def test_packets_and_updates_round_trip_through_their_messages(kitchen_packets):
     assert again.keyframe_id == 7 and again.delta.empty
 
 
-def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros_context, kitchen_packets):
+def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros_context, kitchen_packets, tmp_path):
     packets, owner, _ = kitchen_packets
     assert len(packets) >= 4
     node = LocalMappingNode(context=ros_context, parameter_overrides=[
@@ -110,6 +110,19 @@ def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros
 
     assert spin_until(executor, lambda: reported().get("keyframes_mapped") == str(len(packets)), 5.0)
     assert float(reported()["keyframe_ms_median"]) > 0 and reported()["keyframes_rejected"] == "0"
+    # ~/save_map writes the owned map in the map-file format; loaded back it is the owner's map.
+    from changing_slam_msgs.srv import SaveMap
+    from changing_slam_ros.io.map_file import load_map
+
+    client = probe.create_client(SaveMap, "/local_mapping/save_map")
+    assert spin_until(executor, client.service_is_ready, 10.0)
+    refused = client.call_async(SaveMap.Request(path=""))  # no path and no map_out parameter
+    assert spin_until(executor, refused.done, 10.0) and not refused.result().success
+    future = client.call_async(SaveMap.Request(path=str(tmp_path / "saved" / "map.npz")))
+    assert spin_until(executor, future.done, 30.0) and future.result().success, future.result().message
+    loaded = load_map(tmp_path / "saved" / "map.npz").atlas.current
+    assert sorted(loaded.keyframes) == sorted(owner.keyframes)
+    np.testing.assert_array_equal(loaded.points.positions[:n], m.points.positions[:n])
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
