@@ -31,6 +31,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,7 @@ from changing_slam_ros.core.map_replication import (
     restore,
     snapshot,
 )
+from changing_slam_ros.core.provisional_points import ProvisionalPoints
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.system import FrameOutput, SlamSystem
@@ -80,14 +82,18 @@ def replica_point_flags(layer: ObjectLayer | None, loaded: LoadedMap) -> None:
 
 class _ReplicaInsert:
     """Stands in for `SlamSystem.mapper` in the tracking process: a new keyframe goes into the replica only;
-    the map owner maps it and sends the result back."""
+    the map owner maps it and sends the result back. With `provisional` (real time), the keyframe's depth
+    keypoints also become provisional points at once (`core.provisional_points`), as ORB-SLAM's RGB-D
+    `CreateNewKeyFrame` does, so tracking never waits for the owner's points."""
 
-    def __init__(self, atlas: Atlas) -> None:
+    def __init__(self, atlas: Atlas, provisional: ProvisionalPoints | None = None) -> None:
         self.atlas = atlas
+        self.provisional = provisional
 
     def process(self, kf: Keyframe) -> MappingStats:
-        insert_keyframe(self.atlas, kf)
-        return MappingStats()
+        m = insert_keyframe(self.atlas, kf)
+        n = 0 if self.provisional is None else self.provisional.create(m, kf)
+        return MappingStats(new_points=n)
 
 
 @dataclass
@@ -104,9 +110,16 @@ class TrackingSide:
     unacked: dict[int, KeyframePacket] = field(default_factory=dict)  # sent, its map update not in yet
 
     ship_objects: bool = True  # the map owner runs the object layer: packets carry depth and objects
+    # Real time only: tracking's own points for keyframes not mapped yet (None = wait for the owner's points)
+    provisional: ProvisionalPoints | None = None
+    # provisional: packets held back, oldest first, while they name another keyframe's provisional points
+    outbox: deque[KeyframePacket] = field(default_factory=deque)
 
     @staticmethod
-    def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config", objects: str = "config") -> TrackingSide:
+    def build(cfg: BackendConfig, loop: bool = True, dynamic: str = "config", objects: str = "config",
+              provisional: bool = False) -> TrackingSide:
+        """`provisional`: track against provisional points of keyframes whose update has not come (real time;
+        never with a caller that waits for every update, as the lossless graph does)."""
         ship = build_backend(cfg, loop=False, dynamic="off", objects=objects).objects is not None
         backend = build_backend(cfg, loop=loop, dynamic=dynamic, objects="off")
         system = backend.system
@@ -114,11 +127,14 @@ class TrackingSide:
         system.loop_closer = None
         system.keyframe_index = None
         system.object_layer = None
-        system.mapper = _ReplicaInsert(system.atlas)  # type: ignore[assignment]
+        prov = None
+        if provisional:
+            prov = ProvisionalPoints(system.mapper.scales, system.config.mapping.max_new_point_depth_m)
+        system.mapper = _ReplicaInsert(system.atlas, prov)  # type: ignore[assignment]
         if index is not None:
             system.tracker.candidates = index
         backend.loop_closing = None
-        return TrackingSide(backend, index=index, ship_objects=ship)
+        return TrackingSide(backend, index=index, ship_objects=ship, provisional=prov)
 
     @property
     def system(self) -> SlamSystem:
@@ -137,8 +153,12 @@ class TrackingSide:
                 self.index.refresh_active_points(m)
 
     def process(self, rgbd: RgbdFrame, detections: Any = None) -> tuple[FrameOutput | None, KeyframePacket | None]:
-        """Track one frame; (None, None) when it is skipped because a new map has no points here yet (its
-        points come from the map owner: tracking on, with none, would lose the map at once and start another)."""
+        """Track one frame; returns its output and the keyframe packet to send now, if any.
+
+        Without provisional points: (None, None) when the frame is skipped because a new map has no points
+        here yet (its points come from the map owner: tracking on, with none, would lose the map at once and
+        start another). With them: never skipped; a keyframe packet that names another keyframe's provisional
+        points is held back (None now) and comes out of `apply_update` once that keyframe's update is in."""
         if self.waiting_for_map >= 0:
             self.n_skipped += 1
             return None, None
@@ -146,22 +166,63 @@ class TrackingSide:
         if out.keyframe is None:
             return out, None
         kf = out.keyframe
-        counters = self.counters.take(self.system.atlas.maps[kf.map_id])
-        if kf.id == self.system.atlas.maps[kf.map_id].origin_kf_id:
+        m = self.system.atlas.maps[kf.map_id]
+        if self.provisional is None:
+            counters = self.counters.take(m)
+        else:
+            with self.provisional.hidden(m):  # increments on the owner's points only
+                counters = self.counters.take(m)
+        if kf.id == m.origin_kf_id and self.provisional is None:
             self.waiting_for_map = kf.id
         packet = KeyframePacket(kf, counters, rgbd.depth_m, ()) if self.ship_objects else KeyframePacket(kf, counters)
         if self.ship_objects and out.dynamic is not None:
             packet.objects = tuple(out.dynamic.objects)
-        self.unacked[kf.id] = copy.deepcopy(packet)  # re-sent to a map owner that restarts before mapping it
-        return out, packet
+        if self.provisional is None:
+            self.unacked[kf.id] = copy.deepcopy(packet)  # re-sent to a map owner that restarts before mapping it
+            return out, packet
+        self.outbox.append(packet)
+        ready = self._flush()
+        assert len(ready) <= 1  # only an update can release packets held before this one
+        return out, ready[0] if ready else None
 
-    def apply_update(self, update: MapUpdate) -> None:
+    def _flush(self) -> list[KeyframePacket]:
+        """Held packets that may go now, oldest first: their provisional ids blanked (the owner makes those
+        points from the same keypoints), each kept in `unacked` as sent."""
+        assert self.provisional is not None
+        ready = []
+        while self.outbox:
+            kf = self.outbox[0].keyframe
+            m = self.system.atlas.maps[kf.map_id]
+            if kf.id in m.keyframes and self.provisional.foreign_refs(m, kf) > 0:
+                break
+            packet = self.outbox.popleft()
+            sent = copy.deepcopy(packet)
+            sent.keyframe.point_ids = self.provisional.packet_ids(m, kf)
+            self.unacked[kf.id] = sent
+            ready.append(sent)
+        return ready
+
+    def apply_update(self, update: MapUpdate) -> list[KeyframePacket]:
         """The owner's delta into the replica (keeping tracking's newer counter increments), the keyframe
-        database as `SlamSystem` feeds it, then the last frame re-anchored on its moved reference keyframe."""
-        m = self.counters.apply_keeping_increments(self.system.atlas, update.delta)
+        database as `SlamSystem` feeds it, then the last frame re-anchored on its moved reference keyframe.
+        With provisional points: they are taken out around the delta and put back (those of the mapped
+        keyframe become the owner's points); returns the held packets this releases (send them now)."""
+        atlas = self.system.atlas
+        held = None
+        if self.provisional is not None and update.delta.map_id < len(atlas.maps):
+            held = self.provisional.strip(atlas.maps[update.delta.map_id])
+        m = self.counters.apply_keeping_increments(atlas, update.delta)
         if update.keyframe_id == self.waiting_for_map:
             self.waiting_for_map = -1
         self.unacked.pop(update.keyframe_id, None)
+        if self.provisional is not None and held is not None:
+            waiting = set(self.unacked) | {p.keyframe.id for p in self.outbox}
+            remap = self.provisional.reattach(m, held, waiting)
+            last = self.system.tracker.last_frame
+            if last is not None and atlas.current is m and len(last.point_ids) and len(remap):
+                ids = last.point_ids
+                sel = ids >= held.first
+                ids[sel] = remap[ids[sel] - held.first]
         if self.index is not None:
             for k in update.culled_keyframes.tolist():
                 self.index.erase(k)
@@ -173,17 +234,21 @@ class TrackingSide:
         self.n_updates += 1
         if self.system.records:
             self.system._reanchor_last_frame()  # noqa: SLF001 - SlamSystem's own re-anchoring, reused
-
+        return self._flush() if self.provisional is not None else []
 
     def snapshot(self) -> list[tuple[list[Keyframe], MapDelta]]:
         """Every map of the replica as (keyframes, full delta), for a map owner or loop closing that restarted:
         the map as the owner last mapped it, i.e. without the keyframes still waiting for their update (their
         insertion is undone on a copy; `unacked` packets are sent again after the snapshot)."""
         out = []
+        held = [p.keyframe.id for p in self.outbox]
         for m in self.system.atlas.maps:
-            waiting = [k for k in self.unacked if k in m.keyframes]
-            if waiting:
+            waiting = [k for k in list(self.unacked) + held if k in m.keyframes]
+            if self.provisional is not None and self.provisional.count(m) > 0:
+                m = self.provisional.without(m)  # a copy: undo below does not touch the replica
+            elif waiting:
                 m = copy.deepcopy(m)
+            if waiting:
                 for k in sorted(waiting, reverse=True):  # newest first: undo the replica insertions
                     kf = m.keyframes.pop(k)
                     for pid in kf.point_ids[kf.point_ids >= 0].tolist():
@@ -299,7 +364,7 @@ class LoopSide:
         """Multi-session: the replica becomes the loaded Atlas (point flags as the owner sets them, `layer` a
         scratch object layer or None) and every loaded keyframe goes into the database, as offline."""
         replica_point_flags(layer, loaded)
-        vars(self.atlas).update(vars(loaded.atlas))
+        self.atlas.adopt(loaded.atlas)
         for m in self.atlas.maps:
             for k in sorted(m.keyframes):
                 self.closing.add(m.keyframes[k])
@@ -398,3 +463,51 @@ class ChainedGraph:
                 self.loop.on_update(copy.deepcopy(relay))
                 self.tracking.n_loops += 1
         return out
+
+
+@dataclass
+class DelayedChain:
+    """Tracking and the map owner in one process in real-time order, deterministically (tests, benchmarks): the
+    owner maps one keyframe at a time and its update reaches tracking `delay_frames` frames after it started
+    mapping it, as a map owner that needs that long per keyframe would. Tracking never waits for it. No loop
+    closing (its verdicts are what the lossless order waits for)."""
+
+    tracking: TrackingSide
+    owner: MapOwner
+    delay_frames: int
+    frame: int = 0
+    queue: deque[KeyframePacket] = field(default_factory=deque)  # sent, not mapped yet
+    in_flight: tuple[int, MapUpdate] | None = None  # (frame it arrives before, update)
+
+    @staticmethod
+    def build(cfg: BackendConfig, delay_frames: int, provisional: bool, dynamic: str = "config",
+              objects: str = "config") -> DelayedChain:
+        return DelayedChain(TrackingSide.build(cfg, loop=False, dynamic=dynamic, objects=objects,
+                                               provisional=provisional),
+                            MapOwner.build(cfg, objects), delay_frames)  # fmt: skip
+
+    def _owner_step(self) -> None:
+        """Deliver an update that is due, start mapping the next packet when the owner is free."""
+        if self.in_flight is not None and self.in_flight[0] <= self.frame:
+            update = self.in_flight[1]
+            self.in_flight = None
+            self.queue.extend(self.tracking.apply_update(copy.deepcopy(update)))
+        if self.in_flight is None and self.queue:
+            update = self.owner.on_keyframe(copy_packet(self.queue.popleft()))
+            self.in_flight = (self.frame + self.delay_frames, update)
+
+    def process(self, rgbd: RgbdFrame, detections: Any = None) -> FrameOutput | None:
+        """One frame; None when tracking skipped it (a new map waiting for its first points)."""
+        self._owner_step()
+        self._owner_step()  # an update delivered may free the owner for the next packet at once
+        out, packet = self.tracking.process(rgbd, detections)
+        if packet is not None:
+            self.queue.append(packet)
+        self.frame += 1
+        return out
+
+    def finish(self) -> None:
+        """Map and deliver everything still pending (the end of a replay)."""
+        while self.queue or self.in_flight is not None:
+            self.frame = max(self.frame, self.in_flight[0] if self.in_flight is not None else self.frame)
+            self._owner_step()

@@ -9,6 +9,9 @@ applied to the replica as they arrive and the last frame is re-anchored on its m
 (`nodes/split_backend.py`, `core/map_replication.py`). With `wait_for_map_updates:=true` (lossless graph) a
 keyframe frame is acknowledged to the bag player only once local_mapping's update and loop_closing's verdict
 for it (and, after a loop, local_mapping's update applying it) are in, so the graph replays the offline order.
+In real time (`provisional_points`, on unless `wait_for_map_updates`) a new keyframe's depth keypoints become
+provisional points in the replica at once (`core/provisional_points.py`), so tracking goes on at full rate
+while local_mapping maps the keyframe; the owner's update replaces them.
 `in_process_backend:=true`: the whole `core.system.SlamSystem` (tracking -> local mapping -> object layer ->
 loop closing) runs in this process (deterministic, `nodes/slam_backend.py`), and this node publishes the
 semantic map itself. `slam:=false`: frames are paired, converted and acknowledged only (plumbing tests).
@@ -130,6 +133,9 @@ class TrackingNode(Node):
             ("wait_for_map_updates", False, "split backend: acknowledge a keyframe frame only after its map update "
                                             "and loop verdict arrived (lossless graph)"),
             ("map_update_timeout_s", 30.0, "wait_for_map_updates: give up waiting after this long (warns)"),
+            ("provisional_points", True, "split backend, real time: a new keyframe's depth keypoints become "
+                                         "provisional points here at once, so tracking never waits for "
+                                         "local_mapping's points (off with wait_for_map_updates: lossless)"),
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
             ("loop_closing", True, "in-process backend: loop closing on (unless the config's loop.enabled is false)"),
             ("dynamic", "config", "dynamic-scene filter: config (the dynamic section's enabled), on, off"),
@@ -199,7 +205,9 @@ class TrackingNode(Node):
             else:
                 from changing_slam_ros.nodes.split_backend import TrackingSide
 
-                self.split = TrackingSide.build(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"])
+                provisional = bool(p["provisional_points"] and not p["wait_for_map_updates"])
+                self.split = TrackingSide.build(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"],
+                                                provisional=provisional)  # fmt: skip
                 self.backend = self.split.backend
                 from changing_slam_ros.nodes.map_resync import ResyncServer
 
@@ -324,10 +332,12 @@ class TrackingNode(Node):
 
         try:
             update = update_from_msg(msg, "/local_mapping/map_updates")
-            self.split.apply_update(update)
+            released = self.split.apply_update(update)
         except (SlamError, ValueError) as err:
             self.get_logger().warning(f"tracking: map update rejected: {err}", throttle_duration_sec=5.0)
             return
+        for packet in released:  # provisional points: keyframes held until this update named their points
+            self._send_packet(packet)
         self.updates_applied += 1
         sent = self._kf_sent_s.pop(update.keyframe_id, None)
         if sent is not None:
@@ -471,16 +481,12 @@ class TrackingNode(Node):
         if out.loop_corrected:
             self._rebuild_path()
         if packet is not None:
-            from changing_slam_ros.nodes.replication_conversions import packet_to_msg
-
-            msg = packet_to_msg(packet, self.params["map_frame"])
-            self._kf_sent_s[packet.keyframe.id] = time.monotonic()
             if self.params["wait_for_map_updates"]:
                 self._awaiting = {"kf": packet.keyframe.id, "update": False, "verdict": False, "relay": False,
                                   "header": item.rgb_msg.header,
                                   "deadline": time.monotonic() + self.params["map_update_timeout_s"]}  # fmt: skip
-            self.keyframe_pub.publish(msg)
-        elif out.keyframe is not None:
+            self._send_packet(packet)
+        elif out.keyframe is not None and self.split is None:
             self.keyframe_pub.publish(keyframe_to_msg(out.keyframe, self.params["map_frame"]))
         if out.objects is not None:
             self.publish_semantic_map(item.stamp_ns)
@@ -495,6 +501,14 @@ class TrackingNode(Node):
             self._ack(item.rgb_msg.header)
 
     # -- outputs --------------------------------------------------------------------------------
+    def _send_packet(self, packet: Any) -> None:
+        """A keyframe packet to local_mapping and loop_closing (~/keyframes)."""
+        from changing_slam_ros.nodes.replication_conversions import packet_to_msg
+
+        msg = packet_to_msg(packet, self.params["map_frame"])
+        self._kf_sent_s[packet.keyframe.id] = time.monotonic()
+        self.keyframe_pub.publish(msg)
+
     def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
         """Pose, odometry, path and TF (odom = map until loop corrections separate them)."""
         p = self.params
@@ -571,6 +585,7 @@ class TrackingNode(Node):
         s = self.pairer.stats
         lat = np.asarray(self.latency_ms) if self.latency_ms else np.zeros(0)
         proc = np.asarray(self.process_ms) if self.process_ms else np.zeros(0)
+        prov = self.split.provisional if self.split is not None else None
         return {
             "colour_received": self.colour_in, "pairs": s.pairs, "unpaired_colour_dropped": s.dropped_first,
             "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
@@ -590,6 +605,9 @@ class TrackingNode(Node):
             "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "frames_skipped_waiting_for_map": self.split.n_skipped if self.split is not None else None,
+            "provisional_points_created": prov.n_created if prov is not None else None,
+            "provisional_points_replaced": prov.n_replaced if prov is not None else None,
+            "provisional_points_dropped": prov.n_dropped if prov is not None else None,
             "moving_objects_messages": self.moving_objects_published,
             "latency_ms": [round(float(v), 2) for v in lat],
         }  # fmt: skip
