@@ -70,8 +70,8 @@ def render(root: Path, name: str, width: int, height: int) -> Path:
     return folder
 
 
-def run(root: Path, name: str, mode: str, rerun: bool) -> dict[str, Any]:
-    out = root / "runs" / f"{name}-{mode}"
+def run(root: Path, name: str, mode: str, rerun: bool, tag: str = "") -> dict[str, Any]:
+    out = root / "runs" / f"{name}-{mode}{tag}"
     metrics = out / "metrics.json"
     if rerun or not metrics.is_file():
         subprocess.run(_cli("run", str(root / name), "--out", str(out), *MODE_ARGS[mode], "--quiet"), check=True)
@@ -140,8 +140,9 @@ def full_view_ranges(folder: Path, stride: int = 5, min_pixels: int = 150, gap: 
     return out
 
 
-def fair_objects(root: Path, name: str, mode: str) -> dict[str, Any]:
-    """Object metrics of a layer-on run recomputed with the visible-surface centroids (see the docstring)."""
+def fair_objects(root: Path, name: str, mode: str, lever_m: float | None = None, tag: str = "") -> dict[str, Any]:
+    """Object metrics of a layer-on run recomputed with the visible-surface centroids (see the docstring).
+    `lever_m`: the alignment's camera-axis lever arm (`trajectory_alignment`; None: its default, 0: positions only)."""
     import numpy as np
 
     from changing_slam_ros.commands.objects_options import aligned_objects, trajectory_alignment
@@ -152,11 +153,12 @@ def fair_objects(root: Path, name: str, mode: str) -> dict[str, Any]:
     from changing_slam_ros.io.semantic_map_file import read_object_map
     from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
-    out = root / "runs" / f"{name}-{mode}"
+    out = root / "runs" / f"{name}-{mode}{tag}"
     if not (out / "object_map.json").is_file():
         return {}
     gt_traj = open_dataset(root / name, "sim").groundtruth
-    T = trajectory_alignment(gt_traj, read_tum_trajectory(out / "trajectory.txt"))
+    est = read_tum_trajectory(out / "trajectory.txt")
+    T = trajectory_alignment(gt_traj, est) if lever_m is None else trajectory_alignment(gt_traj, est, lever_m)
     if T is None:
         return {}
     truth = load_ground_truth_objects(root / name / "objects.json")
@@ -170,8 +172,15 @@ def fair_objects(root: Path, name: str, mode: str) -> dict[str, Any]:
     return result
 
 
+def _over(sm: dict[str, Any], key: str, limit_m: float = 0.10) -> str:
+    """Matched objects whose error `key` exceeds limit_m, as name:cm."""
+    return ",".join(f"{x['gt_name']}:{100 * x[key]:.1f}" for x in sm.get("matches", [])
+                    if math.isfinite(x[key]) and x[key] > limit_m)
+
+
 def row(name: str, mode: str, m: dict[str, Any], static_ate: float | None,
-        fair: dict[str, Any] | None = None, control_ate: float | None = None) -> dict[str, Any]:
+        fair: dict[str, Any] | None = None, control_ate: float | None = None,
+        fair_pos: dict[str, Any] | None = None) -> dict[str, Any]:
     loops = m.get("loops", {})
     errs = [(x.get("error_m", math.nan), x.get("error_deg", math.nan)) for x in loops.get("loops", [])]
     obj = m.get("objects", {})
@@ -199,6 +208,12 @@ def row(name: str, mode: str, m: dict[str, Any], static_ate: float | None,
         "sm_surface_cm": 100 * sm.get("mean_surface_centroid_error_m", math.nan) if sm else math.nan,
         "max_surface_cm": max((100 * x["surface_centroid_error_m"] for x in sm.get("matches", [])
                                if math.isfinite(x["surface_centroid_error_m"])), default=math.nan),
+        "max_volume_cm": max((100 * x["centroid_error_m"] for x in sm.get("matches", [])), default=math.nan),
+        "over_10cm_surface": _over(sm, "surface_centroid_error_m") if sm else "",
+        "over_10cm_volume": _over(sm, "centroid_error_m") if sm else "",
+        "max_surface_cm_pos_align": max((100 * x["surface_centroid_error_m"]
+                                         for x in (fair_pos or {}).get("semantic_map", {}).get("matches", [])
+                                         if math.isfinite(x["surface_centroid_error_m"])), default=math.nan),
     }
 
 
@@ -219,6 +234,7 @@ def main() -> int:
     ap.add_argument("--rerun", action="store_true", help="run again even where metrics.json exists")
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
+    ap.add_argument("--tag", default="", help="suffix appended to the run folders (ROOT/runs/SCENARIO-MODE+TAG, e.g. -base)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     ap.add_argument("--views", action="store_true",
                     help="only print, per scenario and object, the frame ranges where it is in full view")
@@ -239,16 +255,18 @@ def main() -> int:
             if not (args.root / name / "objects.json").is_file():
                 print(f"skip {name}: not rendered under {args.root} (use --render)", file=sys.stderr)
                 continue
-            m = run(args.root, name, mode, args.rerun)
+            m = run(args.root, name, mode, args.rerun, args.tag)
             ates[name] = float(m.get("ate_rmse_m", math.nan))
             if name == "static":
                 static_ate = ates[name]
-            fair = fair_objects(args.root, name, mode) if mode == "objects" else None
-            rows.append(row(name, mode, m, static_ate, fair, ates.get(CONTROLS.get(name, ""))))
+            fair = fair_objects(args.root, name, mode, tag=args.tag) if mode == "objects" else None
+            fair_pos = fair_objects(args.root, name, mode, lever_m=0.0, tag=args.tag) if mode == "objects" else None
+            rows.append(row(name, mode, m, static_ate, fair, ates.get(CONTROLS.get(name, "")), fair_pos))
     cols = ["scenario", "mode", "tracked", "ate_cm", "ate_median_cm", "ate_online_cm", "ate_vs_static", "ate_vs_control",
             "loops", "wrong_loops", "max_loop_err_cm", "max_loop_err_deg", "sm_matched", "sm_stale", "sm_spurious",
             "conf_matched", "conf_stale", "conf_spurious", "missed", "structure", "stale_names", "sm_centroid_cm",
-            "sm_surface_cm", "max_surface_cm", "sm_iou", "layer_ms_kf"]
+            "sm_surface_cm", "max_surface_cm", "max_surface_cm_pos_align", "max_volume_cm", "over_10cm_surface",
+            "over_10cm_volume", "sm_iou", "layer_ms_kf"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:
