@@ -28,6 +28,7 @@ from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True)
@@ -103,17 +104,23 @@ def fuse_into(host: MovingObject, other: MovingObject, stamp_ns: int) -> MovingO
     fused = MovingObject(host.object_id, point_ids, np.vstack([host.points_obj, moved[new]]), dict(host.poses))
     for stamp, T_world_other in other.poses.items():
         fused.poses.setdefault(stamp, T_world_other @ invert(T_host_other))
-    fused.keyposes = [_remap(kp, host, fused) for kp in host.keyposes]
+    # Keyposes re-indexed to the fused points by map point id, through one lookup table per source object
+    # (the host's points come first and keep their indices when its ids are unique).
+    host_map = fused.index_of(host.point_ids)
+    if np.array_equal(host_map, np.arange(len(host.point_ids))):
+        fused.keyposes = list(host.keyposes)
+    else:
+        fused.keyposes = [_remap(kp, host_map) for kp in host.keyposes]
+    other_map = fused.index_of(other.point_ids)
     host_stamps = {kp.stamp_ns for kp in host.keyposes}
-    fused.keyposes += [_remap(kp, other, fused) for kp in other.keyposes if kp.stamp_ns not in host_stamps]
+    fused.keyposes += [_remap(kp, other_map) for kp in other.keyposes if kp.stamp_ns not in host_stamps]
     fused.keyposes = fused.keyposes[:1] + sorted(fused.keyposes[1:], key=lambda kp: kp.stamp_ns)
     return fused
 
 
-def _remap(kp: ObjectObservations, source: MovingObject, target: MovingObject) -> ObjectObservations:
-    """Keypose measurements re-indexed from `source`'s points to `target`'s (by map point id)."""
-    idx = target.index_of(source.point_ids[kp.point_index])
-    return ObjectObservations(kp.stamp_ns, kp.T_world_cam, idx, kp.points_cam)
+def _remap(kp: ObjectObservations, index_map: I64) -> ObjectObservations:
+    """Keypose measurements re-indexed through `index_map` (source point index -> target point index)."""
+    return ObjectObservations(kp.stamp_ns, kp.T_world_cam, index_map[kp.point_index], kp.points_cam)
 
 
 def merge_objects(objects: list[MovingObject], stamp_ns: int, config: MergeConfig) -> list[MovingObject]:
