@@ -223,6 +223,10 @@ class Graph:
         self.env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                         PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0",
                         ROS_LOG_DIR=str(self.logs / "ros"))  # fmt: skip
+        # One OpenBLAS thread per node (unless set): six processes share the cores, and a second BLAS thread per
+        # process only spins on the small products tracking and mapping do (in-process tracking + mapping on
+        # the sim bag: 6.6 -> 5.9 s CPU, 9.6 -> 8.5 s wall for 150 frames).
+        self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.nodes: dict[str, NodeProcess] = {}
         self.restarts: dict[str, int] = {}
         self._build()
