@@ -10,6 +10,8 @@
    from git into a temporary folder under another name) get the same inputs, frame by frame in turn, so load
    from other processes hits both alike. Printed: process CPU ms per frame (median, p90, mean) of each, the
    segmentation's share, and whether the two flag the same keypoints as moving and export the same tracks.
+   `--set KEY=VALUE` adds a third tracker of this checkout with those `MoverConfig` settings; `--score` scores
+   each against SIM_DIR's ground truth (moving-keypoint precision / recall, object ATE; see `score`).
 
 The replay feeds both the poses recorded with this checkout's tracking; flags that agree everywhere mean the
 system's run (tracking only sees the flags) is the same with either.
@@ -103,17 +105,70 @@ def features_of(kp: np.ndarray, desc: np.ndarray, depth: np.ndarray) -> Features
     return Features(kp, kp, np.zeros(n, np.int64), zeros, zeros, desc, depth, np.full(n, -1.0))
 
 
+def score(sim_dir: Path, rec: Any, n: int, flags: list[np.ndarray], tracker: Any) -> str:
+    """Moving-keypoint precision / recall over the carried frames and each exported track's ATE against the
+    simulated mover (the counting of `bench/eval_movers_sim.py`, on the replayed flags and the recorded poses)."""
+    from changing_slam_ros.core.trajectory import Trajectory
+    from changing_slam_ros.eval.moving_objects import camera_alignment, object_errors_m, read_sim_movers
+    from changing_slam_ros.io.dataset import open_dataset
+
+    (truth,) = read_sim_movers(sim_dir)
+    moving_gt = truth.moving_frames()
+    masks = sorted((sim_dir / "masks").glob("*.png"))
+    ends = np.concatenate([[0], np.cumsum(rec["sizes"])])
+    tp = fp = fn = 0
+    for k in range(n):
+        if not moving_gt[k]:
+            continue
+        px, depth = rec["kp"][ends[k] : ends[k + 1]], rec["depth"][ends[k] : ends[k + 1]]
+        mask = cv2.imread(str(masks[k]), cv2.IMREAD_UNCHANGED)
+        c = np.clip(np.rint(px[:, 0]).astype(int), 0, mask.shape[1] - 1)
+        r = np.clip(np.rint(px[:, 1]).astype(int), 0, mask.shape[0] - 1)
+        on = (mask[r, c] == truth.mask_id) & (depth > 0)
+        f = flags[k] & (depth > 0)
+        tp, fp, fn = tp + int(np.sum(f & on)), fp + int(np.sum(f & ~on)), fn + int(np.sum(on & ~f))
+    ok = ~np.isnan(rec["T"][:n]).any(axis=(1, 2))
+    online = Trajectory.from_poses(rec["stamp_ns"][:n][ok].astype(np.float64) * 1e-9, rec["T"][:n][ok])
+    S, _ = camera_alignment(open_dataset(str(sim_dir), "sim").groundtruth, online)
+    ates = []
+    for t in tracker.tracks():
+        err = object_errors_m(t, S, truth)
+        ates.append(f"{len(t.stamps_ns)} poses {100 * np.sqrt(np.mean(err**2)):.2f} cm")
+    return f"P {tp / max(tp + fp, 1):.3f} R {tp / max(tp + fn, 1):.3f} (carried frames); tracks: {'; '.join(ates)}"
+
+
+def parse_sets(items: list[str]) -> dict[str, Any]:
+    """KEY=VALUE overrides of `MoverConfig` (dotted keys reach nested sections), values parsed as YAML."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        node = out
+        parts = key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = yaml.safe_load(value)
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sim_dir", help="a simulated folder with a mover, e.g. unknown_mover")
     parser.add_argument("--frames", type=int, default=720)
     parser.add_argument("--baseline", default="5cfa88c", help="git revision to compare with (default: before this work)")
     parser.add_argument("--inputs", help="npz of recorded inputs (written when absent)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="MoverConfig override for a third tracker (this checkout + --set), e.g. segment_every_frames=2")
+    parser.add_argument("--score", action="store_true", help="also score both against SIM_DIR's ground truth")
     args = parser.parse_args()
     cv2.setNumThreads(1)  # as SlamSystem does
 
+    from changing_slam_ros.config import section
     from changing_slam_ros.core.camera import CameraIntrinsics
     from changing_slam_ros.core.mover_tracking import MoverConfig, MoverTracker
+
+    config = section(MoverConfig, {"enabled": True, **parse_sets(args.set)}, "bench_movers --set")
 
     with tempfile.TemporaryDirectory(prefix="bench-movers-") as tmp_dir:
         tmp = Path(tmp_dir)
@@ -133,6 +188,8 @@ def main() -> int:
             f"baseline {args.baseline}": (base_mod.MoverTracker(base_mod.MoverConfig(enabled=True)), base_camera),
             "this checkout": (MoverTracker(MoverConfig(enabled=True)), camera),
         }
+        if args.set:
+            runs["this checkout + --set"] = (MoverTracker(config), camera)
         cpu = {name: [] for name in runs}
         flags: dict[str, list[np.ndarray]] = {name: [] for name in runs}
         ends = np.concatenate([[0], np.cumsum(rec["sizes"])])
@@ -152,7 +209,7 @@ def main() -> int:
         for name, (tracker, _) in runs.items():
             ms, seg = np.array(cpu[name]), np.array(tracker.segmentation_ms)
             print(
-                f"  {name:22s} CPU ms/frame median {np.median(ms):6.1f}, p90 {np.percentile(ms, 90):6.1f}, "
+                f"  {name:24s} CPU ms/frame median {np.median(ms):6.1f}, p90 {np.percentile(ms, 90):6.1f}, "
                 f"mean {ms.mean():6.1f} (x{np.median(ms) / np.median(cpu[ref]):.2f} of the baseline's median); "
                 f"segmentation median {np.median(seg):5.1f} ms in {len(seg)} windows"
             )
@@ -163,13 +220,20 @@ def main() -> int:
         print(f"  moving flags: {len(differ)} of {n} frames differ ({n_diff} keypoints; the baseline flagged {n_flag})")
         for name, (tracker, _) in runs.items():
             tracks = tracker.tracks()
-            print(f"  {name:22s} tracks: " + ", ".join(f"{t.object_id}: {len(t.stamps_ns)} poses" for t in tracks))
+            print(f"  {name:24s} tracks: " + ", ".join(f"{t.object_id}: {len(t.stamps_ns)} poses" for t in tracks))
         ta, tb = runs[ref][0].tracks(), runs["this checkout"][0].tracks()
         if len(ta) == len(tb) and all(np.array_equal(x.stamps_ns, y.stamps_ns) for x, y in zip(ta, tb)):
             dev = max((float(np.abs(x.T_world_obj - y.T_world_obj).max()) for x, y in zip(ta, tb)), default=0.0)
             print(f"  tracks: same stamps, largest pose element difference {dev:.2e}")
         else:
             print("  tracks differ in number or stamps")
+        if args.set:
+            print(f"  --set: {' '.join(args.set)}")
+            c = flags["this checkout + --set"]
+            print(f"  moving flags with --set: {sum(not np.array_equal(a[k], c[k]) for k in range(n))} of {n} frames differ from the baseline")
+        if args.score:
+            for name, (tracker, _) in runs.items():
+                print(f"  {name:24s} {score(Path(args.sim_dir), rec, n, flags[name], tracker)}")
     return 0
 
 

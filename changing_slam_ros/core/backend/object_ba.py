@@ -142,19 +142,35 @@ class _Measurements:
             for q, n in enumerate(obs.point_index)
         ]
 
-    def chi2(self, values: gtsam.Values) -> F64:
+    def chi2(self, values: gtsam.Values, points: "_PointTable | None" = None) -> F64:
         """Whitened squared error (N,) of every measurement at `values` (no robust kernel).
 
         Vectorised: the bearing error is the angle between predicted and measured rays, which is the norm
-        of gtsam's Unit3 tangent error to first order.
+        of gtsam's Unit3 tangent error to first order. `points`: the values' points, read once for all frames.
         """
         T_cam_obj = invert(values.atPose3(self.pose_key).matrix())
-        pts = np.array([values.atPoint3(L(int(n))) for n in self.obs.point_index]).reshape(-1, 3)
+        table = points or _PointTable.of(values)
+        pts = table.points[np.searchsorted(table.index, self.obs.point_index)].reshape(-1, 3)
         pred = pts @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
         pred_range = np.linalg.norm(pred, axis=1)
         cos = np.sum(pred * self.obs.points_cam, axis=1) / np.maximum(pred_range * self.ranges, 1e-12)
         angle = np.arccos(np.clip(cos, -1.0, 1.0))
         return np.asarray((angle / self.sigma_b) ** 2 + ((pred_range - self.ranges) / self.sigma_r) ** 2)
+
+
+@dataclass(frozen=True)
+class _PointTable:
+    """The Point3 values L(n) of a `gtsam.Values`: point indices n (ascending) and positions (P, 3)."""
+
+    index: I64
+    points: F64
+
+    @classmethod
+    def of(cls, values: gtsam.Values) -> "_PointTable":
+        keys = [gtsam.Symbol(k) for k in values.keys()]
+        index = np.array([k.index() for k in keys if chr(k.chr()) == "l"], dtype=np.int64)
+        # extractPoint3 returns the points in key order, which is ascending n for the keys L(n).
+        return cls(index, np.asarray(gtsam.utilities.extractPoint3(values), dtype=np.float64).reshape(-1, 3))
 
 
 def _optimise_rounds(
@@ -172,7 +188,8 @@ def _optimise_rounds(
                 if ok:
                     graph.add(factor)
         values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-        inliers = [f.chi2(values) <= cfg.outlier_chi2 for f in frames]
+        table = _PointTable.of(values)
+        inliers = [f.chi2(values, table) <= cfg.outlier_chi2 for f in frames]
     return values, inliers
 
 
