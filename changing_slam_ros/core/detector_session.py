@@ -181,8 +181,11 @@ def prepare_session(model_path: Path, settings: SessionSettings) -> PreparedSess
     if settings.cache_dir is not None:
         cache_path = settings.cache_dir / cache_key(file_sha256(model_path), settings, providers[0])
         if cache_path.is_file():
-            session = load(str(cache_path))
-            return PreparedSession(session, _is_ssd_head(session), cache_path, True)
+            try:
+                session = load(str(cache_path))
+                return PreparedSession(session, _is_ssd_head(session), cache_path, True)
+            except ConfigError:  # an unreadable cached graph (another onnxruntime build wrote it): make it again
+                cache_path.unlink(missing_ok=True)
 
     graph = model_path.read_bytes()
     if settings.nms != "graph":

@@ -63,7 +63,8 @@ def test_bad_session_options_are_config_errors() -> None:
         DetectorConfig(ssd_nms_iou_threshold=1.5)
 
 
-def test_numpy_nms_needs_an_ssd_graph_and_auto_falls_back_to_the_graph(tmp_path) -> None:
+def _yolo_like_model(path):  # noqa: ANN001, ANN202
+    """A one-node ONNX graph with a YOLO-shaped output (1, 84, 8) and no SSD tensors."""
     onnx = pytest.importorskip("onnx")
     from onnx import TensorProto, helper
 
@@ -74,8 +75,12 @@ def test_numpy_nms_needs_an_ssd_graph_and_auto_falls_back_to_the_graph(tmp_path)
     )  # fmt: skip
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
     model.ir_version = 9
-    path = tmp_path / "yolo_like.onnx"
     onnx.save(model, str(path))
+    return path
+
+
+def test_numpy_nms_needs_an_ssd_graph_and_auto_falls_back_to_the_graph(tmp_path) -> None:
+    path = _yolo_like_model(tmp_path / "yolo_like.onnx")
     with pytest.raises(ConfigError, match="yolo_like.onnx has none"):
         Detector(DetectorConfig(model_path=str(path), nms="numpy", cache_dir=str(tmp_path / "cache")))
     det = Detector(DetectorConfig(model_path=str(path), nms="auto", cache_dir=str(tmp_path / "cache")))
@@ -105,3 +110,14 @@ def test_numpy_nms_gives_the_graphs_detections_and_a_second_start_loads_the_cach
             np.testing.assert_allclose([d.score for d in got], [d.score for d in want], atol=1e-6)
             np.testing.assert_allclose([d.box_xyxy for d in got], [d.box_xyxy for d in want], atol=1e-3)
         assert len(want) >= 4  # two persons and chairs on the first frame, a person and a chair on the second
+
+
+def test_an_unreadable_cached_graph_is_prepared_again(tmp_path) -> None:
+    path = _yolo_like_model(tmp_path / "yolo_like.onnx")
+    cache = tmp_path / "cache"
+    first = Detector(DetectorConfig(model_path=str(path), cache_dir=str(cache)))
+    assert first.cache_path is not None and not first.cache_hit
+    first.cache_path.write_bytes(b"not an onnx graph")
+    again = Detector(DetectorConfig(model_path=str(path), cache_dir=str(cache)))
+    assert not again.cache_hit and again.layout == "yolo"
+    assert again.cache_path is not None and again.cache_path.read_bytes() != b"not an onnx graph"
