@@ -377,6 +377,8 @@ class Graph:
             "process_ms_median": stats.get("process_ms_median"), "keyframes": stats.get("keyframes"),
             "process_cpu_ms_median": stats.get("process_cpu_ms_median"),
             "frames_skipped_waiting_for_map": stats.get("frames_skipped_waiting_for_map"),
+            "provisional_points_created": stats.get("provisional_points_created"),
+            "provisional_points_replaced": stats.get("provisional_points_replaced"),
             "detection_delay_ms_median": stats.get("detection_delay_ms_median"),
             "loops_closed": stats.get("loops_closed_split") if stats.get("backend") == "split" else stats.get("loops_closed"),
             "backend": self.args.backend, "map_updates_applied": stats.get("map_updates_applied"),
