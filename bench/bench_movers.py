@@ -10,8 +10,9 @@
    from git into a temporary folder under another name) get the same inputs, frame by frame in turn, so load
    from other processes hits both alike. Printed: process CPU ms per frame (median, p90, mean) of each, the
    segmentation's share, and whether the two flag the same keypoints as moving and export the same tracks.
-   `--set KEY=VALUE` adds a third tracker of this checkout with those `MoverConfig` settings; `--score` scores
-   each against SIM_DIR's ground truth (moving-keypoint precision / recall, object ATE; see `score`).
+   `--variant 'KEY=VALUE ...'` adds a tracker of this checkout with those `MoverConfig` settings (repeatable;
+   `--baseline none` leaves the baseline out); `--score` scores each against SIM_DIR's ground truth
+   (moving-keypoint precision / recall, object ATE; see `score`).
 
 The replay feeds both the poses recorded with this checkout's tracking; flags that agree everywhere mean the
 system's run (tracking only sees the flags) is the same with either.
@@ -158,8 +159,8 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=720)
     parser.add_argument("--baseline", default="5cfa88c", help="git revision to compare with (default: before this work)")
     parser.add_argument("--inputs", help="npz of recorded inputs (written when absent)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="MoverConfig override for a third tracker (this checkout + --set), e.g. segment_every_frames=2")
+    parser.add_argument("--variant", action="append", default=[], metavar="'KEY=VALUE ...'",
+                        help="one more tracker of this checkout with these MoverConfig settings, e.g. segment_every_frames=2")
     parser.add_argument("--score", action="store_true", help="also score both against SIM_DIR's ground truth")
     args = parser.parse_args()
     cv2.setNumThreads(1)  # as SlamSystem does
@@ -168,7 +169,7 @@ def main() -> int:
     from changing_slam_ros.core.camera import CameraIntrinsics
     from changing_slam_ros.core.mover_tracking import MoverConfig, MoverTracker
 
-    config = section(MoverConfig, {"enabled": True, **parse_sets(args.set)}, "bench_movers --set")
+    variants = {v: section(MoverConfig, {"enabled": True, **parse_sets(v.split())}, f"bench_movers --variant {v}") for v in args.variant}
 
     with tempfile.TemporaryDirectory(prefix="bench-movers-") as tmp_dir:
         tmp = Path(tmp_dir)
@@ -180,16 +181,16 @@ def main() -> int:
         rec = np.load(inputs)
         w, h, fx, fy, cx, cy = rec["camera"]
         camera = CameraIntrinsics(int(w), int(h), float(fx), float(fy), float(cx), float(cy))
-        base_name = baseline_package(args.baseline, tmp)
-        base_mod = importlib.import_module(f"{base_name}.core.mover_tracking")
-        base_cam_mod = importlib.import_module(f"{base_name}.core.camera")
-        base_camera = base_cam_mod.CameraIntrinsics(int(w), int(h), float(fx), float(fy), float(cx), float(cy))
-        runs = {
-            f"baseline {args.baseline}": (base_mod.MoverTracker(base_mod.MoverConfig(enabled=True)), base_camera),
-            "this checkout": (MoverTracker(MoverConfig(enabled=True)), camera),
-        }
-        if args.set:
-            runs["this checkout + --set"] = (MoverTracker(config), camera)
+        runs: dict[str, tuple[Any, Any]] = {}
+        if args.baseline != "none":
+            base_name = baseline_package(args.baseline, tmp)
+            base_mod = importlib.import_module(f"{base_name}.core.mover_tracking")
+            base_cam_mod = importlib.import_module(f"{base_name}.core.camera")
+            base_camera = base_cam_mod.CameraIntrinsics(int(w), int(h), float(fx), float(fy), float(cx), float(cy))
+            runs[f"baseline {args.baseline}"] = (base_mod.MoverTracker(base_mod.MoverConfig(enabled=True)), base_camera)
+        runs["this checkout"] = (MoverTracker(MoverConfig(enabled=True)), camera)
+        for v, config in variants.items():
+            runs[v] = (MoverTracker(config), camera)
         cpu = {name: [] for name in runs}
         flags: dict[str, list[np.ndarray]] = {name: [] for name in runs}
         ends = np.concatenate([[0], np.cumsum(rec["sizes"])])
@@ -210,27 +211,21 @@ def main() -> int:
             ms, seg = np.array(cpu[name]), np.array(tracker.segmentation_ms)
             print(
                 f"  {name:24s} CPU ms/frame median {np.median(ms):6.1f}, p90 {np.percentile(ms, 90):6.1f}, "
-                f"mean {ms.mean():6.1f} (x{np.median(ms) / np.median(cpu[ref]):.2f} of the baseline's median); "
+                f"mean {ms.mean():6.1f} (x{np.median(ms) / np.median(cpu[ref]):.2f}, mean x{ms.mean() / np.mean(cpu[ref]):.2f} of the first); "
                 f"segmentation median {np.median(seg):5.1f} ms in {len(seg)} windows"
             )
-        a, b = flags[ref], flags["this checkout"]
-        differ = [k for k in range(n) if not np.array_equal(a[k], b[k])]
-        n_diff = sum(int(np.sum(a[k] != b[k])) for k in differ)
-        n_flag = sum(int(f.sum()) for f in a)
-        print(f"  moving flags: {len(differ)} of {n} frames differ ({n_diff} keypoints; the baseline flagged {n_flag})")
-        for name, (tracker, _) in runs.items():
-            tracks = tracker.tracks()
-            print(f"  {name:24s} tracks: " + ", ".join(f"{t.object_id}: {len(t.stamps_ns)} poses" for t in tracks))
-        ta, tb = runs[ref][0].tracks(), runs["this checkout"][0].tracks()
-        if len(ta) == len(tb) and all(np.array_equal(x.stamps_ns, y.stamps_ns) for x, y in zip(ta, tb)):
-            dev = max((float(np.abs(x.T_world_obj - y.T_world_obj).max()) for x, y in zip(ta, tb)), default=0.0)
-            print(f"  tracks: same stamps, largest pose element difference {dev:.2e}")
-        else:
-            print("  tracks differ in number or stamps")
-        if args.set:
-            print(f"  --set: {' '.join(args.set)}")
-            c = flags["this checkout + --set"]
-            print(f"  moving flags with --set: {sum(not np.array_equal(a[k], c[k]) for k in range(n))} of {n} frames differ from the baseline")
+        for name in list(runs)[1:]:
+            a, b = flags[ref], flags[name]
+            differ = [k for k in range(n) if not np.array_equal(a[k], b[k])]
+            n_diff = sum(int(np.sum(a[k] != b[k])) for k in differ)
+            print(f"  {name}: moving flags differ from {ref}'s in {len(differ)} of {n} frames ({n_diff} keypoints; "
+                  f"{ref} flagged {sum(int(f.sum()) for f in a)})")
+            ta, tb = runs[ref][0].tracks(), runs[name][0].tracks()
+            if len(ta) == len(tb) and all(np.array_equal(x.stamps_ns, y.stamps_ns) for x, y in zip(ta, tb)):
+                dev = max((float(np.abs(x.T_world_obj - y.T_world_obj).max()) for x, y in zip(ta, tb)), default=0.0)
+                print(f"    tracks: same stamps, largest pose element difference {dev:.2e}")
+            else:
+                print("    tracks differ in number or stamps")
         if args.score:
             for name, (tracker, _) in runs.items():
                 print(f"  {name:24s} {score(Path(args.sim_dir), rec, n, flags[name], tracker)}")
