@@ -57,7 +57,12 @@ class ObjectCandidate:
     """Map points (ids (N,), world positions (N, 3)) from one detection box of one keyframe.
 
     `truncated`: the box touches the image border; its centroid is biased toward the visible part, so it
-    neither creates nor merges into an object, but its box still explains away a miss (see below).
+    neither updates a mapped object's belief nor counts as a sighting of it, nor joins its point set (the
+    centroid and 3D box). Its points still belong to an object (§4.2: every map point created in a box takes the
+    box's MapObject, and follows its active flag): they are labelled with the nearest mapped object of its
+    class within `ltda_threshold_m` and take its flag, or make a new object (with `truncated_views`; off, cut
+    views are skipped as before).
+    Its box also explains away a miss (see below).
     """
 
     class_id: int
@@ -110,7 +115,8 @@ class BeliefChange:
 @dataclass(frozen=True)
 class AssociationResult:
     """What one keyframe changed. `assignments[i]` is the map object id candidate i went to (new or
-    merged), -1 if it was skipped (truncated, or fewer than `min_points` points). `visibility`: the verdict
+    merged; for a truncated candidate: the object its points are labelled with), -1 if it was skipped (truncated
+    with `truncated_views` off, or fewer than `min_points` points). `visibility`: the verdict
     of the vicinity search for every mapped object that no candidate matched."""
 
     keyframe_id: int
@@ -176,17 +182,33 @@ class LongTermAssociation:
         merged_ids: list[int] = []
         changes: list[BeliefChange] = []
         seen: set[int] = set()
+        attached: list[int] = []
+        attached_on: list[I64] = []
+        attached_off: list[I64] = []
         for cand in candidates:
             pts = np.asarray(cand.points_w, float).reshape(-1, 3)
-            if len(pts) < cfg.min_points or cand.truncated:
+            if len(pts) < cfg.min_points:
                 assignments.append(-1)
                 continue
             centroid = pts.mean(axis=0)  # line 2
             target = self._nearest_same_class(existing, cand.class_id, centroid)  # lines 3-6
+            if cand.truncated and not cfg.truncated_views:
+                assignments.append(-1)
+                continue
+            if cand.truncated and target is not None:
+                # a cut view's points are labelled with the mapped object and take its active flag (the map
+                # points then follow it: `ObjectLayer` flips every point labelled with an object that changes
+                # state), but they stay out of its point set: their centroid is biased toward the visible part,
+                # so they neither move the object's centroid nor update its belief nor count as a sighting
+                attached.append(target.id)
+                (attached_on if target.active else attached_off).append(np.asarray(cand.point_ids, np.int64))
+                assignments.append(target.id)
+                continue
             if target is None:  # lines 19-21
                 obj = MapObject(self._next_id, cand.class_id, cand.box_xyxy, cand.box_xyxy, keyframe_id,
                                 keyframe_id, belief=0.5, active=0.5 >= cfg.belief_threshold,
-                                point_ids=np.asarray(cand.point_ids, np.int64), points_w=pts)
+                                point_ids=np.asarray(cand.point_ids, np.int64), points_w=pts,
+                                n_observations=0 if cand.truncated else 1)
                 obj.last_belief_update_keyframe = keyframe_id
                 self.objects[obj.id] = obj
                 self._next_id += 1
@@ -194,7 +216,10 @@ class LongTermAssociation:
                 assignments.append(obj.id)
                 seen.add(obj.id)
                 continue
-            if keyframe_id - target.last_seen_keyframe > cfg.n_keyframes_unseen and target.id not in seen:
+            # an object known only from cut views (n_observations 0) is first seen whole now: that is its first
+            # sighting, not a long-term re-observation (a glimpse at the image edge is no earlier visit)
+            if (keyframe_id - target.last_seen_keyframe > cfg.n_keyframes_unseen and target.id not in seen
+                    and target.n_observations > 0):
                 upd = update_seen(target.belief, centroid, target.centroid_w, target.n_points, cfg,
                                   float(np.max(target.box_size_m)))  # line 9
                 target.belief = upd.posterior
@@ -212,6 +237,10 @@ class LongTermAssociation:
         boxes = [(c.class_id, c.box_xyxy) for c in candidates] + [(int(k), b) for k, b in detected_boxes]
         visibility = self._vicinity_search(keyframe_id, existing, seen, boxes, T_world_cam, camera, depth_m, changes)
         activated, deactivated = self._point_flag_changes(before)
+        if attached_on:
+            activated = np.unique(np.concatenate([activated, *attached_on]))
+        if attached_off:
+            deactivated = np.unique(np.concatenate([deactivated, *attached_off]))
         return AssociationResult(keyframe_id, tuple(assignments), tuple(new_ids), tuple(merged_ids), tuple(changes),
                                  activated, deactivated, visibility)
 

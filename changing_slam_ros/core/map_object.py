@@ -61,6 +61,17 @@ class ObjectMapConfig:
       160 px at 640x480, 10 px at 160x120. A fixed 100 px (the earlier default) never expected a 10 cm cup
       2.5 m away at 320x240 (under 100 px), so a removed cup was never missed and kept belief 0.5.
       `min_projected_area_px` (0: none) is an absolute floor for a detector with a fixed pixel minimum.
+    - `truncated_views`: a candidate whose box touches the image border (a close-up view cut by the
+      image) makes a new object when no mapped object of its class is within `ltda_threshold_m`; near one,
+      its map points are labelled with it and follow its active flag, but stay out of its centroid and box
+      and update no belief (`long_term_association`). §4.2 gives every map point created in a box its
+      MapObject, inactive until confirmed; without this an object seen only close up (its box cut by the
+      image bottom) had no MapObject and its map points stayed active for place recognition:
+      `one_chair_closeup` with the chair's keypoints passed as static closed the wrong loop on the moved
+      chair with the layer on (docs/changing_scenes.md, session 4). Off by default: on the six PUC-like
+      scenarios it deactivated many more map points (more objects at belief 0.5) and the one run each showed
+      camera ATE up to +2.6 cm (vanishing 3.8 -> 6.5 cm) and shift's chair centroid 5.7 -> 26.7 cm from its
+      volume centre (a chair first mapped from a cut view); off, cut views are skipped as before.
     Semantic map (§4.8):
     - `min_points`: objects with fewer points are left out of the semantic map and never merged into.
     - `semantic_min_belief`: the semantic map holds the objects with belief >= this (0.5: every object seen
@@ -91,6 +102,7 @@ class ObjectMapConfig:
     min_projected_area_px: float = 0.0
     min_points: int = 5
     semantic_min_belief: float = 0.5
+    truncated_views: bool = False
 
     def __post_init__(self) -> None:
         where = "objects"
@@ -159,6 +171,8 @@ class MapObject:
 
     `centroid_w` (3,) is the mean of `points_w`; `box_center_w` (3,) and `box_size_m` (3,) the robust
     world-axis-aligned box (see `box_extent`). Boxes are pixel (x_min, y_min, x_max, y_max).
+    `n_observations`: keyframes whose whole (untruncated) view went into the object; 0 for an object known
+    only from views cut by the image border so far.
     """
 
     id: int

@@ -255,12 +255,16 @@ class ObjectLayer:
         mo = self._for(slam_map.id)
         mo.lta.refresh_points(lambda ids: self._positions(mo, slam_map, ids))
         cands = self._candidates(mo, kf, slam_map, depth_m, short_term_objects)
-        flagged = [(int(o.class_id), tuple(float(v) for v in o.box_xyxy)) for o in short_term_objects if o.is_dynamic]
+        # every detection of the keyframe explains a miss away, also those that gave no candidate (flagged dynamic,
+        # or a cut box without map points)
+        flagged = [(int(o.class_id), tuple(float(v) for v in o.box_xyxy)) for o in short_term_objects]
+        was_active = {oid: obj.active for oid, obj in mo.lta.objects.items()}
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
                                       detected_boxes=flagged)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)
+        self._flip_labelled(mo, slam_map, was_active)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
         return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands), int((res.activated_point_ids >= 0).sum()),
@@ -287,7 +291,9 @@ class ObjectLayer:
             if self.config.band_map_points and band is not None:
                 near = np.abs(pts_c[:, 2] - band[0]) < band[1]
                 ids, pts_w, pts_c = ids[near], pts_w[near], pts_c[near]
-            if depth_m is not None and self.config.depth_samples > 0:
+            box = tuple(float(v) for v in o.box_xyxy)
+            truncated = box_truncated(box, kf.camera)  # type: ignore[arg-type]
+            if depth_m is not None and self.config.depth_samples > 0 and not truncated:
                 sample_c = box_depth_samples(depth_m, o.box_xyxy, kf.camera, self.config.depth_samples,
                                              self.config.depth_band_m)
                 sample_ids = np.arange(mo.next_sample_id, mo.next_sample_id - len(sample_c), -1, dtype=np.int64)
@@ -297,8 +303,7 @@ class ObjectLayer:
                 pts_w = np.vstack([pts_w, sample_c @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3]])
             if len(ids) == 0:
                 continue
-            box = tuple(float(v) for v in o.box_xyxy)
-            cand = ObjectCandidate(int(o.class_id), box, ids, pts_w, box_truncated(box, kf.camera))  # type: ignore[arg-type]
+            cand = ObjectCandidate(int(o.class_id), box, ids, pts_w, truncated)  # type: ignore[arg-type]
             out.append((cand, pts_c))
         return out
 
@@ -316,6 +321,19 @@ class ObjectLayer:
         objects = mo.lta.objects
         known = np.array([int(o) in objects for o in owner.tolist()], bool)
         pts.active[ids[known]] = [objects[int(o)].active for o in owner[known].tolist()]
+
+    @staticmethod
+    def _flip_labelled(mo: _MapObjects, slam_map: SlamMap, was_active: dict[int, bool]) -> None:
+        """Every live map point labelled with an object that changed state takes its flag, also the points of its
+        cut views that are not in its point set (`long_term_association`: truncated candidates)."""
+        flipped = [oid for oid, obj in mo.lta.objects.items() if oid in was_active and was_active[oid] != obj.active]
+        if not flipped:
+            return
+        pts = slam_map.points
+        n = pts.size
+        for oid in flipped:
+            sel = np.flatnonzero((pts.object_id[:n] == oid) & ~pts.bad[:n])
+            pts.active[sel] = mo.lta.objects[oid].active
 
     @staticmethod
     def _anchor(mo: _MapObjects, kf: Keyframe, cands: Sequence[tuple[ObjectCandidate, F64]],

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -22,6 +24,7 @@ LOOK_Z = np.eye(4)  # camera at the origin looking down world +z
 LOOK_AWAY = np.diag([-1.0, 1.0, -1.0, 1.0])  # looking down -z
 WALL = np.full((CAM.height, CAM.width), 5.0, np.float32)
 CHAIR, CUP = 56, 41
+CFG_CUT = dataclasses.replace(CFG, truncated_views=True)  # cut views' points belong to objects
 
 
 def _cand(centre: list[float], first_id: int, n: int = 20, class_id: int = CHAIR, seed: int = 0) -> ObjectCandidate:
@@ -233,3 +236,52 @@ def test_outcome_is_written_into_a_point_store_and_read_back_after_culling() -> 
     res = lta.process_keyframe(10, cands, LOOK_Z, CAM, WALL)
     apply_to_point_store(store, cands, res)
     assert lta.objects[0].active and store.active[ids[5:20]].all()
+
+
+def test_truncated_candidates_give_their_points_to_an_object_without_updating_its_belief() -> None:
+    """§4.2: map points created in a box belong to its MapObject and follow its active flag, also when the box is
+    cut by the image border (an object seen close up). A cut view with no mapped object of its class nearby
+    creates one (inactive); next to one, its points are labelled with it and take its flag, but stay out of its
+    point set (centroid, box), and its biased centroid neither updates the belief nor counts as a sighting."""
+    cut = _cand([0.0, 0.0, 1.0], 100)
+    cut = ObjectCandidate(CHAIR, (60, 40, 160, 120), cut.point_ids, cut.points_w, truncated=True)
+    lta = LongTermAssociation(CFG_CUT)
+    res = lta.process_keyframe(0, [cut], LOOK_Z, CAM, WALL)
+    assert res.new_object_ids == (0,) and res.assignments == (0,)
+    assert not lta.objects[0].active and res.deactivated_point_ids.tolist() == list(range(100, 120))
+    near = _cand([0.2, 0.0, 1.0], 200)
+    near_cut = ObjectCandidate(CHAIR, (60, 40, 160, 120), near.point_ids, near.points_w, truncated=True)
+    res = lta.process_keyframe(9, [near_cut], LOOK_Z, CAM, WALL)
+    obj = lta.objects[0]
+    assert res.assignments == (0,) and res.new_object_ids == () and res.belief_changes == ()
+    assert obj.n_points == 20 and obj.last_seen_keyframe == 0 and obj.belief == 0.5
+    np.testing.assert_allclose(obj.centroid_w, [0.0, 0.0, 1.0], atol=1e-12)
+    assert res.deactivated_point_ids.tolist() == list(range(200, 220))  # they take the object's flag
+    points = PointStore()
+    points.add(np.zeros((220, 3)), np.zeros((220, 32), np.uint8), 0, np.arange(220), np.zeros(3),
+               np.zeros(220, np.int64), np.ones(220))
+    apply_to_point_store(points, [near_cut], res)
+    assert (points.object_id[200:220] == 0).all() and not points.active[200:220].any() and points.active[:200].all()
+    res = lta.process_keyframe(10, [_cand([0.1, 0.0, 1.0], 300)], LOOK_Z, CAM, WALL)  # a whole view merges
+    assert res.merged_object_ids == (0,) and lta.objects[0].n_points == 40
+    off = LongTermAssociation(CFG)  # the default: cut views are skipped
+    res = off.process_keyframe(0, [cut], LOOK_Z, CAM, WALL)
+    assert res.assignments == (-1,) and not off.objects and res.deactivated_point_ids.size == 0
+    off.process_keyframe(1, [_cand([0.0, 0.0, 1.0], 400)], LOOK_Z, CAM, WALL)
+    res = off.process_keyframe(2, [near_cut], LOOK_Z, CAM, WALL)  # off: a cut view is not labelled either
+    assert res.assignments == (-1,) and res.deactivated_point_ids.size == 0
+
+
+def test_the_first_whole_view_of_an_object_known_from_cut_views_is_no_long_term_update() -> None:
+    """A glimpse at the image edge is no earlier visit: the object it created is first *seen* by its first whole
+    view, which therefore leaves the belief at 0.5; the next whole view after N keyframes is a long-term update."""
+    base = _cand([0.0, 0.0, 1.0], 100)
+    cut = ObjectCandidate(CHAIR, (60, 40, 160, 120), base.point_ids, base.points_w, truncated=True)
+    lta = LongTermAssociation(CFG_CUT)
+    lta.process_keyframe(0, [cut], LOOK_Z, CAM, WALL)
+    assert lta.objects[0].n_observations == 0
+    res = lta.process_keyframe(20, [_cand([0.05, 0.0, 1.0], 200)], LOOK_Z, CAM, WALL)
+    assert res.merged_object_ids == (0,) and res.belief_changes == () and lta.objects[0].belief == 0.5
+    assert lta.objects[0].n_observations == 1
+    res = lta.process_keyframe(40, [_cand([0.05, 0.0, 1.0], 300)], LOOK_Z, CAM, WALL)
+    assert [c.reason for c in res.belief_changes] == ["seen"] and lta.objects[0].belief > 0.5
