@@ -215,19 +215,12 @@ def _save_optimised(graph: bytes, cache_path: Path, settings: SessionSettings, p
     """Optimise `graph` at the portable `extended` level and write it to `cache_path` atomically."""
     import onnxruntime as ort
 
+    from changing_slam_ros.io.atomic import atomic_write_bytes
+
     cache_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{cache_path.name}.", suffix=".tmp", dir=cache_path.parent)
-    os.close(fd)
-    try:
+    with tempfile.TemporaryDirectory(prefix=f".{cache_path.name}.", dir=cache_path.parent) as tmp:
+        written = Path(tmp) / "optimised.onnx"  # onnxruntime writes the file itself, by path
         options = session_options(settings, level="extended")
-        options.optimized_model_filepath = tmp_name
+        options.optimized_model_filepath = str(written)
         ort.InferenceSession(graph, sess_options=options, providers=providers)
-        with open(tmp_name, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp_name, cache_path)
-    except BaseException:
-        try:
-            os.unlink(tmp_name)
-        except FileNotFoundError:
-            pass
-        raise
+        atomic_write_bytes(cache_path, written.read_bytes())
