@@ -32,6 +32,7 @@ def generate_launch_description() -> LaunchDescription:
     has_bag = PythonExpression(["'", bag, "' != ''"])
     sim_time = {"use_sim_time": use_sim_time}
     ack_topic = PythonExpression(["'/bag_player/ack' if '", lossless, "' == 'true' else ''"])
+    detections_wait = PythonExpression(["10.0 if '", lossless, "' == 'true' else 0.0"])
 
     return LaunchDescription([
         DeclareLaunchArgument("bag", default_value="", description="bag or mcap to replay; empty = live input"),
@@ -52,7 +53,8 @@ def generate_launch_description() -> LaunchDescription:
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
                           "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
-                          "detections_skip_late": real_time}, sim_time]),
+                          "detections_skip_late": real_time,
+                          "detections_wait_s": detections_wait}, sim_time]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
              parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file,
                          "map_out": map_out}, sim_time]),

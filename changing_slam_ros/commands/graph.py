@@ -75,7 +75,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--object-map", action=argparse.BooleanOptionalAction, default=True,
                         help="start the object_map node (default on)")
     parser.add_argument("--detections-wait", type=float, default=None, metavar="S",
-                        help="longest wait of tracking for a frame's detections (default 0.1 s; lossless 10 s)")
+                        help="longest wait of tracking for a frame's detections (default 0: real time tracks each frame "
+                             "with the detections already in for it, else the last ones propagated by the object EKFs; "
+                             "lossless 10 s)")
     parser.add_argument("--queue-depth", type=int, default=1, metavar="N",
                         help="colour/depth frames the middleware keeps for tracking while it is busy (default 1: "
                              "the newest only; real time tracks the newest frame, frame_policy latest)")
@@ -233,7 +235,7 @@ class Graph:
 
     def _build(self) -> None:
         a, info = self.args, self.info
-        wait = a.detections_wait if a.detections_wait is not None else (10.0 if a.lossless else 0.1)
+        wait = a.detections_wait if a.detections_wait is not None else (10.0 if a.lossless else 0.0)
         split = a.backend == "split"
         if a.object_map:
             remaps = {"/tracking/semantic_map": "/local_mapping/semantic_map"} if split else None

@@ -140,7 +140,8 @@ class TrackingNode(Node):
             ("loop_closing", True, "in-process backend: loop closing on (unless the config's loop.enabled is false)"),
             ("dynamic", "config", "dynamic-scene filter: config (the dynamic section's enabled), on, off"),
             ("objects", "config", "object layer (MapObjects, beliefs): config, on, off"),
-            ("detections_wait_s", 0.2, "longest wait for a frame's detections once detections are flowing"),
+            ("detections_wait_s", 0.0, "longest wait for a frame's detections once detections are flowing (0: real "
+                                          "time, track at once with what is in; lossless replay: long)"),
             ("detections_skip_late", False, "do not wait for a frame's detections while the last "
                                             "detections_late_window ones all came later than detections_wait_s "
                                             "(the wait could not succeed; it only added latency)"),
