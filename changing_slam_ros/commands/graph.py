@@ -389,6 +389,7 @@ class Graph:
             "local_mapping": _read_json(self.out / "local_mapping_stats.json"), "play_wall_s": play_s, "startup_s": up_s,
             "bag_duration_s": self.info.duration_s, "detection_node": self.detection,
             "frames_without_detections": stats.get("frames_without_detections"),
+            "frames_with_carried_detections": stats.get("frames_with_carried_detections"),
             "frames_dropped_stale": stats.get("frames_dropped_stale"),
             "frames_not_waited_for_late_detections": stats.get("frames_not_waited_for_late_detections"),
             "restarts": dict(self.restarts), "exit_codes": codes,

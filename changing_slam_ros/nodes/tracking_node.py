@@ -142,6 +142,12 @@ class TrackingNode(Node):
             ("objects", "config", "object layer (MapObjects, beliefs): config, on, off"),
             ("detections_wait_s", 0.0, "longest wait for a frame's detections once detections are flowing (0: real "
                                           "time, track at once with what is in; lossless replay: long)"),
+            ("detections_carry_max_age_s", 0.5, "a frame without its own detections uses the newest earlier ones "
+                                                "up to this old, boxes grown with their age (0 = never)"),
+            ("detections_carry_grow_widths_per_s", 1.0, "... each box grown per side by this many of its widths "
+                                                        "(heights) per second of age"),
+            ("detections_carry_class_ids", [0], "... only boxes of these COCO classes (person: a static object's "
+                                                "box carried while the camera turns only hides static keypoints)"),
             ("detections_skip_late", False, "do not wait for a frame's detections while the last "
                                             "detections_late_window ones all came later than detections_wait_s "
                                             "(the wait could not succeed; it only added latency)"),
@@ -185,6 +191,8 @@ class TrackingNode(Node):
         self._received_s: dict[int, float] = {}
         self._pending: deque[PendingFrame] = deque()
         self._detections_seen = False
+        self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
+        self.frames_with_carried_detections = 0
         self._finished = False
 
         self.backend: Any = None
@@ -321,9 +329,25 @@ class TrackingNode(Node):
             self.detection_delay_ms.append(delay_ms)
             self._recent_delays_ms.append(delay_ms)
         self.detections[ds.stamp_ns] = ds
+        if self._newest_detections is None or ds.stamp_ns > self._newest_detections.stamp_ns:
+            self._newest_detections = ds
         while len(self.detections) > 30:
             del self.detections[next(iter(self.detections))]
         self._drain()
+
+    def _carried_detections(self, stamp_ns: int) -> Any:
+        """The newest earlier detections for a frame that has none of its own (`core.late_detections`), or None."""
+        from changing_slam_ros.core.late_detections import CarryConfig, carried_forward
+
+        p = self.params
+        if self._newest_detections is None or p["detections_carry_max_age_s"] <= 0:
+            return None
+        cfg = CarryConfig(p["detections_carry_max_age_s"], p["detections_carry_grow_widths_per_s"],
+                          tuple(int(c) for c in p["detections_carry_class_ids"]))
+        carried = carried_forward(self._newest_detections, stamp_ns, cfg)
+        if carried is not None:
+            self.frames_with_carried_detections += 1
+        return carried
 
     def on_map_update(self, msg: MapUpdate) -> None:
         """Split backend: local_mapping's change of the map into the replica (in publication order)."""
@@ -465,17 +489,19 @@ class TrackingNode(Node):
             self._ack(item.rgb_msg.header)
             return
         dets = self.detections.pop(item.stamp_ns, None)
+        used = None if dets is None else dets.detections
         if dets is None and self.backend.wants_detections:
             self.frames_without_detections += 1
+            used = self._carried_detections(item.stamp_ns)
         packet = None
         if self.split is not None:
-            out, packet = self.split.process(frame, None if dets is None else dets.detections)
+            out, packet = self.split.process(frame, used)
             if out is None:  # a new map waits for its first points from local_mapping
                 self._warn_once("waiting_map", "tracking: a new map waits for its first map update; frames skipped")
                 self._ack(item.rgb_msg.header)
                 return
         else:
-            out = self.backend.system.process(frame, None if dets is None else dets.detections)
+            out = self.backend.system.process(frame, used)
         if out.state == TrackingState.OK and out.T_world_cam is not None:
             self.publish_pose(item.stamp_ns, out.T_world_cam)
             self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
@@ -592,6 +618,7 @@ class TrackingNode(Node):
             "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
             "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
             "frames_without_detections": self.frames_without_detections,
+            "frames_with_carried_detections": self.frames_with_carried_detections,
             "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
             "frames_not_waited_for_late_detections": self.frames_not_waited,
             "latency_ms_median": float(np.median(lat)) if lat.size else None,
