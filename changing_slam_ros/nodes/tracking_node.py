@@ -192,6 +192,10 @@ class TrackingNode(Node):
         self._pending: deque[PendingFrame] = deque()
         self._detections_seen = False
         self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
+        from changing_slam_ros.core.late_detections import CarryConfig
+
+        self._carry = CarryConfig(p["detections_carry_max_age_s"], p["detections_carry_grow_widths_per_s"],
+                                  tuple(int(c) for c in p["detections_carry_class_ids"]))
         self.frames_with_carried_detections = 0
         self._finished = False
 
@@ -337,14 +341,11 @@ class TrackingNode(Node):
 
     def _carried_detections(self, stamp_ns: int) -> Any:
         """The newest earlier detections for a frame that has none of its own (`core.late_detections`), or None."""
-        from changing_slam_ros.core.late_detections import CarryConfig, carried_forward
+        from changing_slam_ros.core.late_detections import carried_forward
 
-        p = self.params
-        if self._newest_detections is None or p["detections_carry_max_age_s"] <= 0:
+        if self._newest_detections is None or self._carry.max_age_s <= 0:
             return None
-        cfg = CarryConfig(p["detections_carry_max_age_s"], p["detections_carry_grow_widths_per_s"],
-                          tuple(int(c) for c in p["detections_carry_class_ids"]))
-        carried = carried_forward(self._newest_detections, stamp_ns, cfg)
+        carried = carried_forward(self._newest_detections, stamp_ns, self._carry)
         if carried is not None:
             self.frames_with_carried_detections += 1
         return carried
