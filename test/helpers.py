@@ -32,3 +32,15 @@ def spin_until(executor, condition: Callable[[], object], timeout_s: float = 10.
     while not condition() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
     return bool(condition())
+
+
+def lossless_player(ros_context, bag: Path):  # noqa: ANN001, ANN201 - rclpy types only where ROS is installed
+    """A bag_player node replaying `bag` at 2x, lossless (waits for tracking's ack of each colour frame)."""
+    from rclpy.parameter import Parameter
+
+    from changing_slam_ros.nodes.bag_player_node import BagPlayerNode
+
+    return BagPlayerNode(context=ros_context, parameter_overrides=[
+        Parameter("bag", value=str(bag)), Parameter("rate", value=2.0), Parameter("lossless", value=True),
+        Parameter("ack_topics", value=["/camera/rgb/image_color"]), Parameter("ack_timeout_s", value=60.0),
+    ])  # fmt: skip

@@ -27,9 +27,8 @@ from changing_slam_ros.eval.ate import ate  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory  # noqa: E402
 from changing_slam_ros.nodes import conversions as cv  # noqa: E402
-from changing_slam_ros.nodes.bag_player_node import BagPlayerNode  # noqa: E402
 from changing_slam_ros.nodes.tracking_node import TrackingNode  # noqa: E402
-from helpers import spin_until  # noqa: E402
+from helpers import lossless_player, spin_until  # noqa: E402
 
 
 def test_tracking_node_poses_on_the_fr1_bag_match_ground_truth_and_follow_rep105(ros_context, tmp_path):
@@ -42,10 +41,7 @@ def test_tracking_node_poses_on_the_fr1_bag_match_ground_truth_and_follow_rep105
         Parameter("in_process_backend", value=True),
         Parameter("output_dir", value=str(out)), Parameter("camera_frame", value="camera_link"),
     ])  # fmt: skip
-    player = BagPlayerNode(context=ros_context, parameter_overrides=[
-        Parameter("bag", value=str(bag)), Parameter("rate", value=2.0), Parameter("lossless", value=True),
-        Parameter("ack_topics", value=["/camera/rgb/image_color"]), Parameter("ack_timeout_s", value=60.0),
-    ])  # fmt: skip
+    player = lossless_player(ros_context, bag)
     probe = Node("probe", context=ros_context)
     poses: list[PoseStamped] = []
     tfs: list[TFMessage] = []
@@ -103,10 +99,7 @@ def test_tracking_node_uses_the_detections_stamped_for_each_frame(ros_context, t
         Parameter("in_process_backend", value=True),
         Parameter("detections_required", value=True), Parameter("detections_wait_s", value=30.0),
     ])  # fmt: skip
-    player = BagPlayerNode(context=ros_context, parameter_overrides=[
-        Parameter("bag", value=str(bag)), Parameter("rate", value=2.0), Parameter("lossless", value=True),
-        Parameter("ack_topics", value=["/camera/rgb/image_color"]), Parameter("ack_timeout_s", value=60.0),
-    ])  # fmt: skip
+    player = lossless_player(ros_context, bag)
     detector = Node("fake_detection", context=ros_context)
     det_pub = detector.create_publisher(DetectionArray, "/detection/detections", 10)
     waiting: list[Image] = []

@@ -23,9 +23,8 @@ from changing_slam_ros.core.trajectory import Trajectory  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 from changing_slam_ros.nodes import conversions as cv  # noqa: E402
-from changing_slam_ros.nodes.bag_player_node import BagPlayerNode  # noqa: E402
 from changing_slam_ros.nodes.tracking_node import TrackingNode  # noqa: E402
-from helpers import REPO, require, spin_until  # noqa: E402
+from helpers import REPO, lossless_player, require, spin_until  # noqa: E402
 
 
 @pytest.mark.parametrize("provisional", [True, False])
@@ -41,10 +40,7 @@ def test_split_tracking_without_a_map_owner_tracks_every_frame_only_with_provisi
         Parameter("provisional_points", value=provisional), Parameter("output_dir", value=str(out)),
         Parameter("loop_closing", value=False), Parameter("objects", value="off"),
     ])  # fmt: skip
-    player = BagPlayerNode(context=ros_context, parameter_overrides=[
-        Parameter("bag", value=str(bag)), Parameter("rate", value=2.0), Parameter("lossless", value=True),
-        Parameter("ack_topics", value=["/camera/rgb/image_color"]), Parameter("ack_timeout_s", value=60.0),
-    ])  # fmt: skip
+    player = lossless_player(ros_context, bag)
     probe = Node("probe", context=ros_context)
     poses: list[PoseStamped] = []
     keyframes: list[KeyframeMsg] = []
