@@ -22,6 +22,10 @@ On shutdown with `output_dir`: semantic_map.json and local_mapping_stats.json, w
 Service ~/save_map (SaveMap): the same file now, to the request's path or `map_out`.
 Multi-session (`map_file`, a `changing-slam run` map.npz): the map and the saved objects (decayed beliefs) are
 loaded before the first keyframe and the loaded semantic map is published at once (object_map starts from it).
+Service ~/load_map (LoadMap): the same mid-run. The file is loaded and checked into a new map owner first (a bad
+path or file: success false, the message names the file and field, the running map untouched); then it replaces
+the map, a load marker on ~/map_updates makes tracking and loop_closing load the same file, and keyframes and
+loop corrections made before they did are dropped (`nodes/map_load.py`).
 """
 
 from __future__ import annotations
@@ -41,11 +45,12 @@ from sensor_msgs.msg import PointCloud2, PointField
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection, MapObjectArray, MapUpdate, ObjectStateArray
-from changing_slam_msgs.srv import SaveMap
+from changing_slam_msgs.srv import LoadMap, SaveMap
 from changing_slam_ros.core.map_replication import KeyframePacket, LoopResult
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import make_header
 from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
+from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, marker_of, update_marker
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.replication_conversions import loop_result_from_msg, packet_from_msg, update_to_msg
 
@@ -87,7 +92,8 @@ class LocalMappingNode(Node):
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import MapOwner
 
-        self.owner = MapOwner.build(load_backend_config(p["config"]), objects=p["objects"])
+        self.cfg = load_backend_config(p["config"])
+        self.owner = MapOwner.build(self.cfg, objects=p["objects"])
         if p["map_file"]:
             from changing_slam_ros.io.map_file import load_map
 
@@ -104,6 +110,8 @@ class LocalMappingNode(Node):
         self.queue_ms: list[float] = []
         self._last_cloud_s = -1e9
         self._finished = False
+        self.epochs = LoadEpochs.of("keyframes", "loops")  # ~/load_map: which messages belong to the loaded map
+        self.loads = 0
         self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, keyframe_qos)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
@@ -120,19 +128,23 @@ class LocalMappingNode(Node):
         self._started_s = time.monotonic()
         self.create_timer(0.1, self._drain, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.create_service(SaveMap, "~/save_map", self.on_save_map)
+        self.create_service(LoadMap, "~/load_map", self.on_load_map)
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
-        if p["map_file"] and self.owner.backend.objects is not None:  # object_map starts from the loaded objects
-            from changing_slam_ros.nodes.object_map_node import semantic_map_to_msg
-
-            smap = self.owner.backend.objects.semantic_map(self.owner.atlas.current.id, include_inactive=True)
-            self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(0, p["map_frame"])))
+        if p["map_file"]:  # object_map starts from the loaded objects
+            self._publish_semantic_map(0)
         layer = "on" if self.owner.backend.objects is not None else "off"
         self.get_logger().info(f"local_mapping: started (owns the map; object layer {layer}; "
                                f"wait_for_loop_results {p['wait_for_loop_results']})")  # fmt: skip
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_keyframe(self, msg: KeyframeMsg) -> None:
+        marker = marker_of(msg, msg.id)
+        if marker is not None:  # tracking loaded the map: its packets from here on are of the loaded map
+            self.epochs.on_marker("keyframes", marker)
+            return
+        if not self.epochs.current("keyframes"):
+            return  # made on the map before ~/load_map
         try:
             packet = packet_from_msg(msg, "/tracking/keyframes")
         except (SlamError, ValueError) as err:
@@ -145,6 +157,12 @@ class LocalMappingNode(Node):
         self._drain()
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
+        marker = marker_of(msg, msg.query_keyframe_id)
+        if marker is not None:
+            self.epochs.on_marker("loops", marker)
+            return
+        if not self.epochs.current("loops"):
+            return  # a verdict on loop closing's replica of the map before ~/load_map
         try:
             result = loop_result_from_msg(msg, "/loop_closing/loop_corrections")
         except (SlamError, ValueError) as err:
@@ -170,6 +188,53 @@ class LocalMappingNode(Node):
         except (SlamError, OSError) as err:
             response.success, response.message = False, f"local_mapping: map not saved to {path}: {err}"
         return response
+
+    def on_load_map(self, request: Any, response: Any) -> Any:
+        """~/load_map: continue from a saved map (see the module doc)."""
+        path = request.path
+        try:
+            self.load_map(path)
+        except (SlamError, OSError, ValueError) as err:
+            response.success, response.message = False, f"local_mapping: map not loaded (running map kept): {err}"
+            self.get_logger().error(response.message)
+            return response
+        atlas = self.owner.atlas
+        response.success = True
+        response.message = (f"local_mapping: {atlas.n_keyframes} keyframes in {len(atlas.maps)} maps loaded from "
+                            f"{path}; tracking and loop_closing load it on the marker")  # fmt: skip
+        self.get_logger().info(response.message)
+        return response
+
+    def load_map(self, path: str) -> None:
+        """Replace the map with the file's (checked into a new owner first: on error nothing changes), then
+        announce the load to tracking and loop_closing and publish the loaded semantic map and cloud."""
+        from changing_slam_ros.io.map_file import load_map
+        from changing_slam_ros.nodes.split_backend import MapOwner
+
+        if not path:
+            raise SlamError("LoadMap request: path is empty")
+        owner = MapOwner.build(self.cfg, objects=self.params["objects"])
+        owner.start_from_map(load_map(path))
+        self.owner = owner
+        self.queue.clear()  # keyframes of the replaced map
+        self.awaiting_loop_for = -1
+        if not self.resync.ready:
+            self.resync.skip()
+        marker = LoadMarker(max(time.time_ns(), self.epochs.epoch_ns + 1), str(path))
+        self.epochs.adopt(marker)
+        self.loads += 1
+        self.update_pub.publish(update_marker(marker))
+        self._publish_semantic_map(0)
+        self._last_cloud_s = -1e9
+        self._publish_cloud(0)
+
+    def _publish_semantic_map(self, stamp_ns: int) -> None:
+        if self.owner.backend.objects is None:
+            return
+        from changing_slam_ros.nodes.object_map_node import semantic_map_to_msg
+
+        smap = self.owner.backend.objects.semantic_map(self.owner.atlas.current.id, include_inactive=True)
+        self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(stamp_ns, self.params["map_frame"])))
 
     def save_map(self, path: Path) -> None:
         """The owner's Atlas and object layer (MapObjects, beliefs), atomically (`io.map_file.save_map`)."""
@@ -210,11 +275,8 @@ class LocalMappingNode(Node):
         self.update_pub.publish(update_to_msg(update, kf.stamp_ns, frame))
         if self.params["wait_for_loop_results"]:
             self.awaiting_loop_for = kf.id
-        if update.objects_ran and self.owner.backend.objects is not None:
-            from changing_slam_ros.nodes.object_map_node import semantic_map_to_msg
-
-            smap = self.owner.backend.objects.semantic_map(self.owner.atlas.current.id, include_inactive=True)
-            self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(kf.stamp_ns, frame)))
+        if update.objects_ran:
+            self._publish_semantic_map(kf.stamp_ns)
         self._publish_cloud(kf.stamp_ns)
         now = time.monotonic()
         self.process_ms.append((now - t0) * 1e3)
@@ -253,6 +315,7 @@ class LocalMappingNode(Node):
             "keyframes_mapped": len(t["mapping"]), "keyframes_queued": len(self.queue), "loops_applied": self.loops_applied,
             "map_points": int(self.owner.atlas.current.points.usable().sum()),
             "keyframes_in_map": self.owner.atlas.n_keyframes, "restored_keyframes": self.resync.restored_keyframes,
+            "map_loads": self.loads, "dropped_before_load": self.epochs.dropped,
         }  # fmt: skip
         out.update(summarise_ms(self.process_ms, "keyframe"))
         out.update(summarise_ms(self.process_cpu_ms, "keyframe_cpu"))

@@ -12,6 +12,11 @@ pose graph, fusion (and global BA when configured). It answers every keyframe wi
 Inputs: /tracking/keyframes (Keyframe, reliable), /local_mapping/map_updates (MapUpdate, reliable),
   /object_map/object_states (inactive points reach place recognition through the map updates' active flags)
 Output: ~/loop_corrections (LoopCorrection, reliable), /diagnostics
+
+LoadMap mid-run (local_mapping's ~/load_map): on the owner's load marker (or tracking's, whichever comes first)
+the replica and keyframe database start afresh from the marker's map file (`LoopSide.start_from_map`, as with
+`map_file`), a marker goes out on ~/loop_corrections, and packets and updates made before their sender loaded
+are dropped (`nodes/map_load.py`).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from changing_slam_msgs.msg import MapUpdate, ObjectStateArray
 from changing_slam_ros.core.map_replication import MapUpdate as MapUpdateData
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
+from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, loop_marker, marker_of
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.replication_conversions import loop_result_to_msg, packet_from_msg, update_from_msg
 
@@ -53,13 +59,15 @@ class LoopClosingNode(Node):
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import LoopSide, object_layer_for
 
-        cfg = load_backend_config(p["config"])
+        self.cfg = cfg = load_backend_config(p["config"])
         self.side = LoopSide.build(cfg)
         if p["map_file"] and self.side is not None:
             from changing_slam_ros.io.map_file import load_map
 
             self.side.start_from_map(load_map(p["map_file"]), object_layer_for(cfg, p["objects"]))
             self.get_logger().info(f"loop_closing: {self.side.atlas.n_keyframes} keyframes loaded from {p['map_file']}")
+        self.epochs = LoadEpochs.of("keyframes", "updates")  # local_mapping's ~/load_map (see nodes/map_load.py)
+        self.loads = 0
         self.keyframes_in = 0
         self.updates_in = 0
         self.rejected = 0
@@ -81,6 +89,12 @@ class LoopClosingNode(Node):
         self.get_logger().info(f"loop_closing: started (loop closing {state})")
 
     def on_keyframe(self, msg: KeyframeMsg) -> None:
+        marker = marker_of(msg, msg.id)
+        if marker is not None:
+            self._on_marker("keyframes", marker)
+            return
+        if not self.epochs.current("keyframes"):
+            return  # a packet of the map before the load
         try:
             packet = packet_from_msg(msg, "/tracking/keyframes")
         except (SlamError, ValueError) as err:
@@ -98,6 +112,12 @@ class LoopClosingNode(Node):
         self._drain()
 
     def on_map_update(self, msg: MapUpdate) -> None:
+        marker = marker_of(msg, msg.keyframe_id)
+        if marker is not None:
+            self._on_marker("updates", marker)
+            return
+        if not self.epochs.current("updates"):
+            return  # the old owner's change of the map before the load
         try:
             update = update_from_msg(msg, "/local_mapping/map_updates")
         except (SlamError, ValueError) as err:
@@ -110,6 +130,30 @@ class LoopClosingNode(Node):
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # active flags arrive with the map updates (the object layer runs in local_mapping)
+
+    def _on_marker(self, stream: str, marker: LoadMarker) -> None:
+        """A load announced on `stream`: the first announcement of a newer load resets the replica to its file."""
+        if not self.epochs.on_marker(stream, marker):
+            return
+        from changing_slam_ros.io.map_file import load_map
+        from changing_slam_ros.nodes.split_backend import LoopSide, object_layer_for
+
+        self.epochs.adopt(marker)
+        self.updates.clear()
+        if not self.resync.ready:
+            self.resync.skip()
+        side = LoopSide.build(self.cfg)
+        if side is not None:
+            try:
+                side.start_from_map(load_map(marker.path), object_layer_for(self.cfg, self.params["objects"]))
+            except (SlamError, OSError, ValueError) as err:  # local_mapping loaded it: the file changed since
+                self.get_logger().error(f"loop_closing: map {marker.path} not loaded ({err}); starting empty")
+                side = LoopSide.build(self.cfg)
+        self.side = side
+        self.loads += 1
+        self.correction_pub.publish(loop_marker(marker))
+        n = 0 if side is None else side.atlas.n_keyframes
+        self.get_logger().info(f"loop_closing: {n} keyframes loaded from {marker.path} (LoadMap)")
 
     def _restore(self, keyframes: list[Any], delta: Any) -> None:
         if self.side is not None:
@@ -152,7 +196,8 @@ class LoopClosingNode(Node):
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {"keyframes_received": self.keyframes_in, "updates_received": self.updates_in,
                                "updates_waiting": len(self.updates), "rejected": self.rejected, "loops_closed": self.loops,
-                               "restored_keyframes": self.resync.restored_keyframes}  # fmt: skip
+                               "restored_keyframes": self.resync.restored_keyframes, "map_loads": self.loads,
+                               "dropped_before_load": self.epochs.dropped}  # fmt: skip
         out.update(summarise_ms(self.process_ms, "keyframe"))
         return out
 

@@ -27,7 +27,11 @@ all came later than `detections_wait_s` (a detector slower than the wait), frame
 waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again.
 Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto` follows the config's
 `dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults). `map_file`: multi-session
-(`SlamSystem.start_from_map`; see `nodes/split_backend.py`).
+(`SlamSystem.start_from_map`; see `nodes/split_backend.py`). LoadMap mid-run (local_mapping's ~/load_map, split
+backend): on the owner's load marker the replica starts afresh from the marker's map file, as with `map_file`
+(relocalising in the loaded map first; the path restarts in its frame; the trajectory so far is written as
+trajectory_online_before_load_<n>.txt), a marker goes out on ~/keyframes, and map updates and loop verdicts
+made before their sender loaded are dropped (`nodes/map_load.py`).
 
 With `dynamic.movers` on in the config: ~/moving_objects (MovingObjectArray) and ~/moving_object_markers
 (MarkerArray), every `moving_objects_period_s` and at the end; moving_objects.json on shutdown.
@@ -88,6 +92,7 @@ from changing_slam_ros.nodes.conversions import (
     rgb_to_image,
     stamp_to_ns,
 )
+from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, keyframe_marker, marker_of
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 
@@ -208,11 +213,15 @@ class TrackingNode(Node):
         self._awaiting: dict[str, Any] | None = None  # wait_for_map_updates: what the held ack waits for
         self._kf_sent_s: dict[int, float] = {}
         self._relays_seen: set[int] = set()
+        self.epochs = LoadEpochs.of("updates", "loops")  # local_mapping's ~/load_map (see nodes/map_load.py)
+        self._before_load: list[Any] = []  # online trajectories of the maps replaced by a LoadMap
+        self.loads = 0
+        self._cfg: Any = None
         intrinsics_from = p["intrinsics_from"]
         if p["slam"]:
             from changing_slam_ros.nodes.slam_backend import build_backend, config_camera, intrinsics_source, load_backend_config
 
-            cfg = load_backend_config(p["config"])
+            self._cfg = cfg = load_backend_config(p["config"])
             if p["in_process_backend"]:
                 self.backend = build_backend(cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"])
             else:
@@ -224,7 +233,8 @@ class TrackingNode(Node):
                 self.backend = self.split.backend
                 from changing_slam_ros.nodes.map_resync import ResyncServer
 
-                self.resync = ResyncServer(self, self.split.snapshot, p["map_frame"], self._resend_unmapped)
+                # lambdas: a LoadMap replaces self.split
+                self.resync = ResyncServer(self, lambda: self.split.snapshot(), p["map_frame"], self._resend_unmapped)
             if p["map_file"]:
                 self._start_from_map(cfg, p["map_file"])
             if intrinsics_from == "auto":
@@ -354,6 +364,12 @@ class TrackingNode(Node):
         """Split backend: local_mapping's change of the map into the replica (in publication order)."""
         if self.split is None:
             return
+        marker = marker_of(msg, msg.keyframe_id)
+        if marker is not None:
+            self._on_marker("updates", marker)
+            return
+        if not self.epochs.current("updates"):
+            return  # the owner's change of the map it held before ~/load_map
         from changing_slam_ros.nodes.replication_conversions import update_from_msg
 
         try:
@@ -376,16 +392,56 @@ class TrackingNode(Node):
 
     def _resend_unmapped(self) -> None:
         """After a map snapshot: keyframes sent but not mapped (local_mapping was down) go out again."""
-        from changing_slam_ros.nodes.replication_conversions import packet_to_msg
-
         for packet in self.split.resend():
-            self.keyframe_pub.publish(packet_to_msg(packet, self.params["map_frame"]))
+            self._send_packet(packet, resend=True)
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
         """Split backend: loop_closing's verdict; a closed loop reaches the replica through local_mapping's update."""
         if self.split is None:
             return
+        marker = marker_of(msg, msg.query_keyframe_id)
+        if marker is not None:
+            self._on_marker("loops", marker)
+            return
+        if not self.epochs.current("loops"):
+            return  # a verdict on the map before ~/load_map
         self._settle(verdict=int(msg.query_keyframe_id), closed=bool(msg.closed))
+
+    def _on_marker(self, stream: str, marker: LoadMarker) -> None:
+        """A load announced on `stream` (local_mapping's ~/load_map): the first announcement of a newer load
+        replaces the replica with the marker's file (`TrackingSide.start_from_map`: relocalise in it first)."""
+        if not self.epochs.on_marker(stream, marker):
+            return
+        from changing_slam_ros.io.map_file import load_map
+        from changing_slam_ros.nodes.split_backend import TrackingSide, object_layer_for
+
+        p, old = self.params, self.split
+        side = TrackingSide.build(self._cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"],
+                                  provisional=old.provisional is not None)  # fmt: skip
+        try:
+            side.start_from_map(load_map(marker.path), object_layer_for(self._cfg, p["objects"]))
+        except (SlamError, OSError, ValueError) as err:  # local_mapping loaded it: the file changed since
+            self.get_logger().error(f"tracking: map {marker.path} not loaded ({err}); starting a new map")
+            side = TrackingSide.build(self._cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"],
+                                      provisional=old.provisional is not None)  # fmt: skip
+        if old.system.records:
+            self._before_load.append(old.system.online_trajectory())
+        self.split, self.backend = side, side.backend
+        if self.movers is not None and side.backend.dynamic is not None:
+            self.movers = side.backend.dynamic.movers
+        self.epochs.adopt(marker)
+        self.loads += 1
+        self.path.poses = []  # the path goes on in the loaded map's frame
+        self._kf_sent_s.clear()
+        self._relays_seen.clear()
+        self.keyframe_pub.publish(keyframe_marker(marker))
+        atlas = side.system.atlas
+        self.get_logger().info(f"tracking: {atlas.n_keyframes} keyframes in {len(atlas.maps)} maps loaded from "
+                               f"{marker.path} (LoadMap); relocalising in map {atlas.current.id}")  # fmt: skip
+        if self._awaiting is not None:  # its update and verdict will not come: the old map is gone
+            held, self._awaiting = self._awaiting["header"], None
+            self._ack(held)
+        self._drain()
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # Point activity comes from the object layer (in local_mapping, or in-process), not from object_map.
@@ -529,12 +585,14 @@ class TrackingNode(Node):
             self._ack(item.rgb_msg.header)
 
     # -- outputs --------------------------------------------------------------------------------
-    def _send_packet(self, packet: Any) -> None:
-        """A keyframe packet to local_mapping and loop_closing (~/keyframes)."""
+    def _send_packet(self, packet: Any, resend: bool = False) -> None:
+        """A keyframe packet to local_mapping and loop_closing (~/keyframes). The map-update latency counts from
+        the first send (`resend`: again after a map snapshot, for a restarted owner; the clock is not restarted)."""
         from changing_slam_ros.nodes.replication_conversions import packet_to_msg
 
         msg = packet_to_msg(packet, self.params["map_frame"])
-        self._kf_sent_s[packet.keyframe.id] = time.monotonic()
+        if not resend:
+            self._kf_sent_s[packet.keyframe.id] = time.monotonic()
         self.keyframe_pub.publish(msg)
 
     def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
@@ -638,8 +696,22 @@ class TrackingNode(Node):
             "provisional_points_replaced": prov.n_replaced if prov is not None else None,
             "provisional_points_dropped": prov.n_dropped if prov is not None else None,
             "moving_objects_messages": self.moving_objects_published,
+            "map_loads": self.loads,
+            "load_relocalised_after_s": self._relocalised_after_load_s(),
+            "dropped_before_load": self.epochs.dropped,
             "latency_ms": [round(float(v), 2) for v in lat],
         }  # fmt: skip
+
+    def _relocalised_after_load_s(self) -> float | None:
+        """After a LoadMap: seconds (frame stamps) from the first frame tracked after it to the frame that
+        relocalised in the loaded map; None before a load or while not relocalised."""
+        if not self.epochs.epoch_ns or self.split is None:
+            return None
+        system = self.split.system
+        i = system.tracker.loaded_map_relocalised_index
+        if i < 0 or not system.records:
+            return None
+        return (system.records[i].stamp_ns - system.records[0].stamp_ns) * 1e-9
 
     def diagnostic_values(self) -> dict[str, Any]:
         """Counts and latencies for /diagnostics (no per-frame lists)."""
@@ -670,6 +742,12 @@ class TrackingNode(Node):
 
         out_dir = Path(self.params["output_dir"])
         written = write_backend_outputs(out_dir, self.backend, self.stats())
+        if self._before_load:
+            from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
+
+            for i, traj in enumerate(self._before_load):  # other frames than trajectory.txt's: kept apart
+                write_tum_trajectory(out_dir / f"trajectory_online_before_load_{i}.txt", traj)
+                written.append(out_dir / f"trajectory_online_before_load_{i}.txt")
         if self.movers is not None:
             from changing_slam_ros.io.moving_objects_file import INDEX_NAME, write_moving_objects
 
