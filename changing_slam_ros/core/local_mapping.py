@@ -20,6 +20,9 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.backend.local_ba import LocalBAConfig, LocalBAResult, local_bundle_adjust
 from changing_slam_ros.core.keyframe import Keyframe
+from changing_slam_ros.core.keyframe_segmentation import (
+    KeyframeSegmentationConfig, KeyframeSegmentationResult, segment_keyframe_window,
+)
 from changing_slam_ros.core.map_fusion import fuse_into, refresh_points
 from changing_slam_ros.core.map_merging import MergeConfig
 from changing_slam_ros.core.orb_features import FeatureConfig
@@ -41,6 +44,8 @@ class MappingConfig:
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
     - `triangulation`: points from depth-less keypoints (nested section, see `TriangulationConfig`).
     - `merge`: welding two maps of the Atlas that share a place (nested section, see `map_merging.MergeConfig`).
+    - `segmentation`: moving points over the last keyframes, culled before local BA (slow movers, Dai et al.;
+      nested section, see `keyframe_segmentation`; off by default).
     """
 
     max_new_point_depth_m: float = 6.0
@@ -57,6 +62,7 @@ class MappingConfig:
     fuse_radius_px: float = 3.0
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)
+    segmentation: KeyframeSegmentationConfig = field(default_factory=KeyframeSegmentationConfig)
 
 
 @dataclass
@@ -67,6 +73,7 @@ class MappingStats:
     culled_points: int = 0
     culled_keyframes: list[int] = field(default_factory=list)
     ba: LocalBAResult | None = None
+    segmentation: KeyframeSegmentationResult | None = None
 
 
 class LocalMapper:
@@ -107,6 +114,9 @@ class LocalMapper:
             m.update_connections(kf.id)
         # 3. Recent point culling.
         stats.culled_points = self._cull_points(kf.id)
+        # 3a. Moving points over the last keyframes culled (slow movers; `keyframe_segmentation`).
+        if self.cfg.segmentation.enabled:
+            stats.segmentation = segment_keyframe_window(m, kf.id, self.cfg.segmentation)
         # 4. Local BA.
         if self.cfg.local_ba and len(m.keyframes) > 1:
             stats.ba = local_bundle_adjust(m, kf.id, self.ba_config())
