@@ -15,7 +15,9 @@ each corner show it as large and from the same side (more than 30 % of the image
 sees the old place empty (second east side) before it reaches the new one (second north side);
 `one_chair_closeup_static` keeps the chair at the first corner (its control). `office_xyz` is `walking_xyz` without people (its control). Dai-like
 `unknown_mover`: a box of no COCO class carried by hand in front of a nearly still camera
-(`unknown_mover_control`: the same scene and camera path, the box left on the table).
+(`unknown_mover_control`: the same scene and camera path, the box left on the table). `slow_mover`: a
+larger box pushed slowly (3 cm/s) along the table, for the local-mapping (multi-frame) segmentation
+(`slow_mover_control`: the box stays).
 `walking_changing`: a short panning shot with a walker and an out-of-view move (the sample bag).
 
 A seed jitters placements, walking paths, speeds and motion phases; the same seed gives the same scenario.
@@ -40,7 +42,7 @@ from changing_slam_ros.sim.motions import carried_by_hand, changed, seated, walk
 from changing_slam_ros.sim.renderer import fovy_for_focal, intrinsics_for
 from changing_slam_ros.sim.room import default_room
 from changing_slam_ros.sim.scene import Room
-from changing_slam_ros.sim.track import Track, pose_xyz_rpy, function_track
+from changing_slam_ros.sim.track import PoseKey, Track, pose_xyz_rpy, function_track
 
 F64 = npt.NDArray[np.float64]
 
@@ -405,6 +407,42 @@ def _unknown_mover(seed: int, carried: bool = True) -> Scenario:
                     preview_t_s=8.0)
 
 
+SLOW_MOVER_SPEED_M_S = 0.03  # a box pushed along the table: 1 mm per frame at 30 Hz, 3 cm per second
+
+
+def _slow_mover(seed: int, pushed: bool = True) -> Scenario:
+    """A box of no COCO class pushed slowly along the table (`SLOW_MOVER_SPEED_M_S`, with a slow quarter turn)
+    from 4 s to 20 s in front of a nearly still camera, the rest of the time at rest. Between two frames 0.1 s
+    apart it moves 3 mm (about 1.3 px at 1.6 m): below what the two-frame segmentation can tell from noise;
+    across keyframes a second apart it is several centimetres. `pushed` False: the control, the box stays at
+    its start."""
+    rng = np.random.default_rng(seed)
+    duration_s = 24.0
+    actors = _office(rng)
+    table = actors[0].track.pose_at(0.0)
+    assert table is not None
+    push_from_s, push_to_s = 4.0, 20.0
+    length_m = SLOW_MOVER_SPEED_M_S * (push_to_s - push_from_s)
+    half = (0.12, 0.16, 0.11)  # a larger parcel than unknown_mover's, so that it carries many keypoints
+    y0 = -0.05 + _jit(rng, 0.05)
+    start = _on(table, 0.77 + half[2], 0.05, y0 + 0.5 * length_m, 0.2)
+    end = _on(table, 0.77 + half[2], 0.05, y0 - 0.5 * length_m, 0.2 + np.radians(25.0))
+    box = Track.static(start)
+    if pushed:
+        box = Track([PoseKey(0.0, start), PoseKey(push_from_s, start), PoseKey(push_to_s, end),
+                     PoseKey(duration_s, end)])
+    actors.append(Actor("parcel", -1, (cat.Part(half, (0.0, 0.0, 0.0), "plastic_blue", None),), box,
+                        moving=pushed))
+    hand = HandHeld((0.0, 0.3, 1.3), (0.0, 1.9, 0.85), phase=float(rng.uniform(0, 2 * np.pi)))
+    if not pushed:
+        return Scenario("slow_mover_control", "slow_mover without the push: the box stays where it starts "
+                        "(the control for slow_mover)", default_room(), tuple(actors),
+                        nearly_static(hand, duration_s), (), duration_s, 30.0, preview_t_s=12.0)
+    return Scenario("slow_mover", "a box of no COCO class pushed slowly (3 cm/s) along the table in front of a "
+                    "nearly still camera: too slow for the two-frame segmentation", default_room(), tuple(actors),
+                    nearly_static(hand, duration_s), (), duration_s, 30.0, preview_t_s=12.0)
+
+
 def _walking_changing(seed: int) -> Scenario:
     """15 s: a person walks past the table; the camera pans to the east wall and back, and meanwhile the
     chair and the cup by the table are moved."""
@@ -505,6 +543,10 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                                   _unknown_mover),
     "unknown_mover_control": ScenarioInfo("unknown_mover with the box left on the table (its control)",
                                           lambda seed: _unknown_mover(seed, carried=False)),
+    "slow_mover": ScenarioInfo("a box of no COCO class pushed slowly along the table (local-mapping segmentation)",
+                               _slow_mover),
+    "slow_mover_control": ScenarioInfo("slow_mover with the box left where it starts (its control)",
+                                       lambda seed: _slow_mover(seed, pushed=False)),
     "walking_changing": ScenarioInfo("15 s pan with a walker and an out-of-view move (the sample bag)",
                                      _walking_changing),
 }
