@@ -118,7 +118,7 @@ class PointStore:
         return ~self.bad[: self.size] & self.active[: self.size]
 
     def n_obs(self, ids: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
-        return np.array([len(self.observations[i]) for i in ids], dtype=np.int64)
+        return np.array([len(self.observations[i]) for i in ids.tolist()], dtype=np.int64)
 
     def found_ratio(self, ids: npt.NDArray[np.int64]) -> F64:
         return self.n_found[ids] / np.maximum(self.n_visible[ids], 1)
