@@ -23,7 +23,15 @@ TH_LOW = 50
 
 def hamming(a: npt.NDArray[np.uint8], b: npt.NDArray[np.uint8]) -> I64:
     """Hamming distance between descriptors a (..., 32) and b (..., 32), broadcast; result (...)."""
+    if _as_words(a) and _as_words(b):  # the same bit count over 64-bit words: a quarter of the elements
+        a, b = a.view(np.uint64), b.view(np.uint64)
     return np.bitwise_count(np.bitwise_xor(a, b)).sum(axis=-1, dtype=np.int64)
+
+
+def _as_words(d: npt.NDArray[np.uint8]) -> bool:
+    """Whether the bytes of `d`'s last axis can be viewed as 64-bit words (contiguous, whole words)."""
+    return (d.dtype == np.uint8 and d.ndim >= 1 and d.shape[-1] % 8 == 0 and d.strides[-1] == 1
+            and all(s % 8 == 0 for s in d.strides[:-1]))
 
 
 @dataclass(frozen=True)

@@ -108,12 +108,15 @@ class OrbExtractor:
         kps, desc = self._orb.detectAndCompute(gray, None)
         if desc is None or len(kps) == 0:
             return _empty_features()
-        pts = np.array([k.pt for k in kps], dtype=np.float64)
+        # Positions through OpenCV's converter (float32, as KeyPoint stores them); the per-keypoint Python
+        # attribute reads, the slow part, only for what bucketing needs (responses) and what it keeps.
+        pts = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
         resp = np.array([k.response for k in kps], dtype=np.float64)
-        octv = np.array([k.octave for k in kps], dtype=np.int64)
-        ang = np.array([k.angle for k in kps], dtype=np.float64)
         keep = self._bucket(pts, resp, gray.shape[1], gray.shape[0])
-        pts, resp, octv, ang, desc = pts[keep], resp[keep], octv[keep], ang[keep], desc[keep]
+        kept = [kps[i] for i in keep.tolist()]
+        octv = np.array([k.octave for k in kept], dtype=np.int64)
+        ang = np.array([k.angle for k in kept], dtype=np.float64)
+        pts, resp, desc = pts[keep], resp[keep], desc[keep]
         und = self._undistort(pts)
         depths = self._lookup_depth(pts, depth_m)
         u_right = np.where(depths > 0, und[:, 0] - self.config.bf_m_px / np.maximum(depths, 1e-9), -1.0)
@@ -131,10 +134,16 @@ class OrbExtractor:
         starts = np.searchsorted(sorted_cell, np.arange(n_cells))
         rank = np.arange(len(order)) - starts[sorted_cell]
         # Raise the per-cell quota until the budget is met (empty cells give their share away).
+        # The smallest quota >= n_features // n_cells whose capped counts reach the budget (at most the
+        # fullest cell's count): all candidate quotas at once rather than one at a time.
         quota = max(1, cfg.n_features // n_cells)
         counts = np.bincount(cell, minlength=n_cells)
-        while np.minimum(counts, quota).sum() < cfg.n_features and quota < counts.max():
-            quota += 1
+        top = int(counts.max())
+        if top > quota:
+            quotas = np.arange(quota, top + 1)
+            kept = np.minimum(counts[None, :], quotas[:, None]).sum(axis=1)
+            enough = np.flatnonzero(kept >= cfg.n_features)
+            quota = int(quotas[enough[0]]) if len(enough) else top
         chosen = order[rank < quota]
         if len(chosen) > cfg.n_features:
             chosen = chosen[np.argsort(-resp[chosen], kind="stable")[: cfg.n_features]]

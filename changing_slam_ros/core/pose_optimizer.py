@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -19,6 +21,11 @@ F64 = npt.NDArray[np.float64]
 
 CHI2_MONO = 5.991
 CHI2_STEREO = 7.815
+
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+_DAMPING = 1e-9 * np.eye(6)
+_DAMPING.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -56,13 +63,14 @@ class PoseResult:
 
 def so3_exp(omega: F64) -> F64:
     """Rotation matrix (3, 3) of a rotation vector (3,) (Rodrigues)."""
-    theta = float(np.linalg.norm(omega))
-    k = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]])
+    theta = math.sqrt(omega.dot(omega))  # = np.linalg.norm(omega), without its dispatch
+    w0, w1, w2 = omega.tolist()
+    k = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
     if theta < 1e-10:
-        return np.eye(3) + k
+        return _EYE3 + k
     a = np.sin(theta) / theta
     b = (1 - np.cos(theta)) / theta**2
-    return np.eye(3) + a * k + b * (k @ k)
+    return _EYE3 + a * k + b * (k @ k)
 
 
 def se3_exp_left(delta: F64) -> F64:
@@ -91,18 +99,60 @@ def orthonormalised(T: F64) -> F64:
 def residuals(T_cam_world: F64, obs: PoseObservations, cam: PinholeStereo) -> tuple[F64, F64, F64]:
     """Errors (N, 3) (observation - projection; third column 0 for monocular), points in camera (N, 3),
     and chi2 (N,) weighted by `inv_sigma2`."""
-    pc = obs.points_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-    z = np.where(np.abs(pc[:, 2]) < 1e-6, 1e-6, pc[:, 2])
-    u = cam.fx * pc[:, 0] / z + cam.cx
-    v = cam.fy * pc[:, 1] / z + cam.cy
-    stereo = obs.u_right_px >= 0
-    e = np.zeros((len(pc), 3))
-    e[:, 0] = obs.uv_px[:, 0] - u
-    e[:, 1] = obs.uv_px[:, 1] - v
-    e[:, 2] = np.where(stereo, obs.u_right_px - (u - cam.bf / z), 0.0)
-    chi2 = (e * e).sum(axis=1) * obs.inv_sigma2
-    chi2 = np.where(pc[:, 2] > 0, chi2, 1e9)
-    return e, pc, chi2
+    lin = _Linearisation(T_cam_world, obs, cam, obs.u_right_px >= 0)
+    return lin.e, lin.pc, lin.chi2
+
+
+class _Linearisation:
+    """Residuals at one pose, with the terms the Jacobian shares with them (computed once)."""
+
+    def __init__(self, T_cam_world: F64, obs: PoseObservations, cam: PinholeStereo, stereo: npt.NDArray[np.bool_]) -> None:
+        pc = obs.points_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+        x, y, z_raw = pc[:, 0], pc[:, 1], pc[:, 2]
+        z = np.where(np.abs(z_raw) < 1e-6, 1e-6, z_raw)
+        self.fxx = cam.fx * x
+        self.fyy = cam.fy * y
+        u = self.fxx / z + cam.cx
+        v = self.fyy / z + cam.cy
+        e = np.zeros((len(pc), 3))
+        e[:, 0] = obs.uv_px[:, 0] - u
+        e[:, 1] = obs.uv_px[:, 1] - v
+        e[:, 2] = np.where(stereo, obs.u_right_px - (u - cam.bf / z), 0.0)
+        chi2 = (e * e).sum(axis=1) * obs.inv_sigma2
+        self.chi2 = np.where(z_raw > 0, chi2, 1e9)
+        self.e, self.pc, self.z = e, pc, z
+
+    def jacobian(self, cam: PinholeStereo) -> F64:
+        """d(error)/d(delta) (N, 3, 6), as `_jacobian` (same operations, shared terms reused)."""
+        pc, z, fxx, fyy = self.pc, self.z, self.fxx, self.fyy
+        x, y = pc[:, 0], pc[:, 1]
+        iz = 1.0 / z
+        iz2 = iz * iz
+        fx, fy, bf = cam.fx, cam.fy, cam.bf
+        fxy_iz = fx * y * iz
+        mfx_iz = -fx * iz
+        mfyx = -fy * x
+        j = np.empty((len(pc), 3, 6))
+        j[:, 0, 0] = fxx * y * iz2
+        j[:, 0, 1] = -fx * (1.0 + x * x * iz2)
+        j[:, 0, 2] = fxy_iz
+        j[:, 0, 3] = mfx_iz
+        j[:, 0, 4] = 0.0
+        j[:, 0, 5] = fxx * iz2
+        j[:, 1, 0] = fy * (1.0 + y * y * iz2)
+        j[:, 1, 1] = mfyx * y * iz2
+        j[:, 1, 2] = mfyx * iz
+        j[:, 1, 3] = 0.0
+        j[:, 1, 4] = -fy * iz
+        j[:, 1, 5] = fyy * iz2
+        c = (bf - fxx) * iz2
+        j[:, 2, 0] = -c * y
+        j[:, 2, 1] = -(fx - c * x)
+        j[:, 2, 2] = fxy_iz
+        j[:, 2, 3] = mfx_iz
+        j[:, 2, 4] = 0.0
+        j[:, 2, 5] = -c
+        return j
 
 
 def _jacobian(pc: F64, cam: PinholeStereo) -> F64:
@@ -159,30 +209,34 @@ def optimize_pose(
         return PoseResult(T, np.zeros(n, bool), np.full(n, np.inf))
     row_mask = np.ones((n, 3))
     row_mask[~stereo, 2] = 0.0
-    chi2 = np.zeros(n)
+    sqrt_th = np.sqrt(th)
+    # The residuals at the current pose: computed once per pose, shared by the next iteration and the
+    # end-of-round outlier test (which evaluate the same pose).
+    lin = _Linearisation(T, obs, cam, stereo)
+    chi2 = lin.chi2
     for rnd in range(rounds):
         robust = rnd < robust_rounds
         for _ in range(iterations):
-            e, pc, chi2 = residuals(T, obs, cam)
+            e, chi2 = lin.e, lin.chi2
             w = obs.inv_sigma2 * inliers
             if robust:
                 r = np.sqrt(chi2)
-                delta = np.sqrt(th)
-                w = w * np.where(r <= delta, 1.0, delta / np.maximum(r, 1e-12))
+                w = w * np.where(r <= sqrt_th, 1.0, sqrt_th / np.maximum(r, 1e-12))
             # Normal equations with the 3 rows of every match stacked: (3N, 6) Jacobian, BLAS products.
-            J = _jacobian(pc, cam).reshape(-1, 6)
+            J = lin.jacobian(cam).reshape(-1, 6)
             wr = (w[:, None] * row_mask).reshape(-1)
             Jw = J * wr[:, None]
             H = Jw.T @ J
             b = Jw.T @ e.reshape(-1)
             try:
-                step = np.linalg.solve(H + 1e-9 * np.eye(6), -b)
+                step = np.linalg.solve(H + _DAMPING, -b)
             except np.linalg.LinAlgError:
                 break
             T = se3_exp_left(step) @ T
+            lin = _Linearisation(T, obs, cam, stereo)
             if step @ step < 1e-10:
                 break
-        _, _, chi2 = residuals(T, obs, cam)
+        chi2 = lin.chi2
         inliers = chi2 <= th
         if inliers.sum() < 10:
             break

@@ -12,7 +12,9 @@ fails the state is LOST and every following frame tries relocalisation against c
 from __future__ import annotations
 
 import enum
+from collections import Counter
 from dataclasses import dataclass
+from itertools import chain
 from typing import Protocol
 
 import cv2
@@ -279,10 +281,10 @@ class Tracker:
     def _local_keyframes(self, frame: Frame) -> list[int]:
         m = self.map
         ids = frame.point_ids[frame.point_ids >= 0]
-        counts: dict[int, int] = {}
-        for pid in ids.tolist():
-            for k in m.points.observations[pid]:
-                counts[k] = counts.get(k, 0) + 1
+        obs = m.points.observations
+        # Keyframes in first-seen order with their counts (Counter counts in C); the stable sort keeps
+        # first-seen order among equal counts.
+        counts = Counter(chain.from_iterable(obs[pid] for pid in ids.tolist()))
         ranked = sorted(counts, key=lambda k: -counts[k])
         if not ranked:
             return [self.ref_kf_id] if self.ref_kf_id in m.keyframes else []
