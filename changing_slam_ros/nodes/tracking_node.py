@@ -208,6 +208,7 @@ class TrackingNode(Node):
         self.split: Any = None  # split_backend.TrackingSide when the map comes from local_mapping
         self.config_camera: CameraIntrinsics | None = None
         self.updates_applied = 0
+        self.updates_rejected = 0
         self.detections_in = 0
         self.update_latency_ms: list[float] = []  # keyframe published -> its map update applied
         self._awaiting: dict[str, Any] | None = None  # wait_for_map_updates: what the held ack waits for
@@ -376,6 +377,7 @@ class TrackingNode(Node):
             update = update_from_msg(msg, "/local_mapping/map_updates")
             released = self.split.apply_update(update)
         except (SlamError, ValueError) as err:
+            self.updates_rejected += 1
             self.get_logger().warning(f"tracking: map update rejected: {err}", throttle_duration_sec=5.0)
             return
         for packet in released:  # provisional points: keyframes held until this update named their points
@@ -688,7 +690,7 @@ class TrackingNode(Node):
             "detection_delay_ms_median": float(np.median(self.detection_delay_ms)) if self.detection_delay_ms else None,
             "detections_received": self.detections_in,
             "backend": "in_process" if self.split is None else "split",
-            "map_updates_applied": self.updates_applied,
+            "map_updates_applied": self.updates_applied, "map_updates_rejected": self.updates_rejected,
             "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "frames_skipped_waiting_for_map": self.split.n_skipped if self.split is not None else None,
