@@ -23,7 +23,9 @@ Multi-session (`start_from_map`, a map file of `changing-slam run`): every side 
 active flags of their points), tracking (replica, relocalisation index, next keyframe id) and the loop side
 (replica, keyframe database). The replicas set the same point flags as the owner by loading the saved objects
 into a scratch object layer (`replica_point_flags`: the same file and config give the same flags), so the
-three maps agree before the first frame without a message between them.
+three maps agree before the first frame without a message between them. A LoadMap mid-run (local_mapping's
+~/load_map) builds each side afresh and calls the same `start_from_map`, in the owner first, then in tracking
+and loop closing on the owner's load marker (`nodes/map_load.py`).
 """
 
 from __future__ import annotations
