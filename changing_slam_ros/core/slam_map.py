@@ -170,9 +170,10 @@ class SlamMap:
         arrays = [self.keyframes[k].point_ids for k in kf_ids if k in self.keyframes]
         if not arrays:
             return np.zeros(0, np.int64)
-        ids = np.unique(np.concatenate(arrays))
-        ids = ids[ids >= 0]
-        return ids[self.points.usable()[ids]]
+        ids = np.concatenate(arrays)
+        seen = np.zeros(self.points.size, dtype=bool)  # a mark per point: unique and sorted without a sort
+        seen[ids[ids >= 0]] = True
+        return np.flatnonzero(seen & self.points.usable()).astype(np.int64, copy=False)
 
     def n_tracked_points(self, kf_id: int, min_obs: int = 1) -> int:
         """Usable points of a keyframe that at least `min_obs` keyframes observe."""
