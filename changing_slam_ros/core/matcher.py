@@ -122,8 +122,10 @@ def search_by_projection(
         ur_kp = feats.u_right[nn_safe]
         ur_proj = (u[rows] - bf_m_px / z[rows])[:, None]
         valid &= (ur_kp < 0) | (np.abs(ur_proj - ur_kp) <= radius[:, None])
-    dist_h = hamming(query.descriptors[rows][:, None, :], feats.descriptors[nn_safe])
-    dist_h = np.where(valid, dist_h, 1 << 20)
+    # Descriptor distances of the valid candidates only (most of the k are out of radius or level).
+    dist_h = np.full(valid.shape, 1 << 20, dtype=np.int64)
+    vr, vc = np.nonzero(valid)
+    dist_h[vr, vc] = hamming(query.descriptors[rows[vr]], feats.descriptors[nn_safe[vr, vc]])
     order = np.argsort(dist_h, axis=1, kind="stable")
     best_col = order[:, 0]
     best = np.take_along_axis(dist_h, best_col[:, None], 1)[:, 0]
