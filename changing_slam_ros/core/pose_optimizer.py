@@ -22,8 +22,6 @@ F64 = npt.NDArray[np.float64]
 CHI2_MONO = 5.991
 CHI2_STEREO = 7.815
 
-_EYE3 = np.eye(3)
-_EYE3.flags.writeable = False
 _DAMPING = 1e-9 * np.eye(6)
 _DAMPING.flags.writeable = False
 
@@ -61,24 +59,27 @@ class PoseResult:
         return int(self.inliers.sum())
 
 
-def so3_exp(omega: F64) -> F64:
-    """Rotation matrix (3, 3) of a rotation vector (3,) (Rodrigues)."""
-    theta = math.sqrt(omega.dot(omega))  # = np.linalg.norm(omega), without its dispatch
-    w0, w1, w2 = omega.tolist()
-    k = np.array([[0.0, -w2, w1], [w2, 0.0, -w0], [-w1, w0, 0.0]])
-    if theta < 1e-10:
-        return _EYE3 + k
-    a = np.sin(theta) / theta
-    b = (1 - np.cos(theta)) / theta**2
-    return _EYE3 + a * k + b * (k @ k)
-
-
 def se3_exp_left(delta: F64) -> F64:
-    """Retraction (4, 4) of delta = (omega, rho) (6,): rotation exp(omega), translation rho."""
-    t = np.eye(4)
-    t[:3, :3] = so3_exp(delta[:3])
-    t[:3, 3] = delta[3:]
-    return t
+    """Retraction (4, 4) of delta = (omega, rho) (6,): rotation exp(omega), translation rho.
+
+    The rotation is Rodrigues' formula written out in scalars, R = cos(theta) I + b w w^T + a [w]x with
+    a = sin(theta) / theta, b = (1 - cos(theta)) / theta^2: one array built per Gauss-Newton iteration.
+    """
+    w0, w1, w2, r0, r1, r2 = np.asarray(delta, dtype=np.float64).tolist()
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    theta = math.sqrt(t2)
+    if theta < 1e-10:
+        c, a, b = 1.0, 1.0, 0.0  # first order: I + [w]x
+    else:
+        c, a, b = math.cos(theta), math.sin(theta) / theta, (1.0 - math.cos(theta)) / t2
+    aw0, aw1, aw2 = a * w0, a * w1, a * w2
+    bw01, bw02, bw12 = b * w0 * w1, b * w0 * w2, b * w1 * w2
+    return np.array([
+        [c + b * w0 * w0, bw01 - aw2, bw02 + aw1, r0],
+        [bw01 + aw2, c + b * w1 * w1, bw12 - aw0, r1],
+        [bw02 - aw1, bw12 + aw0, c + b * w2 * w2, r2],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
 
 
 def orthonormalised(T: F64) -> F64:
@@ -99,96 +100,94 @@ def orthonormalised(T: F64) -> F64:
 def residuals(T_cam_world: F64, obs: PoseObservations, cam: PinholeStereo) -> tuple[F64, F64, F64]:
     """Errors (N, 3) (observation - projection; third column 0 for monocular), points in camera (N, 3),
     and chi2 (N,) weighted by `inv_sigma2`."""
-    lin = _Linearisation(T_cam_world, obs, cam, obs.u_right_px >= 0)
-    return lin.e, lin.pc, lin.chi2
+    system = _NormalEquations(obs, cam)
+    chi2 = system.linearise(T_cam_world)
+    n, e_all = system.n, system.e
+    e = np.stack([e_all[:n], e_all[n : 2 * n], e_all[2 * n :]], axis=1)
+    pc = obs.points_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    return e, pc, chi2
 
 
-class _Linearisation:
-    """Residuals at one pose, with the terms the Jacobian shares with them (computed once)."""
+class _NormalEquations:
+    """The Gauss-Newton system of one pose's N matches, laid out for few numpy calls per iteration.
 
-    def __init__(self, T_cam_world: F64, obs: PoseObservations, cam: PinholeStereo, stereo: npt.NDArray[np.bool_]) -> None:
-        pc = obs.points_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-        x, y, z_raw = pc[:, 0], pc[:, 1], pc[:, 2]
-        z = np.where(np.abs(z_raw) < 1e-6, 1e-6, z_raw)
-        self.fxx = cam.fx * x
-        self.fyy = cam.fy * y
-        u = self.fxx / z + cam.cx
-        v = self.fyy / z + cam.cy
-        e = np.zeros((len(pc), 3))
-        e[:, 0] = obs.uv_px[:, 0] - u
-        e[:, 1] = obs.uv_px[:, 1] - v
-        e[:, 2] = np.where(stereo, obs.u_right_px - (u - cam.bf / z), 0.0)
-        chi2 = (e * e).sum(axis=1) * obs.inv_sigma2
-        self.chi2 = np.where(z_raw > 0, chi2, 1e9)
-        self.e, self.pc, self.z = e, pc, z
-
-    def jacobian(self, cam: PinholeStereo) -> F64:
-        """d(error)/d(delta) (N, 3, 6), as `_jacobian` (same operations, shared terms reused)."""
-        pc, z, fxx, fyy = self.pc, self.z, self.fxx, self.fyy
-        x, y = pc[:, 0], pc[:, 1]
-        iz = 1.0 / z
-        iz2 = iz * iz
-        fx, fy, bf = cam.fx, cam.fy, cam.bf
-        fxy_iz = fx * y * iz
-        mfx_iz = -fx * iz
-        mfyx = -fy * x
-        j = np.empty((len(pc), 3, 6))
-        j[:, 0, 0] = fxx * y * iz2
-        j[:, 0, 1] = -fx * (1.0 + x * x * iz2)
-        j[:, 0, 2] = fxy_iz
-        j[:, 0, 3] = mfx_iz
-        j[:, 0, 4] = 0.0
-        j[:, 0, 5] = fxx * iz2
-        j[:, 1, 0] = fy * (1.0 + y * y * iz2)
-        j[:, 1, 1] = mfyx * y * iz2
-        j[:, 1, 2] = mfyx * iz
-        j[:, 1, 3] = 0.0
-        j[:, 1, 4] = -fy * iz
-        j[:, 1, 5] = fyy * iz2
-        c = (bf - fxx) * iz2
-        j[:, 2, 0] = -c * y
-        j[:, 2, 1] = -(fx - c * x)
-        j[:, 2, 2] = fxy_iz
-        j[:, 2, 3] = mfx_iz
-        j[:, 2, 4] = 0.0
-        j[:, 2, 5] = -c
-        return j
-
-
-def _jacobian(pc: F64, cam: PinholeStereo) -> F64:
-    """d(error)/d(delta) (N, 3, 6) for the left perturbation delta = (omega, rho).
-
-    Rows u, v, u_r; written out from d(projection)/d(pc) @ [-[pc]x | I], negated (error = obs - proj).
+    The 3N residuals are stored by kind, `e` = (u errors | v errors | u_r errors), and the Jacobian
+    transposed, `a` (6, 3N) in the same column order: its always-zero entries (du/d rho_y, dv/d rho_x,
+    du_r/d rho_y) are written once, and monocular matches' u_r columns get weight 0. `linearise(T)`
+    fills both at pose T and returns chi2; `solve(w)` returns the step for per-match weights w (N,).
     """
-    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
-    z = np.where(np.abs(z) < 1e-6, 1e-6, z)
-    iz = 1.0 / z
-    iz2 = iz * iz
-    fx, fy, bf = cam.fx, cam.fy, cam.bf
-    j = np.empty((len(pc), 3, 6))
-    # u = fx x / z + cx
-    j[:, 0, 0] = fx * x * y * iz2
-    j[:, 0, 1] = -fx * (1.0 + x * x * iz2)
-    j[:, 0, 2] = fx * y * iz
-    j[:, 0, 3] = -fx * iz
-    j[:, 0, 4] = 0.0
-    j[:, 0, 5] = fx * x * iz2
-    # v = fy y / z + cy
-    j[:, 1, 0] = fy * (1.0 + y * y * iz2)
-    j[:, 1, 1] = -fy * x * y * iz2
-    j[:, 1, 2] = -fy * x * iz
-    j[:, 1, 3] = 0.0
-    j[:, 1, 4] = -fy * iz
-    j[:, 1, 5] = fy * y * iz2
-    # u_r = u - bf / z
-    c = (bf - fx * x) * iz2
-    j[:, 2, 0] = -c * y
-    j[:, 2, 1] = -(fx - c * x)
-    j[:, 2, 2] = fx * y * iz
-    j[:, 2, 3] = -fx * iz
-    j[:, 2, 4] = 0.0
-    j[:, 2, 5] = -c
-    return j
+
+    def __init__(self, obs: PoseObservations, cam: PinholeStereo) -> None:
+        n = len(obs.points_w)
+        self.n = n
+        self.cam = cam
+        self.points_t = np.ascontiguousarray(obs.points_w.T)  # (3, N)
+        self.u_obs = np.ascontiguousarray(obs.uv_px[:, 0])
+        self.v_obs = np.ascontiguousarray(obs.uv_px[:, 1])
+        stereo = obs.u_right_px >= 0
+        self.stereo_w = stereo.astype(np.float64)
+        self.ur_obs = np.where(stereo, obs.u_right_px, 0.0)
+        self.inv_sigma2 = obs.inv_sigma2
+        self.e = np.empty(3 * n)
+        self.a = np.zeros((6, 3 * n))
+        self.wr = np.empty(3 * n)
+        self._terms: tuple[F64, ...] = ()
+
+    def linearise(self, T_cam_world: F64) -> F64:
+        """Residuals and Jacobian terms at T_cam_world; chi2 (N,) (1e9 for points behind the camera)."""
+        n, cam, e = self.n, self.cam, self.e
+        pc = T_cam_world[:3, :3] @ self.points_t + T_cam_world[:3, 3:4]
+        x, y, z_raw = pc
+        z = np.where(np.abs(z_raw) < 1e-6, 1e-6, z_raw)
+        iz = 1.0 / z
+        xi = x * iz
+        yi = y * iz
+        u = cam.fx * xi + cam.cx
+        e[:n] = self.u_obs - u
+        e[n : 2 * n] = self.v_obs - (cam.fy * yi + cam.cy)
+        e[2 * n :] = self.stereo_w * (self.ur_obs - (u - cam.bf * iz))
+        e2 = e * e
+        chi2 = (e2[:n] + e2[n : 2 * n] + e2[2 * n :]) * self.inv_sigma2
+        self._terms = (x, y, iz, xi, yi)
+        return np.where(z_raw > 0, chi2, 1e9)
+
+    def _fill_jacobian(self) -> None:
+        """d(error)/d(delta), delta = (omega, rho) on the left: -d(projection)/d(pc) @ [-[pc]x | I]."""
+        n, cam = self.n, self.cam
+        x, y, iz, xi, yi = self._terms
+        fx, fy, bf = cam.fx, cam.fy, cam.bf
+        ju, jv, jr = self.a[:, :n], self.a[:, n : 2 * n], self.a[:, 2 * n :]
+        xy = xi * yi
+        ju[0] = fx * xy  # u = fx x / z + cx
+        ju[1] = -fx * (1.0 + xi * xi)
+        ju[2] = fx * yi
+        ju[3] = -fx * iz
+        ju[5] = fx * xi * iz
+        jv[0] = fy * (1.0 + yi * yi)  # v = fy y / z + cy
+        jv[1] = -fy * xy
+        jv[2] = -fy * xi
+        jv[4] = -fy * iz
+        jv[5] = fy * yi * iz
+        c = (bf * iz - fx * xi) * iz  # u_r = u - bf / z
+        jr[0] = -c * y
+        jr[1] = c * x - fx
+        jr[2] = ju[2]
+        jr[3] = ju[3]
+        jr[5] = -c
+
+    def solve(self, w: F64) -> F64 | None:
+        """The Gauss-Newton step (6,) at the last linearisation for match weights w (N,); None if singular."""
+        n = self.n
+        self._fill_jacobian()
+        wr = self.wr
+        wr[:n] = w
+        wr[n : 2 * n] = w
+        wr[2 * n :] = w * self.stereo_w
+        aw = self.a * wr
+        try:
+            return np.linalg.solve(aw @ self.a.T + _DAMPING, -(aw @ self.e))
+        except np.linalg.LinAlgError:
+            return None
 
 
 def optimize_pose(
@@ -207,36 +206,25 @@ def optimize_pose(
     inliers = np.ones(n, bool)
     if n < 3:
         return PoseResult(T, np.zeros(n, bool), np.full(n, np.inf))
-    row_mask = np.ones((n, 3))
-    row_mask[~stereo, 2] = 0.0
     sqrt_th = np.sqrt(th)
-    # The residuals at the current pose: computed once per pose, shared by the next iteration and the
+    system = _NormalEquations(obs, cam)
+    # chi2 at the current pose: computed once per pose, shared by the next iteration and the
     # end-of-round outlier test (which evaluate the same pose).
-    lin = _Linearisation(T, obs, cam, stereo)
-    chi2 = lin.chi2
+    chi2 = system.linearise(T)
     for rnd in range(rounds):
         robust = rnd < robust_rounds
         for _ in range(iterations):
-            e, chi2 = lin.e, lin.chi2
             w = obs.inv_sigma2 * inliers
             if robust:
                 r = np.sqrt(chi2)
                 w = w * np.where(r <= sqrt_th, 1.0, sqrt_th / np.maximum(r, 1e-12))
-            # Normal equations with the 3 rows of every match stacked: (3N, 6) Jacobian, BLAS products.
-            J = lin.jacobian(cam).reshape(-1, 6)
-            wr = (w[:, None] * row_mask).reshape(-1)
-            Jw = J * wr[:, None]
-            H = Jw.T @ J
-            b = Jw.T @ e.reshape(-1)
-            try:
-                step = np.linalg.solve(H + _DAMPING, -b)
-            except np.linalg.LinAlgError:
+            step = system.solve(w)
+            if step is None:
                 break
             T = se3_exp_left(step) @ T
-            lin = _Linearisation(T, obs, cam, stereo)
+            chi2 = system.linearise(T)
             if step @ step < 1e-10:
                 break
-        chi2 = lin.chi2
         inliers = chi2 <= th
         if inliers.sum() < 10:
             break
