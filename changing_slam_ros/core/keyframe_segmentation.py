@@ -41,8 +41,10 @@ I64 = npt.NDArray[np.int64]
 
 
 def _window_segmentation() -> SegmentationConfig:
-    # The multi-frame mode (an edge goes when at most half its measurements are inliers), graph bounded.
-    return replace(SegmentationConfig.multi_frame(), max_points=800)
+    # The multi-frame mode (an edge goes when at most half its measurements are inliers), graph bounded, the
+    # outlier test corrected for the fitted points (most map points on a pushed box are measured in only two
+    # keyframes of the window: see `SegmentationConfig.outlier_dof_correction`).
+    return replace(SegmentationConfig.multi_frame(), max_points=800, outlier_dof_correction=True)
 
 
 @dataclass(frozen=True)
@@ -58,7 +60,9 @@ class KeyframeSegmentationConfig:
       with their neighbours are local BA's outlier test's business, not a moving object).
     - `max_target_fraction`: when the targets hold more than this fraction of the window's segmented points,
       the result is not trusted (a bad keyframe pose moves everything it saw) and nothing is culled.
-    - `segmentation`: the point-correlation settings (default: the multi-frame mode, graph <= 800 points).
+    - `segmentation`: the point-correlation settings (default: the multi-frame mode, graph <= 800 points,
+      `outlier_dof_correction` on). A YAML `segmentation:` sub-section starts from `SegmentationConfig()`'s
+      defaults (the paper's test), not from these.
     """
 
     enabled: bool = False
@@ -66,7 +70,7 @@ class KeyframeSegmentationConfig:
     min_window_keyframes: int = 3
     min_observations: int = 2
     max_depth_m: float = 4.0
-    min_target_points: int = 10
+    min_target_points: int = 5
     max_target_fraction: float = 0.3
     segmentation: SegmentationConfig = field(default_factory=_window_segmentation)
 

@@ -94,6 +94,13 @@ class SegmentationConfig:
       moving object to the static scene in the graph search, so an edge is kept only when it is a side
       of at least this many Delaunay triangles whose three sides are all consistent (rigid triangles).
       0 gives the paper's plain rule.
+    - `outlier_dof_correction`: our addition, off by default (the paper's test). A measurement's residual
+      at the optimum is smaller than its noise because the points were fitted to it: for an edge measured
+      in n frames (and points held by that edge alone) its covariance is (n - 1) / n of the measurement's.
+      On, chi2 is scaled by n / (n - 1) before the `outlier_chi2` test. It matters for n = 2 (x2): a
+      point seen in two keyframes of the window then breaks its edges when its two measurements differ by
+      2.8 (not 4) standard deviations of their difference (a box pushed 3 cm/s toward the camera moves 3 cm
+      in depth between keyframes 1 s apart: about 3 such deviations at 1.8 m).
     - `static_volume`: how "the component with the largest volume" is measured. "hull" (the paper): the
       convex hull of the component's points. A flat background (a wall) has almost no hull volume, so a
       box in front of it can win; "view_cone" adds the window's camera centres to each hull, i.e. the
@@ -116,6 +123,7 @@ class SegmentationConfig:
     min_common_frames: int = 2
     min_target_points: int = 5
     min_supporting_triangles: int = 2
+    outlier_dof_correction: bool = False
     static_volume: str = "hull"
 
     def __post_init__(self) -> None:
@@ -564,6 +572,9 @@ def optimise_correlations(
             points = _gauss_newton_step(points, init, anchor_info, prob, normal, residuals, weights, cfg.cg_rtol)
             residuals = _residuals(points, prob, window.camera, cfg.observation_model)
         chi2 = np.einsum("qa,qa->q", residuals[0], residuals[0])
+        if cfg.outlier_dof_correction:
+            n = n_meas[prob.edge]
+            chi2 = chi2 * n / np.maximum(n - 1, 1)
         active = chi2 <= cfg.outlier_chi2
     inliers = np.bincount(prob.edge, weights=active.astype(float), minlength=len(edges))
     fraction = inliers / np.maximum(n_meas, 1)
