@@ -176,12 +176,15 @@ class PointCounters:
 @dataclass
 class KeyframePacket:
     """tracking -> local_mapping / loop_closing. `depth_m` (H, W) metres (0 = none) and `objects` feed the
-    object layer; both may be empty when it is off."""
+    object layer; both may be empty when it is off. `other_counters`: map id -> tracking's increments in another
+    map of the Atlas since that map's last packet (frames tracked there before a new map started, or after a
+    relocalisation), so that the owner's counters of every map stay tracking's (a merge fuses on them)."""
 
     keyframe: Keyframe
     counters: PointCounters = field(default_factory=PointCounters)
     depth_m: npt.NDArray[np.float32] | None = None
     objects: tuple[ObjectState, ...] = ()
+    other_counters: dict[int, PointCounters] = field(default_factory=dict)
 
 
 @dataclass
@@ -195,6 +198,10 @@ class MapUpdate:
     active_flags_changed: bool = False
     objects_ran: bool = False
     loop_query_kf_id: int = -1
+    # A map merge the owner applied (core.map_merging.MergeResult, its `ba` left out): then `keyframe_id` is -1,
+    # `loop_query_kf_id` the merge's query keyframe and `delta` the whole merged map (`full_delta`), which a
+    # replica takes with `apply_merge`.
+    merge: Any | None = None
 
 
 @dataclass
@@ -205,6 +212,7 @@ class LoopResult:
     closed: bool
     delta: MapDelta | None = None
     correction: Any | None = None  # core.loop_closing.LoopCorrection
+    merge: Any | None = None  # not closed, but a place of another map seen: core.loop_closing.MapMerge
 
 
 # -- diffing ---------------------------------------------------------------------------------------------
@@ -390,6 +398,28 @@ def restore(atlas: Atlas, keyframes: list[Keyframe], delta: MapDelta) -> SlamMap
     return apply_delta(atlas, delta)
 
 
+def apply_merge(atlas: Atlas, from_map_id: int, delta: MapDelta) -> SlamMap:
+    """A replica takes a map merge its owner applied (`core.map_merging.merge_maps`): map `delta.map_id` is
+    rebuilt from the keyframes the replica holds in both maps and the owner's `full_delta` of the merged map
+    (`restore`: the same Keyframe objects, now in the merged map); map `from_map_id` is left empty, recorded
+    in `atlas.merged_into`, and the merged map becomes current. Keyframes the replica holds that the owner's
+    map does not (sent, not mapped yet) are dropped."""
+    into = delta.map_id
+    if from_map_id == into:
+        raise ReplicationError(f"map merge of map {into} into itself")
+    src, dst = ensure_map(atlas, from_map_id), ensure_map(atlas, into)
+    m = restore(atlas, [*dst.keyframes.values(), *src.keyframes.values()], delta)
+    order = delta.keyframes.ids.tolist()  # the owner's keyframe order, and its spanning tree in that order
+    m.keyframes = {k: m.keyframes[k] for k in order if k in m.keyframes} | m.keyframes
+    parent = {k: m.parent[k] for k in m.keyframes if k in m.parent}
+    parent.update((k, v) for k, v in m.parent.items() if k not in parent)
+    m.parent = parent
+    atlas.maps[from_map_id] = SlamMap(from_map_id)
+    atlas.merged_into[from_map_id] = into
+    atlas.current = m
+    return m
+
+
 # -- tracking's counters ------------------------------------------------------------------------------
 class CounterTracker:
     """Tracking's side of the point counters: what it added to `n_visible` / `n_found` since the last packet,
@@ -412,6 +442,12 @@ class CounterTracker:
             seen = np.concatenate([seen, pts.last_seen_frame[k:n]])
             self.bases[m.id] = (vis, found, seen)
         return vis, found, seen
+
+    def rebase(self, m: SlamMap) -> None:
+        """Count increments in map `m` from its state now (a replica that took a whole map, e.g. a merge)."""
+        n = m.points.size
+        pts = m.points
+        self.bases[m.id] = (pts.n_visible[:n].copy(), pts.n_found[:n].copy(), pts.last_seen_frame[:n].copy())
 
     def take(self, m: SlamMap) -> PointCounters:
         """The increments in map `m` since the last call (or update), and reset the base to now."""

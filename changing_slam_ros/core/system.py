@@ -26,6 +26,7 @@ from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
 from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig, MappingStats
+from changing_slam_ros.core.loop_closing import MapMerge
 from changing_slam_ros.core.map_merging import MergeResult, merge_maps, move_frame
 from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
 from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
@@ -91,6 +92,13 @@ class FrameOutput:
     timings_ms: dict[str, float]
     dynamic: DynamicFrame | None = None  # the dynamic filter's verdict on the frame's keypoints (before subsetting)
     objects: ObjectLayerResult | None = None  # the object layer's work on this frame's new keyframe
+
+
+def keyframe_ordered(links: dict[int, int], keyframes: dict[int, Keyframe]) -> dict[int, int]:
+    """`links` (keyframe id -> value) in the order of `keyframes`, then any other keys as they were."""
+    out = {k: links[k] for k in keyframes if k in links}
+    out.update((k, v) for k, v in links.items() if k not in out)
+    return out
 
 
 class SlamSystem:
@@ -206,10 +214,24 @@ class SlamSystem:
         merge = detect(kf, self.atlas)
         if merge is None:
             return
+        result = self.apply_merge(merge)
+        self.loop_closer.maps_merged(result.moved_keyframes, result.into_map_id)  # type: ignore[union-attr]
+        self.follow_merge(result)
+
+    def apply_merge(self, merge: MapMerge) -> MergeResult:
+        """The map owner's part of a merge: weld the maps (`map_merging.merge_maps`) and move local mapping's
+        recent points. (The split graph's map owner calls this too: `nodes.split_backend.MapOwner`.)"""
         result = merge_maps(self.atlas, merge, self.mapper.scales, self.config.features.bf_m_px,
                             self.config.mapping.merge, self.mapper.ba_config())
-        self.loop_closer.maps_merged(result.moved_keyframes, result.into_map_id)  # type: ignore[union-attr]
         self.mapper.points_moved(result.from_map_id, result.into_map_id, result.point_id_offset)
+        m = self.atlas.maps[result.into_map_id]
+        m.parent = keyframe_ordered(m.parent, m.keyframes)  # the order replicas rebuild (pose-graph factor order)
+        return result
+
+    def follow_merge(self, result: MergeResult) -> None:
+        """Tracking's part of a merge the Atlas went through: frame records of the merged-away map name the
+        merged one, the last frame (pose, point ids) and the last good pose move into it. (The split graph's
+        tracking calls this on the owner's merge update: `nodes.split_backend.TrackingSide`.)"""
         for r in self.records:
             if r.map_id == result.from_map_id:
                 r.map_id = result.into_map_id

@@ -103,6 +103,8 @@ class LocalMappingNode(Node):
         self.keyframes_in = 0
         self.keyframes_rejected = 0
         self.loops_applied = 0
+        self.merges_applied = 0  # Atlas map merges found by loop_closing and applied here
+        self.merges_skipped = 0  # found, not applied (real time, see apply_loop)
         self.awaiting_loop_for = -1  # keyframe id whose loop verdict the next keyframe waits for
         self.queue: deque[KeyframePacket] = deque()
         self.process_ms: list[float] = []
@@ -284,6 +286,13 @@ class LocalMappingNode(Node):
         self.queue_ms.append((t0 - getattr(packet, "received_s", t0)) * 1e3)
 
     def apply_loop(self, result: LoopResult, stamp: Any) -> None:
+        if result.merge is not None and not self.params["wait_for_loop_results"]:
+            # Real time: tracking's replica holds keyframes and provisional points the merged map would not
+            # carry (docs/loop_closing.md, "Map merging in the split graph"); the merge is not applied.
+            self.merges_skipped += 1
+            self.get_logger().warning(f"local_mapping: map merge at keyframe {result.query_kf_id} not applied "
+                                      "(real time: merges are applied in lossless mode only)", throttle_duration_sec=5.0)
+            return
         try:
             relay = self.owner.on_loop(result)
         except SlamError as err:
@@ -291,10 +300,17 @@ class LocalMappingNode(Node):
             return
         if relay is None:
             return
-        self.loops_applied += 1
         from changing_slam_ros.nodes.conversions import stamp_to_ns
 
         self.update_pub.publish(update_to_msg(relay, stamp_to_ns(stamp), self.params["map_frame"]))
+        if relay.merge is not None:
+            self.merges_applied += 1
+            r = relay.merge
+            self.get_logger().info(f"local_mapping: map {r.from_map_id} merged into map {r.into_map_id} at keyframe "
+                                   f"{result.query_kf_id} ({len(r.moved_keyframes)} keyframes moved, {r.n_fused} points "
+                                   "fused)")  # fmt: skip
+            return
+        self.loops_applied += 1
         self.get_logger().info(f"local_mapping: loop at keyframe {result.query_kf_id} applied "
                                f"({len(relay.delta.keyframes)} keyframes, {len(relay.delta.points)} points changed)")  # fmt: skip
 
@@ -313,6 +329,7 @@ class LocalMappingNode(Node):
         out: dict[str, Any] = {
             "keyframes_received": self.keyframes_in, "keyframes_rejected": self.keyframes_rejected,
             "keyframes_mapped": len(t["mapping"]), "keyframes_queued": len(self.queue), "loops_applied": self.loops_applied,
+            "merges_applied": self.merges_applied, "merges_skipped": self.merges_skipped,
             "map_points": int(self.owner.atlas.current.points.usable().sum()),
             "keyframes_in_map": self.owner.atlas.n_keyframes, "restored_keyframes": self.resync.restored_keyframes,
             "map_loads": self.loads, "dropped_before_load": self.epochs.dropped,

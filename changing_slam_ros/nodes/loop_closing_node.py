@@ -72,6 +72,7 @@ class LoopClosingNode(Node):
         self.updates_in = 0
         self.rejected = 0
         self.loops = 0
+        self.merges = 0  # map merges found (Atlas); local_mapping applies them
         self.process_ms: list[float] = []
         self.updates: deque[tuple[MapUpdateData, Any]] = deque()  # waiting for their keyframe packet
         self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
@@ -190,12 +191,16 @@ class LoopClosingNode(Node):
         self.loops += int(result.closed)
         if result.closed:
             self.get_logger().info(f"loop_closing: loop closed at keyframe {result.query_kf_id}")
+        if result.merge is not None:
+            self.merges += 1
+            self.get_logger().info(f"loop_closing: keyframe {result.query_kf_id} of map {result.merge.query_map_id} "
+                                   f"sees keyframe {result.merge.match_kf_id} of map {result.merge.match_map_id}: merge")
         self.correction_pub.publish(loop_result_to_msg(result, stamp_to_ns(stamp), self.params["map_frame"],
                                                        update.delta.map_id))  # fmt: skip
 
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {"keyframes_received": self.keyframes_in, "updates_received": self.updates_in,
-                               "updates_waiting": len(self.updates), "rejected": self.rejected, "loops_closed": self.loops,
+                               "updates_waiting": len(self.updates), "rejected": self.rejected, "loops_closed": self.loops, "merges_found": self.merges,
                                "restored_keyframes": self.resync.restored_keyframes, "map_loads": self.loads,
                                "dropped_before_load": self.epochs.dropped}  # fmt: skip
         out.update(summarise_ms(self.process_ms, "keyframe"))

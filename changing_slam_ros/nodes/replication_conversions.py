@@ -118,6 +118,13 @@ def packet_to_msg(p: KeyframePacket, frame_id: str) -> KeyframeMsg:
     msg.counter_n_visible = _put(p.counters.n_visible, np.int64)
     msg.counter_n_found = _put(p.counters.n_found, np.int64)
     msg.counter_last_seen_frame = _put(p.counters.last_seen_frame, np.int64)
+    others = list(p.other_counters.items())
+    msg.other_counter_map_ids = [int(k) for k, _ in others]
+    msg.other_counter_lengths = _put([len(c.ids) for _, c in others], np.int64)
+    for f in ("point_ids", "n_visible", "n_found", "last_seen_frame"):
+        attr = "ids" if f == "point_ids" else f
+        setattr(msg, f"other_counter_{f}", _put(np.concatenate([getattr(c, attr) for _, c in others])
+                                                if others else [], np.int64))  # fmt: skip
     if p.depth_m is not None:
         msg.depth = depth_to_image(p.depth_m.astype(np.float32), p.keyframe.stamp_ns, frame_id)
     o = ObjectRows.of(p.objects)
@@ -133,6 +140,7 @@ def packet_from_msg(msg: Any, topic: str) -> KeyframePacket:
         "counter_point_ids", "counter_n_visible", "counter_n_found", "counter_last_seen_frame")))
     if not len(counters.ids) == len(counters.n_visible) == len(counters.n_found) == len(counters.last_seen_frame):
         raise BagError(f"{topic}: keyframe {kf.id}: counter arrays disagree in length")
+    others = _other_counters(msg, f"{topic}: keyframe {kf.id}")
     depth = image_to_depth_m(msg.depth, topic) if msg.depth.height > 0 else None
     flat = _get(msg.short_term_objects, np.float64)
     if len(flat) % _OBJECT_WIDTH:
@@ -140,7 +148,19 @@ def packet_from_msg(msg: Any, topic: str) -> KeyframePacket:
     r = flat.reshape(-1, _OBJECT_WIDTH)
     rows = ObjectRows(r[:, 0].astype(np.int64), r[:, 1].astype(np.int64), r[:, 2:6], r[:, 6:9], r[:, 9:12], r[:, 12],
                       r[:, 13].astype(np.int64), r[:, 14].astype(np.int64), r[:, 15] > 0.5, r[:, 16:52])  # fmt: skip
-    return KeyframePacket(kf, counters, depth, rows.states())
+    return KeyframePacket(kf, counters, depth, rows.states(), others)
+
+
+def _other_counters(msg: Any, what: str) -> dict[int, PointCounters]:
+    map_ids = [int(v) for v in msg.other_counter_map_ids]
+    lengths = _get(msg.other_counter_lengths, np.int64)
+    cols = [_get(getattr(msg, f"other_counter_{f}"), np.int64)
+            for f in ("point_ids", "n_visible", "n_found", "last_seen_frame")]  # fmt: skip
+    if len(lengths) != len(map_ids) or np.any(lengths < 0) or any(len(c) != int(lengths.sum()) for c in cols):
+        raise BagError(f"{what}: other_counter arrays disagree in length")
+    ends = np.cumsum(lengths).tolist()
+    starts = [0, *ends[:-1]] if ends else []
+    return {k: PointCounters(*(c[a:b].copy() for c in cols)) for k, a, b in zip(map_ids, starts, ends, strict=True)}
 
 
 # -- map updates and loop results -----------------------------------------------------------------------
@@ -158,12 +178,39 @@ def update_to_msg(u: MapUpdate, stamp_ns: int, frame_id: str) -> MapUpdateMsg:
     msg.point_positions = _put(d.points.columns["positions"][live], np.float64)
     msg.point_active = _put(d.points.columns["active"][live], np.bool_)
     msg.removed_point_ids = _put(d.points.ids[~live], np.int64)
+    if u.merge is not None:
+        r = u.merge
+        msg.merged = True
+        msg.merged_from_map_id = int(r.from_map_id)
+        msg.merge_transform = _put(r.T_into_from, np.float64)
+        msg.merge_point_id_offset = int(r.point_id_offset)
+        msg.merge_moved_keyframe_ids = _put(r.moved_keyframes, np.int64)
+        msg.merge_n_points_moved = int(r.n_points_moved)
+        msg.merge_n_fused = int(r.n_fused)
     return msg
 
 
+def _transform(values: Any, what: str) -> npt.NDArray[np.float64]:
+    T = _get(values, np.float64)
+    if T.shape != (16,) or not np.all(np.isfinite(T)):
+        raise BagError(f"{what}: expected 16 finite values, got {T.size}")
+    return T.reshape(4, 4)
+
+
 def update_from_msg(msg: Any, topic: str) -> MapUpdate:
+    merge = None
+    if msg.merged:
+        from changing_slam_ros.core.map_merging import MergeResult
+
+        if int(msg.merged_from_map_id) == int(msg.delta.map_id):
+            raise BagError(f"{topic}: map merge of map {msg.delta.map_id} into itself")
+        merge = MergeResult(int(msg.merged_from_map_id), int(msg.delta.map_id),
+                            _transform(msg.merge_transform, f"{topic}: merge_transform"),
+                            int(msg.merge_point_id_offset), tuple(_get(msg.merge_moved_keyframe_ids, np.int64).tolist()),
+                            int(msg.merge_n_points_moved), int(msg.merge_n_fused), None)  # fmt: skip
     return MapUpdate(int(msg.keyframe_id), delta_from_msg(msg.delta, topic), _get(msg.removed_keyframe_ids, np.int64),
-                     bool(msg.active_flags_changed), bool(msg.objects_ran), int(msg.loop_query_keyframe_id))  # fmt: skip
+                     bool(msg.active_flags_changed), bool(msg.objects_ran), int(msg.loop_query_keyframe_id),
+                     merge)  # fmt: skip
 
 
 def loop_result_to_msg(r: LoopResult, stamp_ns: int, frame_id: str, map_id: int) -> LoopCorrectionMsg:
@@ -176,10 +223,32 @@ def loop_result_to_msg(r: LoopResult, stamp_ns: int, frame_id: str, map_id: int)
     msg.closed = bool(r.closed)
     if r.delta is not None:
         msg.delta = delta_to_msg(r.delta)
+    if r.merge is not None and not r.closed:
+        g = r.merge
+        msg.map_id = int(g.query_map_id)
+        msg.match_keyframe_id = int(g.match_kf_id)
+        msg.relative_pose = matrix_to_pose(g.T_match_query)
+        msg.n_inliers = int(g.num_inliers)
+        msg.merge = True
+        msg.merge_match_map_id = int(g.match_map_id)
+        msg.merge_transform = _put(g.T_matchworld_queryworld, np.float64)
+        msg.merge_keypoint_matches = _put(g.keypoint_matches, np.int64)
     return msg
 
 
 def loop_result_from_msg(msg: Any, topic: str) -> LoopResult:
+    if not msg.closed and msg.merge:
+        from changing_slam_ros.core.loop_closing import MapMerge
+        from changing_slam_ros.nodes.conversions import pose_to_matrix
+
+        pairs = _get(msg.merge_keypoint_matches, np.int64)
+        if len(pairs) % 2:
+            raise BagError(f"{topic}: merge_keypoint_matches has {len(pairs)} values, not pairs")
+        merge = MapMerge(int(msg.query_keyframe_id), int(msg.match_keyframe_id), int(msg.map_id),
+                         int(msg.merge_match_map_id), pose_to_matrix(msg.relative_pose),
+                         _transform(msg.merge_transform, f"{topic}: merge_transform"), int(msg.n_inliers),
+                         pairs.reshape(-1, 2))  # fmt: skip
+        return LoopResult(int(msg.query_keyframe_id), False, merge=merge)
     if not msg.closed:
         return LoopResult(int(msg.query_keyframe_id), False)
     return LoopResult(int(msg.query_keyframe_id), True, delta_from_msg(msg.delta, topic), loop_correction_from_msg(msg))

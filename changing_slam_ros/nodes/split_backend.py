@@ -52,6 +52,7 @@ from changing_slam_ros.core.map_replication import (
     ReplicationError,
     apply_counters,
     apply_delta,
+    apply_merge,
     check_keyframe,
     diff,
     ensure_map,
@@ -107,6 +108,7 @@ class TrackingSide:
     index: Any | None = None  # its own keyframe database (relocalisation), fed like the loop side's
     n_updates: int = 0
     n_loops: int = 0
+    n_merges: int = 0
     waiting_for_map: int = -1  # the first keyframe of a new map, until its update brings the map's first points
     n_skipped: int = 0  # frames not tracked while waiting for it (real time only; lossless never waits here)
     unacked: dict[int, KeyframePacket] = field(default_factory=dict)  # sent, its map update not in yet
@@ -174,9 +176,21 @@ class TrackingSide:
         else:
             with self.provisional.hidden(m):  # increments on the owner's points only
                 counters = self.counters.take(m)
+        others = {}
+        for other in self.system.atlas.maps:
+            if other is m or other.points.size == 0:
+                continue
+            if self.provisional is None:
+                c = self.counters.take(other)
+            else:
+                with self.provisional.hidden(other):
+                    c = self.counters.take(other)
+            if len(c.ids):
+                others[other.id] = c
         if kf.id == m.origin_kf_id and self.provisional is None:
             self.waiting_for_map = kf.id
         packet = KeyframePacket(kf, counters, rgbd.depth_m, ()) if self.ship_objects else KeyframePacket(kf, counters)
+        packet.other_counters = others
         if self.ship_objects and out.dynamic is not None:
             packet.objects = tuple(out.dynamic.objects)
         if self.provisional is None:
@@ -209,6 +223,9 @@ class TrackingSide:
         database as `SlamSystem` feeds it, then the last frame re-anchored on its moved reference keyframe.
         With provisional points: they are taken out around the delta and put back (those of the mapped
         keyframe become the owner's points); returns the held packets this releases (send them now)."""
+        if update.merge is not None:
+            self._apply_merge(update)
+            return self._flush() if self.provisional is not None else []
         atlas = self.system.atlas
         held = None
         if self.provisional is not None and update.delta.map_id < len(atlas.maps):
@@ -237,6 +254,26 @@ class TrackingSide:
         if self.system.records:
             self.system._reanchor_last_frame()  # noqa: SLF001 - SlamSystem's own re-anchoring, reused
         return self._flush() if self.provisional is not None else []
+
+    def _apply_merge(self, update: MapUpdate) -> None:
+        """The owner merged two maps: the replica takes the merged map (`apply_merge`), then what `SlamSystem`
+        moves offline: frame records, the last frame and the relocalisation index (`SlamSystem.follow_merge`).
+        Tracking's counter increments are counted from the merged map as the owner sent it (increments made
+        since the last packet are lost: none in lossless order, where the merge comes before the next frame)."""
+        r = update.merge
+        if self.provisional is not None and self.provisional.count(self.system.atlas.maps[r.from_map_id]) > 0:
+            raise ReplicationError(f"map merge {r.from_map_id} -> {r.into_map_id}: not supported with provisional "
+                                   "points held in the merged-away map")  # fmt: skip
+        m = apply_merge(self.system.atlas, r.from_map_id, update.delta)
+        self.counters.bases.pop(r.from_map_id, None)
+        self.counters.rebase(m)
+        if self.index is not None:
+            self.index.maps_merged(r.moved_keyframes, r.into_map_id)
+        self.system.follow_merge(r)
+        self.n_updates += 1
+        self.n_merges += 1
+        if self.system.records:
+            self.system._reanchor_last_frame()  # noqa: SLF001 - as offline after a merge
 
     def snapshot(self) -> list[tuple[list[Keyframe], MapDelta]]:
         """Every map of the replica as (keyframes, full delta), for a map owner or loop closing that restarted:
@@ -277,6 +314,7 @@ class MapOwner:
     last_kf_id: int = -1
     timings_ms: dict[str, list[float]] = field(default_factory=lambda: {"mapping": [], "objects": [], "diff": []})
     last_objects: Any | None = None
+    merges: list[Any] = field(default_factory=list)  # core.map_merging.MergeResult, in order
 
     @staticmethod
     def build(cfg: BackendConfig, objects: str = "config") -> MapOwner:
@@ -297,6 +335,10 @@ class MapOwner:
         check_keyframe(m, kf)
         self.atlas.current = m
         apply_counters(m.points, packet.counters)
+        for map_id, counters in packet.other_counters.items():  # tracking's increments in other maps
+            if map_id != m.id:
+                apply_counters(ensure_map(self.atlas, map_id).points, counters)
+        self.atlas.current = m
         before = snapshot(m)
         t0 = time.perf_counter()
         stats = self.mapper.process(kf)
@@ -326,6 +368,8 @@ class MapOwner:
 
     def on_loop(self, result: LoopResult) -> MapUpdate | None:
         """Apply a closed loop; returns the delta of doing so for the replicas (None when nothing to apply)."""
+        if result.merge is not None:
+            return self.on_merge(result.merge)
         if not result.closed or result.delta is None:
             return None
         m = ensure_map(self.atlas, result.delta.map_id)
@@ -346,11 +390,29 @@ class MapOwner:
         return MapUpdate(-1, diff(before, m), loop_query_kf_id=result.query_kf_id)
 
 
+    def on_merge(self, merge: Any) -> MapUpdate | None:
+        """Apply a map merge loop closing found (`core.loop_closing.MapMerge`) as `SlamSystem` does offline
+        (`SlamSystem.apply_merge`: `merge_maps`, local mapping's recent points); returns the update that carries
+        the whole merged map to the replicas (None when the merge no longer fits this map: a map already merged
+        away or a seam keyframe culled meanwhile, possible in real time)."""
+        atlas = self.atlas
+        if (merge.query_map_id in atlas.merged_into or merge.match_map_id in atlas.merged_into
+                or merge.query_map_id >= len(atlas.maps) or merge.match_map_id >= len(atlas.maps)
+                or merge.query_kf_id not in atlas.maps[merge.query_map_id].keyframes
+                or merge.match_kf_id not in atlas.maps[merge.match_map_id].keyframes):  # fmt: skip
+            return None
+        result = self.backend.system.apply_merge(merge)
+        self.merges.append(result)
+        light = dataclasses.replace(result, ba=None)
+        return MapUpdate(-1, full_delta(atlas.maps[result.into_map_id]), loop_query_kf_id=merge.query_kf_id, merge=light)
+
+
 @dataclass
 class LoopSide:
     """Keyframe database, verification and pose graph on a replica of the map (loop_closing node)."""
 
     closing: Any  # core.loop_closing.SlamMapLoopClosing
+    merge_enabled: bool = True  # the config's mapping.merge.enabled: look for places of other maps (Atlas)
     atlas: Atlas = field(default_factory=Atlas)
     pending: dict[int, Keyframe] = field(default_factory=dict)
     n_loops: int = 0
@@ -360,7 +422,9 @@ class LoopSide:
     def build(cfg: BackendConfig) -> LoopSide | None:
         """None when the config's loop section is disabled."""
         backend = build_backend(cfg, loop=True, dynamic="off", objects="off")
-        return None if backend.loop_closing is None else LoopSide(backend.loop_closing)
+        if backend.loop_closing is None:
+            return None
+        return LoopSide(backend.loop_closing, backend.system.config.mapping.merge.enabled)
 
     def start_from_map(self, loaded: LoadedMap, layer: ObjectLayer | None) -> None:
         """Multi-session: the replica becomes the loaded Atlas (point flags as the owner sets them, `layer` a
@@ -394,6 +458,10 @@ class LoopSide:
     def on_update(self, update: MapUpdate) -> LoopResult | None:
         """Apply the owner's delta; for a mapped keyframe, run loop closing on it (as `SlamSystem` does after
         local mapping and the object layer) and return the verdict."""
+        if update.merge is not None:  # the owner merged two maps: take the merged map, the database follows
+            apply_merge(self.atlas, update.merge.from_map_id, update.delta)
+            self.closing.maps_merged(update.merge.moved_keyframes, update.merge.into_map_id)
+            return None
         restored = update.keyframe_id >= 0 and self.knows(update.keyframe_id)
         m = apply_delta(self.atlas, update.delta)
         if update.keyframe_id < 0 or restored:
@@ -414,9 +482,12 @@ class LoopSide:
         before = snapshot(m)
         t0 = time.perf_counter()
         closed = bool(self.closing.process(kf, m))
+        merge = None
+        if not closed and self.merge_enabled and len(self.atlas.live_maps()) > 1 and kf.id in self.atlas.current.keyframes:
+            merge = self.closing.detect_merge_in(kf, self.atlas)  # as `SlamSystem._try_merge` offline
         self.timings_ms.append((time.perf_counter() - t0) * 1e3)
         if not closed:
-            return LoopResult(kf.id, False)
+            return LoopResult(kf.id, False, merge=merge)
         self.n_loops += 1
         return LoopResult(kf.id, True, diff(before, m), self.closing.last_correction)
 
@@ -463,7 +534,7 @@ class ChainedGraph:
             if relay is not None:
                 self.tracking.apply_update(copy.deepcopy(relay))
                 self.loop.on_update(copy.deepcopy(relay))
-                self.tracking.n_loops += 1
+                self.tracking.n_loops += int(relay.merge is None)
         return out
 
 

@@ -387,7 +387,7 @@ class TrackingNode(Node):
         if sent is not None:
             self.update_latency_ms.append((time.monotonic() - sent) * 1e3)
         if update.loop_query_kf_id >= 0:
-            self.split.n_loops += 1
+            self.split.n_loops += int(update.merge is None)  # a merge is counted in split.n_merges
             self._relays_seen.add(update.loop_query_kf_id)
             self._rebuild_path()
         self._settle(update=update.keyframe_id, relay=update.loop_query_kf_id)
@@ -407,7 +407,8 @@ class TrackingNode(Node):
             return
         if not self.epochs.current("loops"):
             return  # a verdict on the map before ~/load_map
-        self._settle(verdict=int(msg.query_keyframe_id), closed=bool(msg.closed))
+        # a map merge, like a closed loop, comes back as local_mapping's update: wait for that relay too
+        self._settle(verdict=int(msg.query_keyframe_id), closed=bool(msg.closed) or bool(msg.merge))
 
     def _on_marker(self, stream: str, marker: LoadMarker) -> None:
         """A load announced on `stream` (local_mapping's ~/load_map): the first announcement of a newer load

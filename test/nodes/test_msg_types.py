@@ -46,6 +46,10 @@ def _keyframe(store, n: int = 3):
         object_ids=np.array([-1, 3, 4][:n], dtype=np.int64),
         counter_point_ids=np.array([7], dtype=np.int64), counter_n_visible=np.array([2], dtype=np.int64),
         counter_n_found=np.array([1], dtype=np.int64), counter_last_seen_frame=np.array([12], dtype=np.int64),
+        other_counter_map_ids=np.array([0], dtype=np.int32), other_counter_lengths=np.array([1], dtype=np.int64),
+        other_counter_point_ids=np.array([3], dtype=np.int64), other_counter_n_visible=np.array([1], dtype=np.int64),
+        other_counter_n_found=np.array([0], dtype=np.int64),
+        other_counter_last_seen_frame=np.array([11], dtype=np.int64),
         depth=t["sensor_msgs/msg/Image"](header=header, height=0, width=0, encoding="", is_bigendian=0, step=0,
                                          data=np.zeros(0, np.uint8)),
         # Non-empty: rosbags and Fast CDR disagree on the padding after an EMPTY sequence of 8-byte elements
