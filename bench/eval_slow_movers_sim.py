@@ -87,7 +87,7 @@ def main() -> int:
     culled: set[int] = set()
     culled_negative: set[int] = set()
     seg_ms: list[float] = []
-    windows = {"n": 0, "targets": 0, "vetoed": 0}
+    windows = {"n": 0, "targets": 0, "still": 0, "vetoed": 0}
     real = local_mapping.segment_keyframe_window
 
     def wrapped(slam_map, kf_id, cfg):  # type: ignore[no-untyped-def]
@@ -101,6 +101,7 @@ def main() -> int:
         seg_ms.append(res.ms)
         windows["n"] += 1
         windows["targets"] += res.n_targets
+        windows["still"] += res.n_still_targets
         windows["vetoed"] += int(not res.trusted)
         m = len(res.point_ids)
         on_mover = np.zeros(m, bool)
@@ -185,7 +186,8 @@ def main() -> int:
     print(f"  point level: {len(ever_positive)} map points moved with the mover while measured in a window, "
           f"{tp_ids} of them culled (recall {tp_ids / max(len(ever_positive), 1):.3f}); culled {len(culled)} in all, "
           f"{len(culled_negative - ever_positive)} never positive (precision {tp_ids / max(len(culled), 1):.3f})")
-    print(f"  windows segmented {windows['n']}, targets {windows['targets']}, vetoed {windows['vetoed']}")
+    print(f"  windows segmented {windows['n']}, targets {windows['targets']} (culled unless vetoed), targets that did not "
+          f"move {windows['still']} (kept), vetoed windows {windows['vetoed']}")
     if seg_ms:
         a = np.array(seg_ms)
         print(f"  segmentation step CPU ms per keyframe: median {np.median(a):.0f}, p90 {np.percentile(a, 90):.0f}, max {a.max():.0f}")
