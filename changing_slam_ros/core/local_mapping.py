@@ -39,7 +39,11 @@ class MappingConfig:
 
     - `max_new_point_depth_m`: keypoints deeper than this make no new point.
     - `cull_found_ratio`, `min_observations`: recent point culling (ORB-SLAM 0.25, 3 with stereo observations counted twice).
-    - `local_ba`: enable local BA; `ba_window`, `ba_max_fixed`, `ba_iterations`, `ba_max_points`: its size and effort.
+    - `local_ba`: enable local BA; `ba_window`, `ba_max_fixed`, `ba_iterations`, `ba_max_points`: its size and effort;
+      `ba_disparity_sigma_ratio`: sigma of a keypoint's depth as disparity bf / depth, in units of its pixel sigma
+      (`backend.local_ba.stereo_noise`): a property of the depth sensor. 1 (default) weighs a Kinect-class depth
+      about as ORB-SLAM's virtual stereo does (0 = exactly ORB-SLAM's independent u_l, u_r, v); the simulator's
+      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5.
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
     - `triangulation`: points from depth-less keypoints (nested section, see `TriangulationConfig`).
@@ -56,6 +60,7 @@ class MappingConfig:
     ba_max_fixed: int = 10
     ba_iterations: int = 5
     ba_max_points: int = 3000
+    ba_disparity_sigma_ratio: float = 1.0
     keyframe_culling: bool = True
     redundancy: float = 0.9
     fuse_neighbours: int = 10
@@ -130,7 +135,7 @@ class LocalMapper:
         """The local BA settings of this mapper (also used for the welding BA of a map merge)."""
         return LocalBAConfig(
             self.cfg.ba_window, self.cfg.ba_max_fixed, self.cfg.ba_iterations, self.cfg.ba_max_points,
-            self.fcfg.bf_m_px, tuple(float(s) for s in self.scales),
+            self.fcfg.bf_m_px, tuple(float(s) for s in self.scales), self.cfg.ba_disparity_sigma_ratio,
         )
 
     def _fuse(self, kf: Keyframe) -> int:

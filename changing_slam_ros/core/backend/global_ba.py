@@ -2,8 +2,8 @@
 
 The pose graph moved keyframes and points rigidly; global BA then refines every keyframe pose and every
 map point seen at least twice against the keypoint measurements themselves. It reuses the local BA's
-measurement model (`backend.local_ba`: `GenericStereoFactor3D` for keypoints with depth as virtual stereo,
-`GenericProjectionFactorCal3_S2` without, sigma = pyramid scale in px, Huber kernels).
+measurement model (`backend.local_ba`: `GenericStereoFactor3D` for keypoints with depth as virtual stereo, the
+depth weighted by `stereo_noise`, `GenericProjectionFactorCal3_S2` without, sigma = pyramid scale in px, Huber kernels).
 """
 
 from __future__ import annotations
@@ -28,11 +28,13 @@ F64 = npt.NDArray[np.float64]
 @dataclass(frozen=True)
 class GlobalBAConfig:
     """`iterations`: Levenberg-Marquardt iterations (ORB-SLAM runs 10); `bf_m_px`: virtual stereo baseline * fx;
-    `level_scales`: pyramid scales, from the feature config."""
+    `level_scales`: pyramid scales, from the feature config; `disparity_sigma_ratio`: the depth's weight, as in local
+    BA (`local_ba.stereo_noise`)."""
 
     iterations: int = 10
     bf_m_px: float = 40.0
     level_scales: tuple[float, ...] = tuple(1.2**i for i in range(8))
+    disparity_sigma_ratio: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -75,7 +77,7 @@ def global_bundle_adjust(slam_map: SlamMap, cfg: GlobalBAConfig = GlobalBAConfig
     origin = slam_map.origin_kf_id if slam_map.origin_kf_id in slam_map.keyframes else kf_ids[0]
     graph.add(gtsam.NonlinearEqualityPose3(X(origin), gtsam.Pose3(poses[origin])))
     # 4. Measurements: (u_l, u_r, v) or (u, v) in pixels, sigma = pyramid level scale, Huber kernels.
-    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales)
+    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales, cfg.disparity_sigma_ratio)
     # 5. Levenberg-Marquardt; on failure (cheirality, indeterminate system) the map stays as it was.
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.iterations)

@@ -4,9 +4,11 @@ Variables: poses X(k) (gtsam `Pose3` = camera-to-world) of the local keyframes (
 its covisible neighbours) and positions L(p) of every usable map point they see. Keyframes outside
 the window that also observe those points enter as fixed poses (held by tight priors).
 Factors: `GenericStereoFactor3D` for keypoints with depth (u_l, u_r, v in pixels, sigma = level scale
-px on each), `GenericProjectionFactorCal3_S2` for keypoints without (u, v), both with a Huber kernel
+px on each, or with `disparity_sigma_ratio` > 0 the depth weighted by its own sigma: `stereo_noise`),
+`GenericProjectionFactorCal3_S2` for keypoints without (u, v), both with a Huber kernel
 on the whitened error (k = sqrt(7.815) stereo, sqrt(5.991) mono). Afterwards observations whose
-chi2 exceeds those thresholds are erased from the map (ORB-SLAM's outlier removal).
+chi2 exceeds those thresholds are erased from the map (ORB-SLAM's outlier removal). Points seen by one
+keyframe only are left out of the graph and move rigidly with it (`carry_lone_points`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ class LocalBAConfig:
     (most observations first); `iterations`: Levenberg-Marquardt iterations; `max_points`: points
     optimised at most, those with the most observations in the window first (the solver's cost grows
     with the number of variables: gtsam spends ~0.1 ms per variable per linear solve here); `level_scales`: pyramid
-    scales, set by the caller from the feature config; `bf_m_px`: virtual stereo baseline * fx."""
+    scales, set by the caller from the feature config; `bf_m_px`: virtual stereo baseline * fx;
+    `disparity_sigma_ratio`: sigma of the depth as disparity, in units of the keypoint's sigma (`stereo_noise`)."""
 
     n_window: int = 10
     max_fixed: int = 10
@@ -39,6 +42,7 @@ class LocalBAConfig:
     max_points: int = 3000
     bf_m_px: float = 40.0
     level_scales: tuple[float, ...] = tuple(1.2**i for i in range(8))
+    disparity_sigma_ratio: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -94,9 +98,12 @@ def gather_observations(slam_map: SlamMap, kf_ids: list[int], point_ids: npt.NDA
 
 def reprojection_chi2(
     poses_wc: dict[int, F64], positions: dict[int, F64] | F64, obs: Observations, fx: float, fy: float, cx: float, cy: float,
-    bf: float, scales: F64,
+    bf: float, scales: F64, disparity_sigma_ratio: float = 0.0,
 ) -> tuple[F64, F64]:
-    """Per observation: squared pixel error (E,) and level-weighted chi2 (E,). `positions` (P, 3) is indexed by point id."""
+    """Per observation: squared pixel error (E,) and level-weighted chi2 (E,). `positions` (P, 3) is indexed by point id.
+
+    `disparity_sigma_ratio` > 0: keypoints with depth are weighed by `stereo_noise` (u, v and the disparity
+    bf / depth, the latter with sigma = ratio * level scale); 0: ORB-SLAM's (u_l, u_r, v), each with the level scale."""
     T_cw = {k: np.linalg.inv(T) for k, T in poses_wc.items()}
     R = np.stack([T_cw[k][:3, :3] for k in obs.kf_ids.tolist()]) if len(obs.kf_ids) else np.zeros((0, 3, 3))
     t = np.stack([T_cw[k][:3, 3] for k in obs.kf_ids.tolist()]) if len(obs.kf_ids) else np.zeros((0, 3))
@@ -107,14 +114,31 @@ def reprojection_chi2(
     v = fy * pc[:, 1] / z + cy
     e2 = (obs.uv[:, 0] - u) ** 2 + (obs.uv[:, 1] - v) ** 2
     stereo = obs.u_right >= 0
-    e2 = e2 + np.where(stereo, (obs.u_right - (u - bf / z)) ** 2, 0.0)
+    e_r = obs.u_right - (u - bf / z)
+    e2 = e2 + np.where(stereo, e_r**2, 0.0)
     chi2 = e2 / scales[obs.level] ** 2
+    if disparity_sigma_ratio > 0:
+        e_d = (obs.uv[:, 0] - u) - e_r  # measured minus predicted disparity
+        chi2_s = ((obs.uv[:, 0] - u) ** 2 + (obs.uv[:, 1] - v) ** 2 + (e_d / disparity_sigma_ratio) ** 2) / scales[obs.level] ** 2
+        chi2 = np.where(stereo, chi2_s, chi2)
     chi2 = np.where(pc[:, 2] > 0, chi2, 1e9)
     return e2, chi2
 
 
+def stereo_noise(sigma_px: float, disparity_sigma_ratio: float) -> gtsam.noiseModel.Base:
+    """Noise of an RGB-D keypoint as gtsam's (u_l, u_r, v) with u_r = u_l - bf / depth: u_l and v carry the
+    keypoint's `sigma_px`, the disparity bf / depth its own `disparity_sigma_ratio * sigma_px` (the depth
+    sensor's noise), so u_r = u_l - d is correlated with u_l. ratio 0: ORB-SLAM's three independent sigmas."""
+    if disparity_sigma_ratio <= 0:
+        return gtsam.noiseModel.Isotropic.Sigma(3, sigma_px)
+    s2, d2 = sigma_px**2, (disparity_sigma_ratio * sigma_px) ** 2
+    cov = np.array([[s2, s2, 0.0], [s2, s2 + d2, 0.0], [0.0, 0.0, s2]])
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+
 def add_reprojection_factors(
-    graph: gtsam.NonlinearFactorGraph, obs: Observations, cam: CameraIntrinsics, bf_m_px: float, scales: npt.ArrayLike
+    graph: gtsam.NonlinearFactorGraph, obs: Observations, cam: CameraIntrinsics, bf_m_px: float, scales: npt.ArrayLike,
+    disparity_sigma_ratio: float = 0.0,
 ) -> None:
     """Add one robust reprojection factor X(k)-L(p) per observation to `graph` (local and global BA).
 
@@ -126,7 +150,7 @@ def add_reprojection_factors(
     k_mono = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
     huber_s = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_STEREO)))
     huber_m = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO)))
-    noise_s = [gtsam.noiseModel.Robust.Create(huber_s, gtsam.noiseModel.Isotropic.Sigma(3, float(s))) for s in np.asarray(scales)]
+    noise_s = [gtsam.noiseModel.Robust.Create(huber_s, stereo_noise(float(s), disparity_sigma_ratio)) for s in np.asarray(scales)]
     noise_m = [gtsam.noiseModel.Robust.Create(huber_m, gtsam.noiseModel.Isotropic.Sigma(2, float(s))) for s in np.asarray(scales)]
     for k, p, (u, v), ur, lv in zip(
         obs.kf_ids.tolist(), obs.point_ids.tolist(), obs.uv.tolist(), obs.u_right.tolist(), obs.level.tolist()
@@ -135,6 +159,36 @@ def add_reprojection_factors(
             graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), noise_s[lv], X(k), L(p), k_stereo))
         else:
             graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise_m[lv], X(k), L(p), k_mono))
+
+
+def carry_lone_points(slam_map: SlamMap, poses_before: dict[int, F64]) -> int:
+    """Move the map points that only one keyframe observes rigidly with that keyframe's pose change.
+
+    The BA leaves such points out (one observation constrains nothing), but in ORB-SLAM3's BA they are
+    variables whose optimum keeps them where their keyframe sees them, i.e. they follow it. Left behind,
+    a moved keyframe and the points it created disagree: tracking, which matches points, keeps frames
+    where the points are while the keyframe they are stored against sits elsewhere. `poses_before`: keyframe
+    id -> camera-to-world pose before the keyframe moved (current poses are read from the map). Inactive
+    points follow too (their place stays right for when they become active). Returns the points moved.
+    """
+    pts = slam_map.points
+    n = 0
+    for k, T_old in poses_before.items():
+        kf = slam_map.keyframes.get(k)
+        if kf is None:
+            continue
+        delta = kf.T_world_cam @ np.linalg.inv(T_old)
+        if np.allclose(delta, np.eye(4), atol=1e-12):
+            continue
+        ids = kf.point_ids[kf.point_ids >= 0]
+        ids = ids[~pts.bad[ids]]
+        lone = ids[np.array([len(pts.observations[p]) == 1 for p in ids.tolist()], dtype=bool)] if len(ids) else ids
+        if len(lone) == 0:
+            continue
+        pts.positions[lone] = pts.positions[lone] @ delta[:3, :3].T + delta[:3, 3]
+        pts.normals[lone] = pts.normals[lone] @ delta[:3, :3].T
+        n += len(lone)
+    return n
 
 
 def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> LocalBAResult:
@@ -186,7 +240,7 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
         graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(poses[k]), fixed_noise))
     for pid in keep_pts.tolist():
         values.insert(L(pid), slam_map.points.positions[pid])
-    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales)
+    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales, cfg.disparity_sigma_ratio)
 
     # 4. Optimise.
     params = gtsam.LevenbergMarquardtParams()
@@ -198,12 +252,15 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
         return LocalBAResult(len(local), len(fixed), len(keep_pts), len(obs.kf_ids), 0.0, 0.0, 0)
 
     # 5. Write back, then erase outlier observations.
+    before = {k: slam_map.keyframes[k].T_world_cam for k in local}
     for k in local:
         slam_map.keyframes[k].T_world_cam = result.atPose3(X(k)).matrix()
     new_pos = np.array([result.atPoint3(L(p)) for p in keep_pts.tolist()])
     slam_map.points.positions[keep_pts] = new_pos
+    carry_lone_points(slam_map, before)
     poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
-    e2_after, chi2 = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales)
+    e2_after, chi2 = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales,
+                                       cfg.disparity_sigma_ratio)
     th = np.where(obs.u_right >= 0, CHI2_STEREO, CHI2_MONO)
     bad = np.flatnonzero(chi2 > th)
     for i in bad.tolist():
