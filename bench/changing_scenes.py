@@ -23,9 +23,9 @@ metrics from each run's object_map.json and trajectory.txt with the same SE(3) a
 Each cell is one `changing-slam run` (the same command a user types), whose metrics.json is read back:
 
     changing-slam simulate one_chair --out /tmp/simobj/one_chair --seed 0 --width 320 --height 240
-    changing-slam run /tmp/simobj/one_chair --out /tmp/simobj/runs/one_chair-objects --detections oracle --objects
-    changing-slam run /tmp/simobj/one_chair --out /tmp/simobj/runs/one_chair-no-objects --detections oracle --no-objects
-    changing-slam run /tmp/simobj/one_chair --out /tmp/simobj/runs/one_chair-plain --detections none --no-dynamic --no-objects
+    changing-slam run /tmp/simobj/one_chair --config sim --out /tmp/simobj/runs/one_chair-objects --detections oracle --objects
+    changing-slam run /tmp/simobj/one_chair --config sim --out /tmp/simobj/runs/one_chair-no-objects --detections oracle --no-objects
+    changing-slam run /tmp/simobj/one_chair --config sim --out /tmp/simobj/runs/one_chair-plain --detections none --no-dynamic --no-objects
 
     nice -n 10 .venv/bin/python bench/changing_scenes.py --root /tmp/simobj [--render] [--rerun]
         [--scenarios static one_chair ...] [--width 320 --height 240] [--json table.json]
@@ -74,7 +74,8 @@ def run(root: Path, name: str, mode: str, rerun: bool, tag: str = "") -> dict[st
     out = root / "runs" / f"{name}-{mode}{tag}"
     metrics = out / "metrics.json"
     if rerun or not metrics.is_file():
-        subprocess.run(_cli("run", str(root / name), "--out", str(out), *MODE_ARGS[mode], "--quiet"), check=True)
+        subprocess.run(_cli("run", str(root / name), "--config", "sim", "--out", str(out), *MODE_ARGS[mode], "--quiet"),
+                       check=True)
     result: dict[str, Any] = json.loads(metrics.read_text())
     return result
 
