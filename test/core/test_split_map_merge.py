@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from helpers import REDKITCHEN, require
 
-from changing_slam_ros.core.map_merging import MergeResult
-from changing_slam_ros.core.map_replication import MapUpdate, ReplicationError, apply_merge, full_delta
+from changing_slam_ros.core.map_replication import ReplicationError, apply_merge, full_delta
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
 from changing_slam_ros.nodes.slam_backend import BackendConfig, build_backend, load_backend_config
 from changing_slam_ros.nodes.split_backend import ChainedGraph
@@ -125,8 +124,3 @@ def test_apply_merge_moves_the_replica_keyframes_into_the_merged_map() -> None:
     with pytest.raises(ReplicationError, match="missing"):  # the owner's map names a keyframe the replica lacks
         apply_merge(Atlas(), 1, delta)
 
-
-def test_map_update_carries_the_merge_result() -> None:
-    r = MergeResult(1, 0, np.eye(4), 10, (5, 6), 3, 0, None)
-    u = MapUpdate(-1, full_delta(SlamMap(0)), loop_query_kf_id=5, merge=r)
-    assert u.merge.from_map_id == 1 and u.keyframe_id == -1
