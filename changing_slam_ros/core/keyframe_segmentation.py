@@ -13,7 +13,7 @@ Per new keyframe, before local BA (`LocalMapper.process` step 3a):
    by its keypoint back-projected with the keyframe's depth (`CorrelationWindow.from_pixels`), the keyframe
    poses as tracking / earlier BA left them;
 3. segment (eq. 5 over the window, inconsistent edges removed, the largest-volume component is static);
-4. targets whose points did not move (`min_target_motion_m`) are left alone;
+4. targets whose points did not move (`min_target_motion_sigma`) are left alone;
 5. the points of the other object targets are culled (`SlamMap.erase_point`).
 
 Why cull rather than deactivate (the `active` flag the object layer uses): an inactive point is one the map
@@ -59,13 +59,15 @@ class KeyframeSegmentationConfig:
     - `max_depth_m`: measurements deeper than this are left out (depth noise grows with d^2).
     - `min_target_points`: object targets with fewer points are left alone (a few points that disagree
       with their neighbours are local BA's outlier test's business, not a moving object).
-    - `min_target_motion_m`: a target is taken as moving only when its points moved: the median, over its
-      points, of the largest distance of one of a point's world-frame measurements from the point's median
-      measured position must reach this (0 = no test; our addition). With a moving camera the window's
-      points are seen in different keyframe pairs, edges between them lack common frames and the graph
-      falls apart into components that did not move (static, 320x240 robot loop: 531 points culled in 21
-      such targets, their measurements as consistent as the kept points'); a box pushed 3 cm between
-      keyframes measures about 1.5 cm.
+    - `min_target_motion_sigma`: a target is taken as moving only when its points moved: per point, the
+      largest deviation of one of its measurements from the point's median world position, in the keyframe's
+      camera axes, in units of the measurement noise of the segmentation's model (`sigma_px` z / f across,
+      `depth_sigma_coeff_per_m` z^2 in depth); the target's median of it must reach this (0 = no test; our
+      addition). With a moving camera the window's points are seen in different keyframe pairs, edges
+      between them lack common frames and the graph falls apart into components that did not move (static,
+      320x240 robot loop: 531 points culled in 21 such targets, as consistent as the kept points). On
+      slow_mover the box's targets measure 3.7-5.6; false targets on the sample 0.8 and 1.7 (wall and plant at
+      2.4-3.1 m, 320x240: an absolute 1 cm test let them through).
     - `max_target_fraction`: when the targets hold more than this fraction of the window's segmented points,
       the result is not trusted (a bad keyframe pose moves everything it saw) and nothing is culled.
     - `segmentation`: the point-correlation settings (default: the multi-frame mode, graph <= 800 points,
@@ -79,7 +81,7 @@ class KeyframeSegmentationConfig:
     min_observations: int = 2
     max_depth_m: float = 4.0
     min_target_points: int = 5
-    min_target_motion_m: float = 0.01
+    min_target_motion_sigma: float = 3.0
     max_target_fraction: float = 0.3
     segmentation: SegmentationConfig = field(default_factory=_window_segmentation)
 
@@ -91,10 +93,11 @@ class KeyframeSegmentationConfig:
             )
         if self.min_observations < 2:
             raise ConfigError(f"mapping.segmentation.min_observations: expected >= 2, got {self.min_observations}")
-        if not self.max_depth_m > 0 or not 0.0 < self.max_target_fraction <= 1.0 or self.min_target_motion_m < 0:
+        if not self.max_depth_m > 0 or not 0.0 < self.max_target_fraction <= 1.0 or self.min_target_motion_sigma < 0:
             raise ConfigError(
                 "mapping.segmentation: max_depth_m must be > 0, 0 < max_target_fraction <= 1 and "
-                f"min_target_motion_m >= 0, got {self.max_depth_m}, {self.max_target_fraction}, {self.min_target_motion_m}"
+                f"min_target_motion_sigma >= 0, got {self.max_depth_m}, {self.max_target_fraction}, "
+                f"{self.min_target_motion_sigma}"
             )
 
 
@@ -108,7 +111,7 @@ class KeyframeSegmentationResult:
     - `n_points`: map points with enough measurements in the window (M).
     - `moving_point_ids`: points on object targets (culled unless `trusted` is False).
     - `n_targets`: object targets found (and moved); `n_still_targets`: targets whose points did not move
-      (`min_target_motion_m`), relabelled unassigned and kept; `trusted`: False when `max_target_fraction`
+      (`min_target_motion_sigma`), relabelled unassigned and kept; `trusted`: False when `max_target_fraction`
       vetoed the result.
     - `ms`: CPU milliseconds of the step (window building and segmentation).
     """
@@ -178,7 +181,7 @@ def segment_keyframe_window(
         return None
     seg_cfg = replace(cfg.segmentation, min_target_points=cfg.min_target_points)
     result = segment(window, seg_cfg)
-    labels, n_targets, n_still = still_targets_unassigned(window, result.labels, cfg.min_target_motion_m)
+    labels, n_targets, n_still = still_targets_unassigned(window, result.labels, cfg.min_target_motion_sigma, seg_cfg)
     moving = window.point_ids[labels > 0]
     n_seg = int(np.sum(labels >= 0))
     trusted = len(moving) <= cfg.max_target_fraction * max(n_seg, 1)
@@ -191,21 +194,28 @@ def segment_keyframe_window(
     )
 
 
-def still_targets_unassigned(window: CorrelationWindow, labels: I64, min_motion_m: float) -> tuple[I64, int, int]:
-    """Labels with the targets whose points did not move (`KeyframeSegmentationConfig.min_target_motion_m`)
-    set to unassigned (-1); returns (labels, targets kept, targets relabelled)."""
+def still_targets_unassigned(
+    window: CorrelationWindow, labels: I64, min_motion_sigma: float, seg: SegmentationConfig
+) -> tuple[I64, int, int]:
+    """Labels with the targets whose points did not move (`KeyframeSegmentationConfig.min_target_motion_sigma`,
+    noise model of `seg`) set to unassigned (-1); returns (labels, targets kept, targets relabelled)."""
     targets = [g for g in np.unique(labels) if g > 0]
-    if min_motion_m <= 0 or not targets:
+    if min_motion_sigma <= 0 or not targets:
         return labels, len(targets), 0
-    world = window.points_world()
     obs = window.observed
+    world = window.points_world()
     median = np.nanmedian(np.where(obs[..., None], world, np.nan), axis=0)
-    motion = np.nanmax(np.where(obs, np.linalg.norm(world - median, axis=2), np.nan), axis=0)
+    # Deviations in each keyframe's camera axes (K, M, 3), whitened by that measurement's noise.
+    dev = np.einsum("kba,kmb->kma", window.T_world_cam[:, :3, :3], world - median)
+    z = np.where(obs, window.points_cam[..., 2], 1.0)
+    sigma = np.stack([seg.sigma_px * z / window.camera.fx, seg.sigma_px * z / window.camera.fy,
+                      np.maximum(seg.depth_sigma_coeff_per_m * z * z, seg.depth_sigma_min_m)], axis=2)
+    motion = np.nanmax(np.where(obs, np.linalg.norm(dev / sigma, axis=2), np.nan), axis=0)
     out = labels.copy()
     still = 0
     for g in targets:
         members = labels == g
-        if float(np.median(motion[members])) < min_motion_m:
+        if float(np.median(motion[members])) < min_motion_sigma:
             out[members] = -1
             still += 1
     return out, len(targets) - still, still

@@ -144,7 +144,7 @@ def test_the_dof_correction_finds_a_box_pushed_toward_the_camera_between_two_key
 
 def test_a_target_whose_points_did_not_move_is_left_alone() -> None:
     # Labels as a poorly connected graph can give them: the box split off as a target. Pushed 3 cm per
-    # keyframe it stays a target; standing still (measurement noise only, ~3 mm at 1.5 m) it is relabelled.
+    # keyframe it stays a target; standing still (measurement noise only, 0.5 px and 1.425e-3 d^2) it is relabelled.
     for dt_s, expected in ((KEYFRAME_DT_S, (1, 0)), (0.0, (0, 1))):
         m, _, box_ids = _map_with_pushed_box(5, dt_s)
         window = window_measurements(m, [0, 1, 2, 3, 4], KeyframeSegmentationConfig())
@@ -152,12 +152,12 @@ def test_a_target_whose_points_did_not_move_is_left_alone() -> None:
         labels = np.zeros(len(window.point_ids), np.int64)
         on_box = np.isin(window.point_ids, box_ids)
         labels[on_box] = 1
-        out, kept, still = still_targets_unassigned(window, labels, 0.01)
+        out, kept, still = still_targets_unassigned(window, labels, 3.0, SegmentationConfig.multi_frame())
         assert (kept, still) == expected
         assert (out[on_box] == (1 if expected[0] else -1)).all() and (out[~on_box] == 0).all()
-        assert still_targets_unassigned(window, labels, 0.0)[1:] == (1, 0)  # 0: no test
-    with pytest.raises(ConfigError, match="min_target_motion_m"):
-        KeyframeSegmentationConfig(min_target_motion_m=-0.1)
+        assert still_targets_unassigned(window, labels, 0.0, SegmentationConfig.multi_frame())[1:] == (1, 0)  # 0: no test
+    with pytest.raises(ConfigError, match="min_target_motion_sigma"):
+        KeyframeSegmentationConfig(min_target_motion_sigma=-0.1)
 
 
 def test_a_static_scene_loses_no_point() -> None:
