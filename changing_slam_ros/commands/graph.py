@@ -166,6 +166,7 @@ class BagInfo:
     compressed: bool
     colour_frames: int
     duration_s: float
+    sensor_topics: tuple[str, ...] = ()  # colour, depth, camera_info as the bag has them (tracking reads all)
 
 
 def inspect_bag(path: str) -> BagInfo:
@@ -175,9 +176,12 @@ def inspect_bag(path: str) -> BagInfo:
     with BagMessages(path) as bag:
         topics = bag.topics
         duration_s = (bag.end_ns - bag.start_ns) / 1e9
+    sensors = ("/camera/depth/image", "/camera/depth/image/compressed", "/camera/depth/image/compressedDepth",
+               "/camera/rgb/camera_info")
     for name, compressed in (("/camera/rgb/image_color", False), ("/camera/rgb/image_color/compressed", True)):
         if name in topics:
-            return BagInfo(name, compressed, topics[name].msgcount, duration_s)
+            return BagInfo(name, compressed, topics[name].msgcount, duration_s,
+                           (name, *(t for t in sensors if t in topics)))
     raise ConfigError(f"{path}: no /camera/rgb/image_color[/compressed] topic (has {', '.join(sorted(topics))})")
 
 
@@ -264,6 +268,7 @@ class Graph:
         }), self.logs)  # fmt: skip
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
+                  "wait_for_topics": list(info.sensor_topics or (info.colour_topic,)),
                   "min_subscribers": 2 if self.detection else 1, "wait_subscribers": True,
                   "dds_ack_wait": False}  # fmt: skip
         self.player = NodeProcess("bag_player", _node_argv("bag_player_node", player), self.logs)

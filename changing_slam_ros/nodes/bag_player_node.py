@@ -9,8 +9,10 @@ Topics are renamed by standard `--ros-args -r from:=to` remaps or by the `remap`
 
 Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
 1. before the first message, wait until every topic in `wait_for_topics` (default: the `ack_topics`, else
-   all played topics) has at least `min_subscribers` matched subscriptions (`wait_subscribers_timeout_s`, then the player stops with
-   an error rather than play to nobody);
+   all played topics) has matched subscriptions: `min_subscribers` on an `ack_topics` topic (or on every topic
+   when there are none), at least one on the others (e.g. depth and camera_info, which only tracking reads: a
+   message published before its subscription matched is lost, and a frame without depth or intrinsics is
+   skipped), at most `wait_subscribers_timeout_s`, then the player stops with an error rather than play to nobody;
 2. publishers are reliable with KEEP_ALL history, and after each message the player waits until every
    matched reliable subscription has acknowledged it at the DDS level (`Publisher.wait_for_all_acked`);
 3. one frame in flight: before publishing a message on an `ack_topics` topic (e.g. the colour image), wait
@@ -140,7 +142,8 @@ class BagPlayerNode(Node):
                                    "message (step 2); across processes Fast DDS acks on its heartbeat (up to 3 s)"),
             ("wait_subscribers", False, "also without lossless: wait for subscribers (as in step 1) before playing"),
             ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = ack_topics or all"),
-            ("min_subscribers", 1, "lossless: subscriptions each waited-for topic needs before playing"),
+            ("min_subscribers", 1, "lossless: subscriptions each waited-for ack topic (every topic without ack_topics) "
+                                   "needs before playing; other waited-for topics need one"),
             ("wait_subscribers_timeout_s", 60.0, "lossless: give up (error) after this long without subscribers"),
             ("ack_topics", STRING_ARRAY, "lossless: bag topics whose messages wait for a processing ack"),
             ("ack_topic", "/bag_player/ack", "lossless: std_msgs/Header acks (stamp = acknowledged stamp)"),
@@ -295,7 +298,7 @@ class BagPlayerNode(Node):
             missing = [
                 self.options.output_topic(t)
                 for t in topics
-                if self.bag_publishers[t].get_subscription_count() < self._min_subscribers
+                if self.bag_publishers[t].get_subscription_count() < self._subscribers_needed(t)
             ]
             if not missing:
                 return True
@@ -310,6 +313,10 @@ class BagPlayerNode(Node):
                 logged = True
             executor.spin_once(timeout_sec=0.05)
         return False
+
+    def _subscribers_needed(self, topic: str) -> int:
+        """`min_subscribers` on an ack topic (or every topic when none is set), one on the others."""
+        return self._min_subscribers if topic in self._ack_topics or not self._ack_topics else 1
 
     def _wait_processed(self, msg: Any, executor: Executor, result: PlaybackResult) -> None:
         """Spin until `ack_count` nodes acknowledged `msg`'s stamp on `ack_topic`, at most `ack_timeout_s`."""

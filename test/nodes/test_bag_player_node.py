@@ -185,6 +185,33 @@ def test_lossless_mode_refuses_to_play_to_nobody(ros_context, fr1_bag):
     player.destroy_node()
 
 
+def test_lossless_mode_waits_for_depth_too_not_only_for_the_acknowledged_colour(ros_context, fr1_bag):
+    """A depth frame published before tracking's depth subscription matched is lost (its colour frame then has no
+    pair): the graph's player waits for every sensor topic, the ack topic with `min_subscribers`, the others with one."""
+    colour, depth = "/camera/rgb/image_color", "/camera/depth/image"
+    params = dict(lossless=True, wait_subscribers_timeout_s=1.0, ack_topics=[colour], min_subscribers=2,
+                  wait_for_topics=[colour, depth], ack_topic="/bag_player/ack")
+    only_colour = [Recorder(ros_context, topics=(colour,)), Recorder(ros_context, topics=(colour,))]
+    player = make_player(ros_context, fr1_bag.path, **params)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (player, *only_colour):
+        executor.add_node(node)
+    result = player.play(executor)
+    assert result.published == 0 and result.error == "no subscribers"  # two on colour, none on depth
+    executor.shutdown()
+    for node in (player, *only_colour):
+        node.destroy_node()
+    # One subscriber on depth is enough (only tracking reads it); colour still needs its two.
+    both = Recorder(ros_context, topics=(colour, depth))
+    other = Recorder(ros_context, topics=(colour,))
+    player = make_player(ros_context, fr1_bag.path, **{**params, "ack_count": 0, "wait_subscribers_timeout_s": 10.0})
+    result = play(ros_context, player, both, other)
+    assert result.error in ("", None) and result.published > 0
+    assert len(both.images[depth]) == len(both.images[colour]) > 0
+    for node in (player, both, other):
+        node.destroy_node()
+
+
 def test_bad_bags_and_topics_raise_errors_naming_them(ros_context, tmp_path, fr1_bag):
     with pytest.raises(BagError, match="nope.mcap: no such file"):
         make_player(ros_context, tmp_path / "nope.mcap")
