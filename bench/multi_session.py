@@ -11,8 +11,8 @@ distance of the map objects at its old and its new place (`eval.multi_session`).
 
 which runs (when their metrics.json is missing, or with --rerun)
 
-    changing-slam run /tmp/simobj/static --out /tmp/ms/static --detections oracle --objects
-    changing-slam run /tmp/simobj/shift --out /tmp/ms/shift-from-static --detections oracle --objects \\
+    changing-slam run /tmp/simobj/static --out /tmp/ms/static --config sim --detections oracle --objects
+    changing-slam run /tmp/simobj/shift --out /tmp/ms/shift-from-static --config sim --detections oracle --objects \\
         --map-in /tmp/ms/static/map.npz
 
 `--second shift_final`: the second session runs in the `shift` room as it stands after every move, from its
@@ -42,10 +42,10 @@ from changing_slam_ros.io.map_file import load_map
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
 
-def _run(source: Path, out: Path, rerun: bool, *extra: str) -> dict[str, Any]:
+def _run(source: Path, out: Path, rerun: bool, config: str, *extra: str) -> dict[str, Any]:
     if rerun or not (out / "metrics.json").is_file():
         subprocess.run([sys.executable, "-m", "changing_slam_ros.cli", "run", str(source), "--out", str(out),
-                        "--detections", "oracle", "--objects", "--quiet", *extra], check=True)
+                        "--config", config, "--detections", "oracle", "--objects", "--quiet", *extra], check=True)
     result: dict[str, Any] = json.loads((out / "metrics.json").read_text())
     return result
 
@@ -78,12 +78,12 @@ def render_changed_room(root: Path, width: int = 320, height: int = 240, seed: i
     return folder
 
 
-def evaluate(root: Path, out: Path, rerun: bool, second_scene: str = "shift") -> dict[str, Any]:
+def evaluate(root: Path, out: Path, rerun: bool, second_scene: str = "shift", config: str = "sim") -> dict[str, Any]:
     first, second = out / "static", out / f"{second_scene}-from-static"
     if second_scene == "shift_final":
         render_changed_room(root)
-    m1 = _run(root / "static", first, rerun)
-    m2 = _run(root / second_scene, second, rerun, "--map-in", str(first / "map.npz"))
+    m1 = _run(root / "static", first, rerun, config)
+    m2 = _run(root / second_scene, second, rerun, config, "--map-in", str(first / "map.npz"))
     gt1, gt2 = (read_tum_trajectory(root / s / "groundtruth.txt") for s in ("static", second_scene))
     T_gt_map = trajectory_alignment(gt1, read_tum_trajectory(first / "trajectory.txt"))
     if T_gt_map is None:
@@ -115,8 +115,9 @@ def main() -> int:
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--second", choices=("shift", "shift_final"), default="shift",
                     help="the second session's scene (shift_final: the room changed between the sessions)")
+    ap.add_argument("--config", default="sim", help="config of both runs (default sim: the renderer's exact depth)")
     args = ap.parse_args()
-    r = evaluate(args.root, args.out, args.rerun, args.second)
+    r = evaluate(args.root, args.out, args.rerun, args.second, args.config)
     ms = r["second"]["multi_session"]
     print(f"first session (static): ATE {100 * r['first']['ate_rmse_m']:.2f} cm, {r['first']['keyframes']} keyframes")
     print(f"second session ({args.second} from static's map): relocalised at frame {ms['relocalised_frame']} "
