@@ -411,9 +411,7 @@ def apply_merge(atlas: Atlas, from_map_id: int, delta: MapDelta) -> SlamMap:
     m = restore(atlas, [*dst.keyframes.values(), *src.keyframes.values()], delta)
     order = delta.keyframes.ids.tolist()  # the owner's keyframe order, and its spanning tree in that order
     m.keyframes = {k: m.keyframes[k] for k in order if k in m.keyframes} | m.keyframes
-    parent = {k: m.parent[k] for k in m.keyframes if k in m.parent}
-    parent.update((k, v) for k, v in m.parent.items() if k not in parent)
-    m.parent = parent
+    m.order_spanning_tree()
     atlas.maps[from_map_id] = SlamMap(from_map_id)
     atlas.merged_into[from_map_id] = into
     atlas.current = m

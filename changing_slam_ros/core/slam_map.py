@@ -165,6 +165,13 @@ class SlamMap:
         return ranked[0] if ranked else -1
 
     # 4. Queries -----------------------------------------------------------------------------------
+    def order_spanning_tree(self) -> None:
+        """The spanning tree's entries in keyframe order, then any others as they were (after a map merge: the
+        order the pose graph adds its factors in, the same offline and in the split graph's replicas)."""
+        parent = {k: self.parent[k] for k in self.keyframes if k in self.parent}
+        parent.update((k, v) for k, v in self.parent.items() if k not in parent)
+        self.parent = parent
+
     def local_point_ids(self, kf_ids: list[int]) -> npt.NDArray[np.int64]:
         """Usable map points seen by any of `kf_ids`, unique, sorted."""
         arrays = [self.keyframes[k].point_ids for k in kf_ids if k in self.keyframes]

@@ -94,13 +94,6 @@ class FrameOutput:
     objects: ObjectLayerResult | None = None  # the object layer's work on this frame's new keyframe
 
 
-def keyframe_ordered(links: dict[int, int], keyframes: dict[int, Keyframe]) -> dict[int, int]:
-    """`links` (keyframe id -> value) in the order of `keyframes`, then any other keys as they were."""
-    out = {k: links[k] for k in keyframes if k in links}
-    out.update((k, v) for k, v in links.items() if k not in out)
-    return out
-
-
 class SlamSystem:
     """Feed `RgbdFrame`s in order with `process`; read trajectories and timings afterwards."""
 
@@ -224,8 +217,7 @@ class SlamSystem:
         result = merge_maps(self.atlas, merge, self.mapper.scales, self.config.features.bf_m_px,
                             self.config.mapping.merge, self.mapper.ba_config())
         self.mapper.points_moved(result.from_map_id, result.into_map_id, result.point_id_offset)
-        m = self.atlas.maps[result.into_map_id]
-        m.parent = keyframe_ordered(m.parent, m.keyframes)  # the order replicas rebuild (pose-graph factor order)
+        self.atlas.maps[result.into_map_id].order_spanning_tree()  # the order replicas rebuild
         return result
 
     def follow_merge(self, result: MergeResult) -> None:

@@ -49,6 +49,7 @@ from changing_slam_ros.core.map_replication import (
     LoopResult,
     MapDelta,
     MapUpdate,
+    PointCounters,
     ReplicationError,
     apply_counters,
     apply_delta,
@@ -171,22 +172,13 @@ class TrackingSide:
             return out, None
         kf = out.keyframe
         m = self.system.atlas.maps[kf.map_id]
-        if self.provisional is None:
-            counters = self.counters.take(m)
-        else:
-            with self.provisional.hidden(m):  # increments on the owner's points only
-                counters = self.counters.take(m)
+        counters = self._take_counters(m)
         others = {}
         for other in self.system.atlas.maps:
-            if other is m or other.points.size == 0:
-                continue
-            if self.provisional is None:
-                c = self.counters.take(other)
-            else:
-                with self.provisional.hidden(other):
-                    c = self.counters.take(other)
-            if len(c.ids):
-                others[other.id] = c
+            if other is not m and other.points.size > 0:
+                c = self._take_counters(other)
+                if len(c.ids):
+                    others[other.id] = c
         if kf.id == m.origin_kf_id and self.provisional is None:
             self.waiting_for_map = kf.id
         packet = KeyframePacket(kf, counters, rgbd.depth_m, ()) if self.ship_objects else KeyframePacket(kf, counters)
@@ -254,6 +246,13 @@ class TrackingSide:
         if self.system.records:
             self.system._reanchor_last_frame()  # noqa: SLF001 - SlamSystem's own re-anchoring, reused
         return self._flush() if self.provisional is not None else []
+
+    def _take_counters(self, m: SlamMap) -> PointCounters:
+        """Tracking's counter increments in map `m` since its last packet, on the owner's points only."""
+        if self.provisional is None:
+            return self.counters.take(m)
+        with self.provisional.hidden(m):
+            return self.counters.take(m)
 
     def _apply_merge(self, update: MapUpdate) -> None:
         """The owner merged two maps: the replica takes the merged map (`apply_merge`), then what `SlamSystem`
@@ -337,8 +336,7 @@ class MapOwner:
         apply_counters(m.points, packet.counters)
         for map_id, counters in packet.other_counters.items():  # tracking's increments in other maps
             if map_id != m.id:
-                apply_counters(ensure_map(self.atlas, map_id).points, counters)
-        self.atlas.current = m
+                apply_counters(ensure_map(self.atlas, map_id).points, counters)  # keeps the current map
         before = snapshot(m)
         t0 = time.perf_counter()
         stats = self.mapper.process(kf)

@@ -112,15 +112,15 @@ def reprojection_chi2(
     z = np.where(np.abs(pc[:, 2]) < 1e-6, 1e-6, pc[:, 2])
     u = fx * pc[:, 0] / z + cx
     v = fy * pc[:, 1] / z + cy
-    e2 = (obs.uv[:, 0] - u) ** 2 + (obs.uv[:, 1] - v) ** 2
+    e_u = obs.uv[:, 0] - u
+    e2_uv = e_u**2 + (obs.uv[:, 1] - v) ** 2
     stereo = obs.u_right >= 0
     e_r = obs.u_right - (u - bf / z)
-    e2 = e2 + np.where(stereo, e_r**2, 0.0)
+    e2 = e2_uv + np.where(stereo, e_r**2, 0.0)
     chi2 = e2 / scales[obs.level] ** 2
     if disparity_sigma_ratio > 0:
-        e_d = (obs.uv[:, 0] - u) - e_r  # measured minus predicted disparity
-        chi2_s = ((obs.uv[:, 0] - u) ** 2 + (obs.uv[:, 1] - v) ** 2 + (e_d / disparity_sigma_ratio) ** 2) / scales[obs.level] ** 2
-        chi2 = np.where(stereo, chi2_s, chi2)
+        e_d = e_u - e_r  # measured minus predicted disparity
+        chi2 = np.where(stereo, (e2_uv + (e_d / disparity_sigma_ratio) ** 2) / scales[obs.level] ** 2, chi2)
     chi2 = np.where(pc[:, 2] > 0, chi2, 1e9)
     return e2, chi2
 
@@ -182,7 +182,7 @@ def carry_lone_points(slam_map: SlamMap, poses_before: dict[int, F64]) -> int:
             continue
         ids = kf.point_ids[kf.point_ids >= 0]
         ids = ids[~pts.bad[ids]]
-        lone = ids[np.array([len(pts.observations[p]) == 1 for p in ids.tolist()], dtype=bool)] if len(ids) else ids
+        lone = ids[pts.n_obs(ids) == 1]
         if len(lone) == 0:
             continue
         pts.positions[lone] = pts.positions[lone] @ delta[:3, :3].T + delta[:3, 3]
