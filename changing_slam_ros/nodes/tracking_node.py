@@ -419,14 +419,17 @@ class TrackingNode(Node):
         from changing_slam_ros.nodes.split_backend import TrackingSide, object_layer_for
 
         p, old = self.params, self.split
-        side = TrackingSide.build(self._cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"],
-                                  provisional=old.provisional is not None)  # fmt: skip
+
+        def build() -> TrackingSide:
+            return TrackingSide.build(self._cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"],
+                                      provisional=old.provisional is not None)  # fmt: skip
+
+        side = build()
         try:
             side.start_from_map(load_map(marker.path), object_layer_for(self._cfg, p["objects"]))
         except (SlamError, OSError, ValueError) as err:  # local_mapping loaded it: the file changed since
             self.get_logger().error(f"tracking: map {marker.path} not loaded ({err}); starting a new map")
-            side = TrackingSide.build(self._cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"],
-                                      provisional=old.provisional is not None)  # fmt: skip
+            side = build()
         if old.system.records:
             self._before_load.append(old.system.online_trajectory())
         self.split, self.backend = side, side.backend
