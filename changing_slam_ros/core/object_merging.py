@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.backend.object_ba import ObjectObservations
 from changing_slam_ros.core.object_tracking import MovingObject
-from changing_slam_ros.core.point_correlation import hull_volume_m3
+from changing_slam_ros.core.delaunay_graph import hull_volume_m3
 from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.errors import ConfigError
 

@@ -25,23 +25,24 @@ anchor of each point on its measured position (eq. 5 alone has flat directions),
 of kept edges (one surviving edge would join an object to the static scene), and an optional
 viewing-cone volume for picking the static component.
 
-Everything is vectorised over measurements; each Gauss-Newton step solves one block-sparse (3M x 3M)
-system by preconditioned conjugate gradients. Camera pose errors do not change the result: an error in
+The graph is built in `delaunay_graph`, eq. 5 is solved in `correlation_optimiser` (vectorised over
+measurements; each Gauss-Newton step solves one block-sparse (3M x 3M) system by preconditioned conjugate
+gradients); this module holds the configuration, the input window, the result and `segment`. Camera pose errors do not change the result: an error in
 one frame's pose moves all of that frame's points by the same rigid transform, like a common motion.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp  # type: ignore[import-untyped]
 from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped]
-from scipy.sparse.linalg import cg  # type: ignore[import-untyped]
-from scipy.spatial import ConvexHull, Delaunay, QhullError  # type: ignore[import-untyped]
 
 from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.correlation_optimiser import median_world, optimise_correlations
+from changing_slam_ros.core.delaunay_graph import delaunay_graph, hull_volume_m3, triangle_supported
 from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
@@ -279,307 +280,6 @@ class SegmentationResult:
         return [np.flatnonzero(self.labels == g) for g in range(1, self.num_targets + 1)]
 
 
-def hull_volume_m3(points: F64) -> float:
-    """Volume of the convex hull of points (N, 3); 0.0 when fewer than 4 or degenerate (coplanar)."""
-    pts = np.asarray(points, dtype=np.float64)
-    if len(pts) < 4:
-        return 0.0
-    try:
-        return float(ConvexHull(pts).volume)
-    except QhullError:
-        return 0.0
-
-
-@dataclass(frozen=True)
-class DelaunayGraph:
-    """Adjacency of points from a Delaunay triangulation.
-
-    - `edges`: (E, 2) int64 point indices, i < j, unique.
-    - `triangles`: (T, 3) int64 indices into `edges` of the three sides of each Delaunay triangle
-      (faces of the tetrahedra); empty when the points are collinear.
-    """
-
-    edges: I64
-    triangles: I64
-
-
-def delaunay_graph(points: F64) -> DelaunayGraph:
-    """Graph of the 3D Delaunay tetrahedralisation of points (N, 3).
-
-    Falls back to a 2D triangulation in the two principal axes for (nearly) coplanar points and to a
-    chain along the first axis for collinear ones.
-    """
-    n = len(points)
-    no_triangles = np.empty((0, 3), dtype=np.int64)
-    if n < 2:
-        return DelaunayGraph(np.empty((0, 2), dtype=np.int64), no_triangles)
-    simplices: npt.NDArray[np.int32] | None = None
-    if n >= 5:
-        try:
-            simplices = Delaunay(points, qhull_options="Qbb Qc Qz Q12").simplices
-        except QhullError:
-            simplices = None
-    if simplices is None:
-        centred = points - points.mean(axis=0)
-        _, _, vt = np.linalg.svd(centred, full_matrices=False)
-        try:
-            simplices = Delaunay(centred @ vt[:2].T).simplices
-        except (QhullError, ValueError):
-            order = np.argsort(centred @ vt[0])
-            edges = np.sort(np.stack([order[:-1], order[1:]], axis=1), axis=1).astype(np.int64)
-            return DelaunayGraph(edges, no_triangles)
-    nv = simplices.shape[1]
-    # Every triple of a simplex's vertices is a triangle; sides are coded i * n + j with i < j.
-    faces = ([0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3])[: 1 if nv == 3 else 4]
-    tri = _sort_rows3(np.concatenate([simplices[:, f] for f in faces]).astype(np.int64))
-    # Unique triangles through one integer key per vertex triple (faces are shared by two tetrahedra).
-    tri_keys = np.unique((tri[:, 0] * n + tri[:, 1]) * n + tri[:, 2])
-    tri = np.stack([tri_keys // (n * n), (tri_keys // n) % n, tri_keys % n], axis=1)
-    sides = np.stack([tri[:, 0] * n + tri[:, 1], tri[:, 0] * n + tri[:, 2], tri[:, 1] * n + tri[:, 2]], axis=1)
-    codes, inverse = np.unique(sides, return_inverse=True)
-    edges = np.stack([codes // n, codes % n], axis=1).astype(np.int64)
-    return DelaunayGraph(edges, inverse.reshape(-1, 3).astype(np.int64))
-
-
-def _sort_rows3(t: I64) -> I64:
-    """Each row of (T, 3) ascending: a three-element sorting network on columns (np.sort per row is slow)."""
-    a, b, c = t[:, 0], t[:, 1], t[:, 2]
-    a, b = np.minimum(a, b), np.maximum(a, b)
-    b, c = np.minimum(b, c), np.maximum(b, c)
-    a, b = np.minimum(a, b), np.maximum(a, b)
-    return np.stack([a, b, c], axis=1)
-
-
-def triangle_supported(graph: DelaunayGraph, consistent: BoolArr, min_triangles: int) -> BoolArr:
-    """(E,) True for consistent edges that are a side of `min_triangles` triangles with three consistent sides.
-
-    A rigid body's interior edges lie in many such triangles; an edge that bridges two differently moving
-    bodies but happens to pass the test (e.g. a point whose own displacement is below the noise) does not,
-    because the third vertex of each of its triangles lies on one body only.
-    """
-    if len(graph.triangles) == 0:
-        return consistent.copy()
-    good = np.all(consistent[graph.triangles], axis=1)
-    support = np.bincount(graph.triangles[good].ravel(), minlength=len(graph.edges))
-    return consistent & (support >= min_triangles)
-
-
-def _observation(points_cam: F64, camera: CameraIntrinsics, model: str) -> F64:
-    """The RGB-D observation g(p) (N, 3) of points (N, 3) in the camera frame: [u, v, d] or [x, y, z]."""
-    if model == "point_3d":
-        return points_cam.copy()
-    x, y, z = points_cam[:, 0], points_cam[:, 1], points_cam[:, 2]
-    return np.stack([camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy, z], axis=1)
-
-
-def _observation_sigma(points_cam: F64, camera: CameraIntrinsics, cfg: SegmentationConfig) -> F64:
-    """Per-component std (N, 3) of y = g(p) for measured points (N, 3), in the units of the model."""
-    z = points_cam[:, 2]
-    sigma_d = np.maximum(cfg.depth_sigma_coeff_per_m * z * z, cfg.depth_sigma_min_m)
-    if cfg.observation_model == "point_3d":
-        return np.stack([cfg.sigma_px * z / camera.fx, cfg.sigma_px * z / camera.fy, sigma_d], axis=1)
-    return np.stack([np.full_like(z, cfg.sigma_px), np.full_like(z, cfg.sigma_px), sigma_d], axis=1)
-
-
-@dataclass
-class _Problem:
-    """The measurements of eq. 4, flattened: one row per (edge, frame) with both points observed."""
-
-    edge: I64  # (Q,) edge index
-    i: I64  # (Q,) first point (index into the optimised points)
-    j: I64  # (Q,) second point
-    z_meas: F64  # (Q, 3) y_ik - y_jk
-    whiten: F64  # (Q, 3) 1 / std of each component of z_ijk
-    frame: I64  # (Q,) frame of the measurement
-    R_cam_world: F64  # (K, 3, 3) world-to-camera rotation of each frame
-    t_cam_world: F64  # (K, 3)
-
-
-def _jacobian_world(points_cam: F64, r_cam_world: F64, camera: CameraIntrinsics, model: str) -> F64:
-    """d g(R p + t) / d p (Q, 3, 3) = dg/dp_cam R for camera-frame points (Q, 3) and rotations (Q, 3, 3).
-
-    Written row by row: the pixel rows of dg/dp_cam have two non-zeros each, the depth row is (0, 0, 1).
-    """
-    if model == "point_3d":
-        return r_cam_world
-    inv_z = 1.0 / points_cam[:, 2:3]
-    r0, r1, r2 = r_cam_world[:, 0, :], r_cam_world[:, 1, :], r_cam_world[:, 2, :]
-    row0 = camera.fx * inv_z * (r0 - points_cam[:, 0:1] * inv_z * r2)
-    row1 = camera.fy * inv_z * (r1 - points_cam[:, 1:2] * inv_z * r2)
-    return np.stack([row0, row1, r2], axis=1)
-
-
-def _residuals(points_world: F64, prob: _Problem, camera: CameraIntrinsics, model: str) -> tuple[F64, F64, F64]:
-    """Whitened residuals r (Q, 3) of eq. 5 and their Jacobians wrt p_i and p_j, each (Q, 3, 3)."""
-    # Camera-frame point, observation and Jacobian once per (frame, point), then gathered per measurement:
-    # a point takes part in about seven edges, so this is several times less work than per measurement.
-    m = len(points_world)
-    p_cam = (np.einsum("kab,mb->kma", prob.R_cam_world, points_world) + prob.t_cam_world[:, None, :]).reshape(-1, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):  # points behind a frame they are not measured in
-        g = _observation(p_cam, camera, model)
-        jac = _jacobian_world(p_cam, np.repeat(prob.R_cam_world, m, axis=0), camera, model)
-    qi, qj = prob.frame * m + prob.i, prob.frame * m + prob.j
-    w = prob.whiten[:, :, None]
-    res = prob.whiten * (prob.z_meas - (g[qi] - g[qj]))
-    d_pi = -w * jac[qi]
-    d_pj = w * jac[qj]
-    return res, d_pi, d_pj
-
-
-class _NormalEquations:
-    """The (3M, 3M) normal matrix of eq. 5 plus anchors, in 3x3 blocks (BSR): one diagonal block per point
-    and two off-diagonal blocks per edge. The block layout, and the sparse 0/1 matrices that sum the
-    per-measurement blocks into it, are fixed per problem and built once."""
-
-    def __init__(self, edges: I64, prob: _Problem, m: int) -> None:
-        n_edges = len(edges)
-        block_row = np.concatenate([np.arange(m), edges[:, 0], edges[:, 1]])
-        block_col = np.concatenate([np.arange(m), edges[:, 1], edges[:, 0]])
-        self.order = np.lexsort((block_col, block_row))
-        self.indices = block_col[self.order].astype(np.int32)
-        self.indptr = np.searchsorted(block_row[self.order], np.arange(m + 1)).astype(np.int32)
-        self.m, self.n_edges = m, n_edges
-        self.i, self.j, self.edge = prob.i, prob.j, prob.edge
-        q = len(prob.edge)
-        ones, rows = np.ones(q), np.arange(q)
-        # (size, Q) summation matrices: one sparse product replaces nine bincounts per block sum.
-        self.sum_i = sp.csr_matrix((ones, (prob.i, rows)), shape=(m, q))
-        self.sum_j = sp.csr_matrix((ones, (prob.j, rows)), shape=(m, q))
-        self.sum_edge = sp.csr_matrix((ones, (prob.edge, rows)), shape=(n_edges, q))
-
-    def matrix(self, d_pi: F64, d_pj: F64, weights: F64, anchor_info: F64) -> tuple[sp.bsr_matrix, F64]:
-        """H = sum_q w_q J_q^T J_q + diag(anchor information) for Jacobian blocks (Q, 3, 3), weights (Q,).
-
-        Also returns H's diagonal blocks (M, 3, 3), the block-Jacobi preconditioner.
-        """
-        wd_pi_t = np.swapaxes(weights[:, None, None] * d_pi, 1, 2)
-        q = len(weights)
-        ii = np.matmul(wd_pi_t, d_pi).reshape(q, 9)
-        jj = np.matmul(np.swapaxes(weights[:, None, None] * d_pj, 1, 2), d_pj).reshape(q, 9)
-        ij = np.matmul(wd_pi_t, d_pj).reshape(q, 9)
-        diag = np.asarray(self.sum_i @ ii + self.sum_j @ jj).reshape(self.m, 3, 3)
-        diag += anchor_info[:, None, None] * np.eye(3)
-        off = np.asarray(self.sum_edge @ ij).reshape(self.n_edges, 3, 3)
-        blocks = np.concatenate([diag, off, np.swapaxes(off, 1, 2)])[self.order]
-        shape = (3 * self.m, 3 * self.m)
-        return sp.bsr_matrix((blocks, self.indices, self.indptr), shape=shape), diag
-
-    def gradient(self, d_pi: F64, d_pj: F64, weighted_res: F64) -> F64:
-        """sum_q J_q^T w_q r_q per point (M, 3) for weighted residuals (Q, 3)."""
-        g_i = np.einsum("qai,qa->qi", d_pi, weighted_res)
-        g_j = np.einsum("qai,qa->qi", d_pj, weighted_res)
-        return np.asarray(self.sum_i @ g_i + self.sum_j @ g_j)
-
-
-def _gauss_newton_step(
-    points_world: F64,
-    anchor_world: F64,
-    anchor_info: F64,
-    prob: _Problem,
-    normal: _NormalEquations,
-    residuals: tuple[F64, F64, F64],
-    weights: F64,
-    rtol: float = 1e-3,
-) -> F64:
-    """One IRLS Gauss-Newton update of all points (M, 3) for the weighted residuals plus the anchors.
-
-    `anchor_world` (M, 3) and `anchor_info` (M,) (isotropic information, 1/m^2) are the point anchors;
-    `residuals` is `_residuals` at `points_world`, `weights` (Q,) the IRLS weights.
-    """
-    m = len(points_world)
-    res, d_pi, d_pj = residuals
-    hessian, block_diag = normal.matrix(d_pi, d_pj, weights, anchor_info)
-    gradient = normal.gradient(d_pi, d_pj, weights[:, None] * res)
-    gradient += anchor_info[:, None] * (points_world - anchor_world)
-    # H is symmetric positive definite (the anchors make it so) and well conditioned once each point's
-    # 3x3 block is inverted: block-Jacobi preconditioned conjugate gradients beat a sparse LU here.
-    inv_blocks = np.linalg.inv(block_diag)
-    precond = sp.bsr_matrix((inv_blocks, np.arange(m), np.arange(m + 1)), shape=hessian.shape)
-    delta, _ = cg(hessian, -gradient.ravel(), M=precond, rtol=rtol, maxiter=500)
-    return np.asarray(points_world + delta.reshape(m, 3), dtype=np.float64)
-
-
-def _huber_weights(chi: F64, delta: float) -> F64:
-    """IRLS weights of the Huber norm for whitened residual norms (Q,)."""
-    return np.where(chi <= delta, 1.0, delta / np.maximum(chi, 1e-12))
-
-
-def _build_problem(window: CorrelationWindow, keep: I64, edges: I64, cfg: SegmentationConfig) -> _Problem:
-    """Measurements of every edge (indices into `keep`) in every frame where both points are seen."""
-    obs = window.observed[:, keep]  # (K, M')
-    both = obs[:, edges[:, 0]] & obs[:, edges[:, 1]]  # (K, E)
-    frame, edge = np.nonzero(both)
-    i, j = edges[edge, 0], edges[edge, 1]
-    pts = window.points_cam[:, keep]
-    pi, pj = pts[frame, i], pts[frame, j]
-    gi = _observation(pi, window.camera, cfg.observation_model)
-    gj = _observation(pj, window.camera, cfg.observation_model)
-    var = _observation_sigma(pi, window.camera, cfg) ** 2 + _observation_sigma(pj, window.camera, cfg) ** 2
-    T_cam_world = np.linalg.inv(window.T_world_cam)
-    return _Problem(
-        edge=edge.astype(np.int64),
-        i=i,
-        j=j,
-        z_meas=gi - gj,
-        whiten=1.0 / np.sqrt(var),
-        frame=frame.astype(np.int64),
-        R_cam_world=np.ascontiguousarray(T_cam_world[:, :3, :3]),
-        t_cam_world=np.ascontiguousarray(T_cam_world[:, :3, 3]),
-    )
-
-
-def _anchor_information(window: CorrelationWindow, keep: I64, cfg: SegmentationConfig) -> F64:
-    """Isotropic information (M',) in 1/m^2 of each point's measured position: K_i / mean 3D variance."""
-    cfg = replace(cfg, observation_model="point_3d")
-    pts = window.points_cam[:, keep]
-    obs = window.observed[:, keep]
-    flat = np.where(obs[..., None], pts, 1.0).reshape(-1, 3)
-    var = (_observation_sigma(flat, window.camera, cfg) ** 2).mean(axis=1).reshape(obs.shape)
-    mean_var = np.where(obs, var, 0.0).sum(axis=0) / np.maximum(obs.sum(axis=0), 1)
-    return np.asarray(obs.sum(axis=0) / mean_var, dtype=np.float64)
-
-
-def _median_world(world: F64, observed: BoolArr) -> F64:
-    """Per-coordinate median over frames of measured world points (K, M, 3) where observed (K, M)."""
-    masked = np.where(observed[..., None], world, np.nan)
-    return np.asarray(np.nanmedian(masked, axis=0), dtype=np.float64)
-
-
-def optimise_correlations(
-    window: CorrelationWindow, keep: I64, edges: I64, cfg: SegmentationConfig
-) -> tuple[F64, F64, I64]:
-    """Solve eq. 5 for the points `keep` (indices into the window) connected by `edges` (E, 2).
-
-    Returns the optimised world positions (M', 3), the per-edge inlier fraction (E,) after the last
-    round, and the number of measurements per edge (E,).
-    """
-    world = window.points_world()[:, keep]
-    obs = window.observed[:, keep]
-    # Per-coordinate median of the measured world positions (the mean for two frames): robust to one bad
-    # measurement when K >= 3, and for two frames it puts a moving point midway, where both measurements
-    # of an edge to a static neighbour are equally (in)consistent.
-    init = _median_world(world, obs)
-    anchor_info = cfg.anchor_weight * _anchor_information(window, keep, cfg)
-    prob = _build_problem(window, keep, edges, cfg)
-    normal = _NormalEquations(edges, prob, len(keep))
-    n_meas = np.bincount(prob.edge, minlength=len(edges)).astype(np.int64)
-    points = init.copy()
-    active = np.ones(len(prob.edge), dtype=bool)
-    residuals = _residuals(points, prob, window.camera, cfg.observation_model)
-    for _ in range(cfg.rounds):
-        for _ in range(cfg.iterations_per_round):
-            weights = _huber_weights(np.linalg.norm(residuals[0], axis=1), cfg.huber_delta) * active
-            points = _gauss_newton_step(points, init, anchor_info, prob, normal, residuals, weights, cfg.cg_rtol)
-            residuals = _residuals(points, prob, window.camera, cfg.observation_model)
-        chi2 = np.einsum("qa,qa->q", residuals[0], residuals[0])
-        if cfg.outlier_dof_correction:
-            n = n_meas[prob.edge]
-            chi2 = chi2 * n / np.maximum(n - 1, 1)
-        active = chi2 <= cfg.outlier_chi2
-    inliers = np.bincount(prob.edge, weights=active.astype(float), minlength=len(edges))
-    fraction = inliers / np.maximum(n_meas, 1)
-    return points, fraction, n_meas
-
 
 def _nearest_labels(points: F64, labels: I64, queries: F64, radius_m: float) -> I64:
     """Label (Q,) of each query point's nearest point (N, 3) within `radius_m`, else unassigned."""
@@ -615,9 +315,9 @@ def segment(window: CorrelationWindow, cfg: SegmentationConfig) -> SegmentationR
 
     # (1) graph of adjacent points, at their median measured world position.
     kobs = obs[:, keep]
-    median_world = _median_world(window.points_world()[:, seen_twice], obs[:, seen_twice])
+    median_pos = median_world(window.points_world()[:, seen_twice], obs[:, seen_twice])
     in_graph = np.isin(seen_twice, keep)
-    graph = delaunay_graph(median_world[in_graph])
+    graph = delaunay_graph(median_pos[in_graph])
     edges = graph.edges
     common = (kobs[:, edges[:, 0]] & kobs[:, edges[:, 1]]).sum(axis=0)
     usable = common >= cfg.min_common_frames
@@ -656,7 +356,7 @@ def segment(window: CorrelationWindow, cfg: SegmentationConfig) -> SegmentationR
     positions[keep] = points
     if not in_graph.all():
         rest = seen_twice[~in_graph]
-        labels[rest] = _nearest_labels(median_world[in_graph], klabels, median_world[~in_graph], cfg.label_rest_radius_m)
+        labels[rest] = _nearest_labels(median_pos[in_graph], klabels, median_pos[~in_graph], cfg.label_rest_radius_m)
     return SegmentationResult(
         point_ids=window.point_ids,
         labels=labels,

@@ -8,13 +8,8 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.point_correlation import (
-    CorrelationWindow,
-    SegmentationConfig,
-    delaunay_graph,
-    hull_volume_m3,
-    segment,
-)
+from changing_slam_ros.core.delaunay_graph import delaunay_graph, hull_volume_m3
+from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationConfig, segment
 from changing_slam_ros.core.se3 import make_pose
 from changing_slam_ros.errors import ConfigError
 
