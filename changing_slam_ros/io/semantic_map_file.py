@@ -11,7 +11,8 @@ Layout (version 1):
 Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`).
 Load errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
 
-The object map (every MapObject with its point ids, point positions, boxes and persistence state, for a
+The object map (every MapObject with its point ids, point positions, optional `point_weights` (one per point,
+the centroid's weights), boxes and persistence state, for a
 saved map that a later session starts from) has its own document, `object_map_to_dict` /
 `object_map_from_dict` (format "changing_slam_ros object map", version 1), meant to be embedded in the
 map file or written alone with `write_object_map` / `read_object_map`.
@@ -132,6 +133,7 @@ def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
                 "last_seen_keyframe": o.last_seen_keyframe, "last_belief_update_keyframe": o.last_belief_update_keyframe,
                 "n_observations": o.n_observations, "belief": o.belief, "active": o.active,
                 "points": [[int(i), *(float(v) for v in p)] for i, p in zip(o.point_ids, o.points_w)],
+                **({} if o.point_weights is None else {"point_weights": [float(w) for w in o.point_weights]}),
             }
             for o in sorted(objects, key=lambda o: o.id)
         ],
@@ -157,6 +159,12 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
         if not 0.0 <= belief <= 1.0:
             raise MapFileError(f"{w}.belief: expected within [0, 1], got {belief}")
         arr = np.asarray(pts, float).reshape(-1, 4)
+        weights = item.get("point_weights")  # optional (centroid weights, docs/changing_scenes.md session 6)
+        if weights is not None and (
+                not isinstance(weights, list) or len(weights) != len(arr)
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0
+                       for v in weights)):
+            raise MapFileError(f"{w}.point_weights: expected {len(arr)} finite numbers >= 0, one per point")
         obj = MapObject(
             _field(item, "id", int, w), _field(item, "class_id", int, w), _box(item, "first_box_xyxy", w),
             _box(item, "current_box_xyxy", w), _field(item, "first_keyframe", int, w),
@@ -164,6 +172,7 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
             point_ids=arr[:, 0].astype(np.int64), points_w=arr[:, 1:],
             last_belief_update_keyframe=_field(item, "last_belief_update_keyframe", int, w),
             n_observations=_field(item, "n_observations", int, w),
+            point_weights=None if weights is None else np.asarray(weights, float),
         )
         out.append(obj)
     ids = [o.id for o in out]
