@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
 
@@ -235,6 +236,7 @@ class Graph:
         self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.nodes: dict[str, NodeProcess] = {}
         self.restarts: dict[str, int] = {}
+        self.cpu = PlayCpu()  # CPU seconds per process during playback (graph_summary.json)
         self._build()
 
     def _build(self) -> None:
@@ -289,6 +291,10 @@ class Graph:
                 raise SlamError(f"graph: {node.name} not up after {timeout_s:.0f} s; see {node.log_path}")
             time.sleep(0.1)
 
+    def _pids(self, with_player: bool = True) -> dict[str, int]:
+        nodes = [*self.nodes.values(), self.player] if with_player else list(self.nodes.values())
+        return {n.name: n.proc.pid for n in nodes if n.proc is not None and n.proc.poll() is None}
+
     def _supervise(self, started_s: float) -> None:
         """Restart nodes that died (bounded), carry out --kill, until the player ends or the timeout."""
         pending_kills = list(self.kills)
@@ -313,6 +319,7 @@ class Graph:
                 self.restarts[node.name] = self.restarts.get(node.name, 0) + 1
                 print(f"graph: {node.name} died (exit {code}); restarting ({self.restarts[node.name]})", flush=True)
                 self._start(node, 180.0)
+            self.cpu.sample(self._pids())
             time.sleep(0.2)
 
     def _wait_resynced(self, timeout_s: float) -> None:
@@ -358,6 +365,7 @@ class Graph:
             print(f"graph: {', '.join(self.nodes)} up after {up_s:.1f} s (ROS_DOMAIN_ID {self.env['ROS_DOMAIN_ID']}); "
                   f"playing {self.bag} at {self.args.rate}x{' lossless' if self.args.lossless else ''}", flush=True)
             t_play = time.monotonic()
+            self.cpu.start(self._pids(with_player=False))
             self.player.start(self.env)
             self._supervise(t_play)
             play_s = time.monotonic() - t_play
@@ -365,6 +373,7 @@ class Graph:
                 raise SlamError(f"graph: bag_player failed (exit {self.player.proc.returncode}); see {self.player.log_path}")
             if not self.args.lossless:
                 time.sleep(1.0 if self.args.backend == "in_process" else 3.0)  # frames, keyframes, map updates in flight
+            self.cpu.sample(self._pids(with_player=False))  # the work on the last frames counts too
             self._wait_resynced(120.0)
         finally:
             codes = self.shutdown()
@@ -402,6 +411,7 @@ class Graph:
             "detections_received": stats.get("detections_received"),
             "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
         }  # fmt: skip
+        summary.update(self._cpu_summary())
         summary.update(_evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = _write_outputs_mcap(self.bag, self.config, self.out)
         summary["map_out"] = str(self.out / "map.npz") if (self.out / "map.npz").is_file() else None
@@ -409,6 +419,18 @@ class Graph:
         summary["moving_objects"] = len(movers["objects"]) if movers else None
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
+
+
+    def _cpu_summary(self) -> dict[str, Any]:
+        """CPU seconds per process during playback and per bag frame (`commands/process_cpu.py`); the player's
+        own figure for its play() (its log line) replaces the sampled one, which includes its start-up."""
+        import re
+
+        found = re.findall(r"messages in [0-9.]+ s \(CPU ([0-9.]+) s\)", self.player.log_text())
+        sec = self.cpu.seconds()
+        if found:
+            sec["bag_player"] = float(found[-1])
+        return {"cpu_s_during_play": sec, "cpu_ms_per_bag_frame": per_frame_ms(sec, self.info.colour_frames)}
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:
@@ -548,5 +570,8 @@ def main(args: argparse.Namespace) -> int:
         + (f", detection {s['detection_rate_hz']:.1f} Hz" if s.get("detection_node") and s.get("detection_rate_hz") else "")
         + (f", restarts {s['restarts']}" if s["restarts"] else "")
     )
+    cpu = s.get("cpu_ms_per_bag_frame") or {}
+    if cpu:
+        print("CPU ms per bag frame during playback: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items()))
     print(f"results in {graph.out}")
     return 0

@@ -4,7 +4,8 @@
                                 -p lossless:=true -r /camera/rgb/image_color:=/image ...]
 
 Messages go out as recorded (raw CDR from `io.bag_messages`, no decoding) at the recorded log times x `rate`,
-with `/clock` (rosgraph_msgs/Clock) following the bag's time, so nodes run with `use_sim_time:=true`.
+with `/clock` (rosgraph_msgs/Clock) following the bag's time while something subscribes to it, so nodes run
+with `use_sim_time:=true`.
 Topics are renamed by standard `--ros-args -r from:=to` remaps or by the `remap` parameter.
 
 Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
@@ -54,6 +55,7 @@ from changing_slam_ros.io.playback import (
     plan,
 )
 from changing_slam_ros.nodes.node_runner import declare_parameters, message_class, run_node
+from changing_slam_ros.nodes.qos_events import QuietQosEvents
 
 STRING_ARRAY = Parameter.Type.STRING_ARRAY
 
@@ -68,11 +70,12 @@ class PlaybackResult:
     ack_timeouts: int = 0
     dds_ack_timeouts: int = 0
     wall_s: float = 0.0
+    cpu_s: float = 0.0  # this process's CPU time during play() (all threads)
     completed: bool = False
     error: str = ""
 
 
-class BagPlayerNode(Node):
+class BagPlayerNode(QuietQosEvents, Node):
     """Publishes a bag's messages on schedule; call `play(executor)` (it returns at the end of the bag)."""
 
     def __init__(self, bag_path: str | None = None, **node_kwargs: Any) -> None:
@@ -199,6 +202,7 @@ class BagPlayerNode(Node):
         """Publish the bag on schedule, spinning `executor` while waiting; returns at the end of the bag."""
         result = self.result = PlaybackResult()
         t_start = time.monotonic()
+        c_start = time.process_time()
         if self._wait_subscribers and not self._wait_for_subscribers(executor):
             result.wall_s = time.monotonic() - t_start
             result.error = "no subscribers"
@@ -255,9 +259,10 @@ class BagPlayerNode(Node):
                 self._wait_processed(pending, executor, result)
         result.passes = current_pass + 1
         result.wall_s = time.monotonic() - t_start
+        result.cpu_s = time.process_time() - c_start
         self.get_logger().info(
             f"bag_player: {'finished' if result.completed else 'stopped'}: {result.published} messages "
-            f"in {result.wall_s:.2f} s"
+            f"in {result.wall_s:.2f} s (CPU {result.cpu_s:.2f} s)"
             + (f", {result.ack_timeouts} ack timeouts" if self.lossless else "")
         )
         return result
@@ -266,22 +271,25 @@ class BagPlayerNode(Node):
         return sum(self.bag.topics[t].msgcount for t in self.bag_publishers)
 
     def _sleep_until(self, clock: PlaybackClock, bag_ns: int, executor: Executor) -> bool:
-        """Spin until the message is due, publishing /clock; False if the context shut down."""
+        """Spin until the message is due, publishing /clock at `clock_hz` while something subscribes to it (else
+        one wake-up per message: a spin costs ~0.5 ms of CPU); False if the context shut down."""
         last_clock_ns = 0
         while self.context.ok():
             now = _now_ns()
             remaining = clock.wait_ns(bag_ns, now)
             if remaining <= 0:
                 return True
-            if self._clock_period_ns is not None and now - last_clock_ns >= self._clock_period_ns:
+            ticking = self._clock_period_ns is not None and self._clock_pub.get_subscription_count() > 0
+            if ticking and now - last_clock_ns >= self._clock_period_ns:
                 self._publish_clock(clock.bag_now_ns(now))
                 last_clock_ns = now
-            step = remaining if self._clock_period_ns is None else min(remaining, self._clock_period_ns)
+            step = min(remaining, self._clock_period_ns) if ticking else remaining
             executor.spin_once(timeout_sec=step / NS_PER_S)
         return False
 
     def _publish_clock(self, bag_ns: int) -> None:
-        if self._clock_period_ns is None:
+        """/clock at `bag_ns`, when clock publishing is on and something subscribes (volatile: nobody misses it)."""
+        if self._clock_period_ns is None or self._clock_pub.get_subscription_count() == 0:
             return
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(bag_ns, NS_PER_S)
@@ -323,7 +331,8 @@ class BagPlayerNode(Node):
         stamp = msg.header_stamp_ns if msg.header_stamp_ns is not None else msg.log_stamp_ns
         deadline = time.monotonic() + self._ack_timeout_s
         while self.context.ok() and len(self._acks.get(stamp, ())) < self._ack_count:
-            if time.monotonic() > deadline:
+            left_s = deadline - time.monotonic()
+            if left_s < 0:
                 result.ack_timeouts += 1
                 self.get_logger().warning(
                     f"bag_player: lossless: no processing ack for {msg.topic} at {stamp / NS_PER_S:.6f} "
@@ -331,7 +340,7 @@ class BagPlayerNode(Node):
                     throttle_duration_sec=5.0,
                 )
                 break
-            executor.spin_once(timeout_sec=0.01)
+            executor.spin_once(timeout_sec=min(left_s, 1.0))  # an ack wakes it at once: no need to poll
         self._acks.pop(stamp, None)
 
     def _on_ack(self, msg: Header) -> None:

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import rclpy
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -27,9 +28,10 @@ from changing_slam_ros.core.detector import Detector, DetectorConfig
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import detections_to_msg, image_to_rgb, stamp_to_ns
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+from changing_slam_ros.nodes.qos_events import QuietQosEvents
 
 
-class DetectionNode(LifecycleNode):
+class DetectionNode(QuietQosEvents, LifecycleNode):
     """Subscribes `image` (or `image/compressed`), publishes `~/detections`."""
 
     def __init__(
@@ -90,9 +92,11 @@ class DetectionNode(LifecycleNode):
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )  # fmt: skip
         if self.params["compressed"]:
-            self._sub = self.create_subscription(CompressedImage, "image/compressed", self.on_image, self._image_qos)
+            self._sub = self.create_subscription(CompressedImage, "image/compressed", self.on_image, self._image_qos,
+                                                 event_callbacks=SubscriptionEventCallbacks())  # fmt: skip
         else:
-            self._sub = self.create_subscription(Image, "image", self.on_image, self._image_qos)
+            self._sub = self.create_subscription(Image, "image", self.on_image, self._image_qos,
+                                                 event_callbacks=SubscriptionEventCallbacks())  # fmt: skip
         self.get_logger().info(f"detection: configured, images on {self._sub.topic_name}")
         return TransitionCallbackReturn.SUCCESS
 

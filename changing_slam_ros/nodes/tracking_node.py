@@ -64,6 +64,7 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import Odometry, Path as PathMsg
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -94,6 +95,7 @@ from changing_slam_ros.nodes.conversions import (
 )
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, keyframe_marker, marker_of
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -112,7 +114,7 @@ class PendingFrame:
     deadline_s: float
 
 
-class TrackingNode(Node):
+class TrackingNode(QuietQosEvents, Node):
     def __init__(
         self,
         image_qos: QoSProfile = qos_profile_sensor_data,
@@ -247,15 +249,19 @@ class TrackingNode(Node):
         self.intrinsics_from = "config" if self.config_camera is not None else "camera_info"
 
         # camera_info first: when it and an image are ready in the same spin, the executor serves it first.
-        self.create_subscription(CameraInfo, "/camera/rgb/camera_info", self.on_camera_info, image_qos)
+        # The sensor inputs keep rclpy's QoS-event warnings (a driver offering incompatible QoS); the other
+        # publishers and subscriptions have none (nodes/qos_events.py: cheaper spins).
+        warn = SubscriptionEventCallbacks
+        self.create_subscription(CameraInfo, "/camera/rgb/camera_info", self.on_camera_info, image_qos,
+                                 event_callbacks=warn())  # fmt: skip
         if p["compressed"]:
             self.colour_topic, self.depth_topic = "/camera/rgb/image_color/compressed", "/camera/depth/image/compressed"
             image_type: Any = CompressedImage
         else:
             self.colour_topic, self.depth_topic = "/camera/rgb/image_color", "/camera/depth/image"
             image_type = Image
-        self.create_subscription(image_type, self.colour_topic, self.on_colour, image_qos)
-        self.create_subscription(image_type, self.depth_topic, self.on_depth, image_qos)
+        self.create_subscription(image_type, self.colour_topic, self.on_colour, image_qos, event_callbacks=warn())
+        self.create_subscription(image_type, self.depth_topic, self.on_depth, image_qos, event_callbacks=warn())
         self.create_subscription(DetectionArray, "/detection/detections", self.on_detections, 10)
         self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
@@ -282,7 +288,9 @@ class TrackingNode(Node):
         # bag is paused.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(p["stats_period_s"], self._log_stats, clock=steady)
-        self.create_timer(0.01, self._drain, clock=steady)
+        # Woken at the earliest deadline something waits for (a frame's detections, a held ack), else idle:
+        # a spin costs ~0.5-1 ms of CPU, so a fixed 100 Hz poll cost more than a frame's decoding.
+        self._drain_timer = self.create_timer(3600.0, self._drain, clock=steady, autostart=False)
         from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
 
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"], warn_if=_warn_if)
@@ -503,7 +511,27 @@ class TrackingNode(Node):
 
     def _drain(self) -> None:
         """Process waiting frames in order: each when its detections are in, or at its deadline. frame_policy
-        latest: the frames older than the newest ready one (detections in or deadline passed) are dropped."""
+        latest: the frames older than the newest ready one (detections in or deadline passed) are dropped.
+        Then the drain timer is set to the next deadline, or stopped when nothing waits."""
+        try:
+            self._drain_pending()
+        finally:
+            self._arm_drain_timer()
+
+    def _arm_drain_timer(self) -> None:
+        """The timer fires at the earliest deadline of a waiting frame or of the held ack (`_awaiting`); every
+        change to either goes through `_drain`, so this is the only place that sets it."""
+        due = [f.deadline_s for f in self._pending]
+        if self._awaiting is not None:
+            due.append(self._awaiting["deadline"])
+        if not due:
+            self._drain_timer.cancel()
+            return
+        delay_s = max(min(due) - time.monotonic(), 0.001)
+        self._drain_timer.timer_period_ns = round(delay_s * 1e9)
+        self._drain_timer.reset()
+
+    def _drain_pending(self) -> None:
         self._check_wait()
         if self.params["frame_policy"] == "latest" and len(self._pending) > 1 and self._awaiting is None:
             now = time.monotonic()
@@ -602,19 +630,23 @@ class TrackingNode(Node):
         self.keyframe_pub.publish(msg)
 
     def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
-        """Pose, odometry, path and TF (odom = map until loop corrections separate them)."""
+        """Pose, odometry, path and TF (odom = map until loop corrections separate them). Each goes out only
+        while something subscribes (all are volatile: nobody misses one): the path message grows by a pose per
+        frame, and converting it for nobody cost ~1 ms a frame after 300 frames."""
         p = self.params
         header = make_header(stamp_ns, p["map_frame"])
         pose = PoseStamped(header=header, pose=matrix_to_pose(T_world_cam))
         self.pose_pub.publish(pose)
-        odom = Odometry(header=header, child_frame_id=p["camera_frame"])
-        odom.pose.pose = pose.pose
-        self.odom_pub.publish(odom)
+        if self.odom_pub.get_subscription_count() > 0:
+            odom = Odometry(header=header, child_frame_id=p["camera_frame"])
+            odom.pose.pose = pose.pose
+            self.odom_pub.publish(odom)
         self.path.header.stamp = header.stamp
         self.path.poses.append(pose)
-        self.path_pub.publish(self.path)
+        if self.path_pub.get_subscription_count() > 0:
+            self.path_pub.publish(self.path)
         self.published_poses += 1
-        if self.tf_pub is not None:
+        if self.tf_pub is not None and self.tf_pub.get_subscription_count() > 0:
             map_odom = TransformStamped(header=header, child_frame_id=p["odom_frame"])
             map_odom.transform = matrix_to_transform(np.eye(4))
             odom_cam = TransformStamped(header=make_header(stamp_ns, p["odom_frame"]), child_frame_id=p["camera_frame"])
