@@ -5,6 +5,12 @@ first and current image box, the COCO class (0-based), its map point ids, the ce
 points), the 3D box dimensions, a global id, the persistence belief (§4.6), the keyframe where it was
 last seen and whether its points are active (belief >= `belief_threshold`, §4.7).
 
+Point weights (ours, docs/changing_scenes.md "Session 6"): the centroid is the weighted mean of the points
+and the box is taken over the points of positive weight. Without weights (`point_weights` None) every point
+weighs 1: the paper's mean. The object layer sets them (`object_point_weights.py`): 0 for a point on one of
+the room's large planes or on a smaller object inside the box, 1 / (its voxel's count) otherwise, so that
+each occupied `centroid_voxel_m` cube of the object's surface counts once however many views sampled it.
+
 3D box (§4.2: "the median of the 5 % maximum and minimum x, y and z coordinates"): per axis, the
 median of the 5 % largest coordinates minus the median of the 5 % smallest, which trims stray points
 the way a plain max - min would not. The box is axis-aligned in the world (map) frame and centred
@@ -72,6 +78,16 @@ class ObjectMapConfig:
       scenarios it deactivated many more map points (more objects at belief 0.5) and the one run each showed
       camera ATE up to +2.6 cm (vanishing 3.8 -> 6.5 cm) and shift's chair centroid 5.7 -> 26.7 cm from its
       volume centre (a chair first mapped from a cut view); off, cut views are skipped as before.
+    Centroid and box (ours, docs/changing_scenes.md "Session 6"; `object_point_weights.py`):
+    - `centroid_voxel_m`: each occupied cube of this side counts once in the centroid (0: every point counts).
+    - `structure_plane_dist_m`: object points closer than this to one of the room's large planes (floor,
+      walls, table top) are structure and left out of centroid and box (0: off). The planes are fitted by
+      RANSAC to the static map points (no object): up to `structure_max_planes` planes, each holding at least
+      `structure_plane_min_fraction` of them, with `structure_plane_iterations` hypotheses scored on at most
+      `structure_plane_max_points` points, refitted every `structure_refit_keyframes` keyframes.
+    - `shared_point_dist_m`: an object's points within this of the points of another object whose box is
+      smaller (the teddy bear on a chair) are that object's and left out (0: off).
+    An object keeps all its points (uniform weights) when fewer than `min_points` would be left.
     Semantic map (§4.8):
     - `min_points`: objects with fewer points are left out of the semantic map and never merged into.
     - `semantic_min_belief`: the semantic map holds the objects with belief >= this (0.5: every object seen
@@ -103,6 +119,14 @@ class ObjectMapConfig:
     min_points: int = 5
     semantic_min_belief: float = 0.5
     truncated_views: bool = False
+    centroid_voxel_m: float = 0.025
+    structure_plane_dist_m: float = 0.02
+    structure_plane_min_fraction: float = 0.05
+    structure_max_planes: int = 6
+    structure_plane_iterations: int = 150
+    structure_plane_max_points: int = 4000
+    structure_refit_keyframes: int = 5
+    shared_point_dist_m: float = 0.03
 
     def __post_init__(self) -> None:
         where = "objects"
@@ -139,6 +163,16 @@ class ObjectMapConfig:
                               f"{self.semantic_min_belief}")
         if self.min_points < 1:
             raise ConfigError(f"{where}.min_points: expected >= 1, got {self.min_points}")
+        for name in ("centroid_voxel_m", "structure_plane_dist_m", "shared_point_dist_m"):
+            if getattr(self, name) < 0.0:
+                raise ConfigError(f"{where}.{name}: expected >= 0 (0: off), got {getattr(self, name)}")
+        if not 0.0 < self.structure_plane_min_fraction <= 1.0:
+            raise ConfigError(f"{where}.structure_plane_min_fraction: expected within (0, 1], got "
+                              f"{self.structure_plane_min_fraction}")
+        for name in ("structure_max_planes", "structure_plane_iterations", "structure_plane_max_points",
+                     "structure_refit_keyframes"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{where}.{name}: expected >= 1, got {getattr(self, name)}")
 
 
 def object_map_config(data: dict[str, Any] | None, where: str = "objects") -> ObjectMapConfig:
@@ -167,10 +201,10 @@ BoxXyxy = tuple[float, float, float, float]
 
 @dataclass
 class MapObject:
-    """One object of the map. `point_ids` (N,) and `points_w` (N, 3) are kept row-aligned.
+    """One object of the map. `point_ids` (N,), `points_w` (N, 3) and `point_weights` (N,) are kept row-aligned.
 
-    `centroid_w` (3,) is the mean of `points_w`; `box_center_w` (3,) and `box_size_m` (3,) the robust
-    world-axis-aligned box (see `box_extent`). Boxes are pixel (x_min, y_min, x_max, y_max).
+    `centroid_w` (3,) is the mean of `points_w` weighted by `point_weights` (None: all 1); `box_center_w` (3,)
+    and `box_size_m` (3,) the robust world-axis-aligned box (see `box_extent`) of the points of positive weight. Boxes are pixel (x_min, y_min, x_max, y_max).
     `n_observations`: keyframes whose whole (untruncated) view went into the object; 0 for an object known
     only from views cut by the image border so far.
     """
@@ -190,24 +224,39 @@ class MapObject:
     box_size_m: F64 = field(default_factory=lambda: np.zeros(3))
     last_belief_update_keyframe: int = -1
     n_observations: int = 1
+    point_weights: F64 | None = None
 
     def __post_init__(self) -> None:
-        self.set_points(self.point_ids, self.points_w)
+        self.set_points(self.point_ids, self.points_w, self.point_weights)
 
     @property
     def n_points(self) -> int:
         return len(self.point_ids)
 
-    def set_points(self, point_ids: I64, points_w: F64) -> None:
-        """Replace the points (ids (N,), positions (N, 3)) and recompute centroid and box."""
+    def set_points(self, point_ids: I64, points_w: F64, weights: F64 | None = None) -> None:
+        """Replace the points (ids (N,), positions (N, 3), optional weights (N,) >= 0; None: all 1) and
+        recompute centroid and box. Weights that sum to 0 count as None."""
         ids = np.asarray(point_ids, dtype=np.int64).reshape(-1)
         pts = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
         if len(ids) != len(pts):
             raise ValueError(f"MapObject {self.id}: {len(ids)} point ids for {len(pts)} positions")
-        self.point_ids, self.points_w = ids, pts
+        w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+        if w is not None and (len(w) != len(pts) or not np.all(np.isfinite(w)) or np.any(w < 0.0)):
+            raise ValueError(f"MapObject {self.id}: point weights must be {len(pts)} finite values >= 0")
+        if w is not None and not w.sum() > 0.0:
+            w = None
+        self.point_ids, self.points_w, self.point_weights = ids, pts, w
         if len(pts):
-            self.centroid_w = pts.mean(axis=0)
-            self.box_center_w, self.box_size_m = box_extent(pts)
+            if w is None:
+                self.centroid_w = pts.mean(axis=0)
+                self.box_center_w, self.box_size_m = box_extent(pts)
+            else:
+                self.centroid_w = (w @ pts) / w.sum()
+                self.box_center_w, self.box_size_m = box_extent(pts[w > 0.0])
+
+    def set_weights(self, weights: F64 | None) -> None:
+        """Re-weight the current points (see `set_points`)."""
+        self.set_points(self.point_ids, self.points_w, weights)
 
     def add_points(self, point_ids: I64, points_w: F64) -> None:
         """Union with more points (ids already held keep their stored row, new ones are appended)."""
@@ -217,13 +266,17 @@ class MapObject:
         ids, pts = ids[new], pts[new]
         _, first = np.unique(ids, return_index=True)  # a repeated id in the input is added once
         first.sort()
-        self.set_points(np.concatenate([self.point_ids, ids[first]]), np.vstack([self.points_w, pts[first]]))
+        w = self.point_weights
+        if w is not None:  # until the layer re-weights them, new points weigh what an old point does on average
+            w = np.concatenate([w, np.full(len(first), w.mean())])
+        self.set_points(np.concatenate([self.point_ids, ids[first]]), np.vstack([self.points_w, pts[first]]), w)
 
     def refresh_points(self, positions_w: F64, keep: npt.NDArray[np.bool_] | None = None) -> None:
         """Move the points to `positions_w` (N, 3), row-aligned with `point_ids` (after bundle
         adjustment or loop correction); `keep` (N,) drops culled points."""
         pts = np.asarray(positions_w, dtype=np.float64).reshape(-1, 3)
+        w = self.point_weights
         if keep is None:
-            self.set_points(self.point_ids, pts)
+            self.set_points(self.point_ids, pts, w)
         else:
-            self.set_points(self.point_ids[keep], pts[keep])
+            self.set_points(self.point_ids[keep], pts[keep], None if w is None else w[keep])

@@ -51,6 +51,7 @@ from changing_slam_ros.core.long_term_association import (
 )
 from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
+from changing_slam_ros.core.object_point_weights import Plane, fit_structure_planes, reweight_objects
 from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.core.semantic_map import SemanticMap, build_semantic_map
 from changing_slam_ros.core.slam_map import SlamMap
@@ -169,6 +170,8 @@ class _MapObjects:
     lta: LongTermAssociation
     anchors: _Anchors = field(default_factory=_Anchors)
     next_sample_id: int = -2
+    planes: list[Plane] = field(default_factory=list)  # the room's large planes (`object_point_weights`)
+    keyframes_since_planes: int = -1  # keyframes since the planes were fitted (-1: never)
 
 
 @dataclass
@@ -262,6 +265,7 @@ class ObjectLayer:
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
                                       detected_boxes=flagged)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
+        self._reweight(mo, slam_map, kf.id)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)
         self._flip_labelled(mo, slam_map, was_active)
@@ -306,6 +310,25 @@ class ObjectLayer:
             cand = ObjectCandidate(int(o.class_id), box, ids, pts_w, truncated)  # type: ignore[arg-type]
             out.append((cand, pts_c))
         return out
+
+    def _reweight(self, mo: _MapObjects, slam_map: SlamMap, kf_id: int) -> None:
+        """Point weights of every object (`object_point_weights`): the room's planes are refitted to the static
+        map points every `structure_refit_keyframes` keyframes."""
+        cfg = self.config.association
+        if cfg.centroid_voxel_m <= 0.0 and cfg.structure_plane_dist_m <= 0.0 and cfg.shared_point_dist_m <= 0.0:
+            return  # the paper's plain mean
+        if cfg.structure_plane_dist_m > 0.0 and (mo.keyframes_since_planes < 0
+                                                 or mo.keyframes_since_planes + 1 >= cfg.structure_refit_keyframes):
+            pts = slam_map.points
+            n = pts.size
+            static = (pts.object_id[:n] < 0) & ~pts.bad[:n]
+            mo.planes = fit_structure_planes(pts.positions[:n][static], cfg.structure_plane_dist_m,
+                                             cfg.structure_plane_min_fraction, cfg.structure_max_planes,
+                                             cfg.structure_plane_iterations, cfg.structure_plane_max_points, seed=kf_id)
+            mo.keyframes_since_planes = 0
+        else:
+            mo.keyframes_since_planes += 1
+        reweight_objects(list(mo.lta.objects.values()), mo.planes, cfg)
 
     @staticmethod
     def _settle_shared(mo: _MapObjects, slam_map: SlamMap, res: AssociationResult) -> None:
