@@ -234,7 +234,7 @@ class MoverTracker:
             result = tracker.track(obj, self._associate(obj, frame))
             if result.tracked:
                 self._last_tracked[obj.object_id] = self._frames
-                if result.is_keypose:
+                if result.is_keypose and tracker.optimise_due(obj):
                     tracker.optimise(obj)
         self._retire_lost()
         if segmented is not None:  # targets become objects, with the tracked (not the predicted) pose
@@ -351,6 +351,7 @@ class MoverTracker:
                 del obj.poses[stamp_ns]  # nothing merged into it: drop the prediction
             elif obj.object_id in predicted:
                 self._last_tracked[obj.object_id] = self._frames
+            obj.bound_model(cfg.tracking.max_model_points)
         self.live = merged
 
     def objects(self) -> list[MovingObject]:

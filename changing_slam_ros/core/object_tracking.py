@@ -43,7 +43,15 @@ class ObjectTrackingConfig:
     - `keypose_tracked_ratio`: a keypose is also made when fewer than this fraction of the points seen in
       the last keypose are tracked ("the tracked features change significantly").
     - `window_keyposes`: keyposes in the sliding window of full object BA (the reference keypose is
-      always kept, as it holds the gauge).
+      always kept, as it holds the gauge). An object keeps only these keyposes' measurements (older ones
+      can never enter the window again, also not after a merge: see `MovingObject.keep_keyposes`).
+    - `optimise_every_keyposes`: full object BA (eq. 11) runs at every n-th keypose of an object (1: at
+      every keypose, the paper). The keyposes in between still enter the window; motion-only BA (eq. 7)
+      tracks every frame either way.
+    - `max_model_points`: beyond the paper, a bound on an object's model (0 = none). Merged targets add
+      points every few frames (unknown_mover: 1400 points after 24 s); above the bound, the points seen in
+      fewest keyposes of the window go (newest first kept on ties), never those of the reference keypose
+      (see `MovingObject.bound_model`).
     - `gate_m`, `gate_m_per_s`, `gate_rad`, `gate_rad_per_s`: beyond the paper, a motion gate. A pose from
       eq. 7 further than gate_m + gate_m_per_s * dt (or turned more than gate_rad + gate_rad_per_s * dt)
       from the pose extrapolated at constant velocity (dt since the last pose) is rejected (the frame is
@@ -58,6 +66,8 @@ class ObjectTrackingConfig:
     keypose_rotation_rad: float = 0.1
     keypose_tracked_ratio: float = 0.7
     window_keyposes: int = 8
+    optimise_every_keyposes: int = 1
+    max_model_points: int = 0
     gate_m: float = 0.03
     gate_m_per_s: float = 0.5
     gate_rad: float = 0.2
@@ -69,6 +79,11 @@ class ObjectTrackingConfig:
             raise ConfigError(f"object_tracking.min_tracked_points: expected >= 3, got {self.min_tracked_points}")
         if self.window_keyposes < 2:
             raise ConfigError(f"object_tracking.window_keyposes: expected >= 2, got {self.window_keyposes}")
+        if self.optimise_every_keyposes < 1 or self.max_model_points < 0:
+            raise ConfigError(
+                "object_tracking: optimise_every_keyposes must be >= 1 and max_model_points >= 0, got "
+                f"{self.optimise_every_keyposes}, {self.max_model_points}"
+            )
 
 
 @dataclass(frozen=True)
@@ -116,6 +131,7 @@ class MovingObject:
     - `points_obj`: (P, 3) metres, the points in the object frame.
     - `poses`: stamp_ns -> T_world_obj (4, 4) for every frame where the object was tracked.
     - `keyposes`: the keypose measurements, oldest (the reference) first.
+    - `keyposes_since_optimise`: keyposes added since the last full object BA (eq. 11).
     """
 
     object_id: int
@@ -123,6 +139,7 @@ class MovingObject:
     points_obj: F64
     poses: dict[int, F64] = field(default_factory=dict)
     keyposes: list[ObjectObservations] = field(default_factory=list)
+    keyposes_since_optimise: int = 0
 
     @classmethod
     def create(
@@ -185,6 +202,38 @@ class MovingObject:
             turn = Rotation.from_matrix(prev[:3, :3].T @ last[:3, :3]).as_rotvec() * ratio
             last[:3, :3] = last[:3, :3] @ Rotation.from_rotvec(turn).as_matrix()
         return last
+
+    def keep_keyposes(self, window: int) -> None:
+        """Drop the keyposes that no full-BA window of `window` keyposes can hold again: all but the reference
+        and the newest `window - 1`. Exact: a merge (`object_merging.fuse_into`) sorts the keyposes of both
+        objects by stamp, and the newest `window - 1` of the union are among each object's newest."""
+        if len(self.keyposes) > window:
+            self.keyposes = self.keyposes[:1] + self.keyposes[-(window - 1) :]
+
+    def bound_model(self, max_points: int) -> None:
+        """Keep at most `max_points` points (0: no bound): those seen in the most keyposes, the newest (last
+        added) first on ties, and always the reference keypose's points (they tie the gauge of eq. 11 to
+        the rest). Keyposes lose the measurements of dropped points; poses are unchanged."""
+        n = len(self.point_ids)
+        if max_points <= 0 or n <= max_points:
+            return
+        seen = np.zeros(n, dtype=np.int64)
+        for kp in self.keyposes:
+            seen += np.bincount(kp.point_index, minlength=n)
+        in_ref = np.zeros(n, dtype=bool)
+        if self.keyposes:
+            in_ref[self.keyposes[0].point_index] = True
+        order = np.lexsort((np.arange(n), seen, in_ref))  # ascending priority: keep the tail
+        keep = np.sort(order[-max(max_points, int(in_ref.sum())) :])
+        new_index = np.full(n, -1, dtype=np.int64)
+        new_index[keep] = np.arange(len(keep))
+        self.point_ids, self.points_obj = self.point_ids[keep], self.points_obj[keep]
+        kept = []
+        for kp in self.keyposes:
+            idx = new_index[kp.point_index]
+            ok = idx >= 0
+            kept.append(ObjectObservations(kp.stamp_ns, kp.T_world_cam, idx[ok], kp.points_cam[ok]))
+        self.keyposes = kept
 
     def index_of(self, point_ids: I64) -> I64:
         """Indices (N,) into this object's points of `point_ids` (N,); -1 where a point is not the object's."""
@@ -254,7 +303,13 @@ class ObjectTracker:
         keypose = self._is_keypose(obj, obs, result.T_world_obj)
         if keypose:
             obj.keyposes.append(obs)
+            obj.keep_keyposes(self.config.window_keyposes)
+            obj.keyposes_since_optimise += 1
         return TrackResult(True, n, n_in, keypose, result.T_world_obj)
+
+    def optimise_due(self, obj: MovingObject) -> bool:
+        """Whether full object BA is due after this keypose (see `optimise_every_keyposes`)."""
+        return obj.keyposes_since_optimise >= self.config.optimise_every_keyposes
 
     def _within_gate(self, obj: MovingObject, stamp_ns: int, T_world_obj: F64) -> bool:
         """The motion gate (see `ObjectTrackingConfig`) against the pose extrapolated to `stamp_ns`."""
@@ -282,6 +337,7 @@ class ObjectTracker:
 
     def optimise(self, obj: MovingObject) -> None:
         """Full object BA (eq. 11) over the reference keypose and the latest keyposes; updates in place."""
+        obj.keyposes_since_optimise = 0
         if len(obj.keyposes) < 2:
             return
         window = [obj.keyposes[0]] + obj.keyposes[1:][-(self.config.window_keyposes - 1) :]

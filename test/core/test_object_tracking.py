@@ -206,3 +206,102 @@ def test_configs_load_from_yaml_sections() -> None:
         section(SegmentationConfig, {"huber": 1.0}, "t.yaml: seg")
     with pytest.raises(ConfigError, match="static_volume"):
         section(SegmentationConfig, {"static_volume": "sphere"}, "t.yaml: seg")
+
+
+def _tracked(config: ObjectTrackingConfig, seed: int = 0, n_frames: int = 30) -> tuple[MovingObject, np.ndarray, list[FrameObjectMeasurements], int]:
+    """The synthetic box tracked with eq. 7 every frame and eq. 11 when due; also the number of eq. 11 runs."""
+    T_true, _, frames, _ = object_sequence(n_frames, seed)
+    first = frames[0]
+    tracker = ObjectTracker(CAMERA, config)
+    obj = MovingObject.create(7, first.point_ids, transform_points(first.T_world_cam, first.points_cam), first.stamp_ns, first)
+    runs = 0
+    for frame in frames[1:]:
+        result = tracker.track(obj, frame)
+        assert result.tracked
+        if result.is_keypose and tracker.optimise_due(obj):
+            tracker.optimise(obj)
+            runs += 1
+    return obj, T_true, frames, runs
+
+
+def test_an_object_keeps_the_reference_and_the_newest_window_of_keyposes() -> None:
+    obj, T_true, frames, _ = _tracked(ObjectTrackingConfig(window_keyposes=4, keypose_translation_m=0.01))
+    assert len(obj.keyposes) == 4
+    assert obj.keyposes[0].stamp_ns == frames[0].stamp_ns  # the reference (gauge) keypose
+    assert [kp.stamp_ns for kp in obj.keyposes[1:]] == sorted(kp.stamp_ns for kp in obj.keyposes[1:])
+    rmse_m, _ = _errors(obj, T_true, frames)
+    assert rmse_m < 0.01, rmse_m
+
+
+def test_full_ba_at_every_third_keypose_keeps_the_trajectory_within_1_cm() -> None:
+    every, n_every = _tracked(ObjectTrackingConfig())[0], _tracked(ObjectTrackingConfig())[3]
+    third, T_true, frames, n_third = _tracked(ObjectTrackingConfig(optimise_every_keyposes=3))
+    assert n_third <= n_every // 3 + 1, (n_third, n_every)
+    rmse_every, _ = _errors(every, T_true, frames)
+    rmse_third, rot_third = _errors(third, T_true, frames)
+    assert rmse_third < 0.01 and rot_third < np.radians(1.5), (rmse_every, rmse_third, np.degrees(rot_third))
+
+
+def test_bound_model_keeps_the_reference_and_the_most_observed_points() -> None:
+    rng = np.random.default_rng(5)
+    ids = np.arange(200, 300)
+    obj = MovingObject(1, ids.copy(), rng.normal(0.0, 0.1, (100, 3)))
+    T = np.eye(4)
+
+    def keypose(stamp: int, index: np.ndarray) -> ObjectObservations:
+        return ObjectObservations(stamp, T, index.astype(np.int64), obj.points_obj[index] + [0.0, 0.0, 1.5])
+
+    ref = np.arange(0, 10)  # the reference keypose sees points 0..9 once
+    often = np.arange(50, 80)  # seen in three later keyposes
+    obj.keyposes = [keypose(0, ref), keypose(1, often), keypose(2, np.r_[often, 95]), keypose(3, often)]
+    obj.bound_model(45)
+    assert len(obj.point_ids) == 45
+    kept = set(obj.point_ids.tolist())
+    assert set((ids[ref]).tolist()) <= kept and set(ids[often].tolist()) <= kept and 200 + 95 in kept
+    # Ties among the points seen once or never: the newest (highest index) are kept.
+    assert 200 + 99 in kept and 200 + 10 not in kept
+    # Keyposes still point at the same map points and measurements.
+    for kp, before in zip(obj.keyposes, [ref, often, np.r_[often, 95], often]):
+        np.testing.assert_array_equal(obj.point_ids[kp.point_index], ids[before])
+    obj.bound_model(0)  # 0: no bound
+    assert len(obj.point_ids) == 45
+
+
+def test_tracking_config_rejects_a_bad_cadence_or_bound() -> None:
+    with pytest.raises(ConfigError, match="optimise_every_keyposes"):
+        ObjectTrackingConfig(optimise_every_keyposes=0)
+    with pytest.raises(ConfigError, match="max_model_points"):
+        ObjectTrackingConfig(max_model_points=-1)
+
+
+def test_dropping_keyposes_outside_the_window_leaves_a_merged_window_unchanged() -> None:
+    from copy import deepcopy
+
+    from changing_slam_ros.core.object_merging import fuse_into
+
+    rng = np.random.default_rng(6)
+
+    def with_keyposes(object_id: int, ids: np.ndarray, stamps: list[int]) -> MovingObject:
+        obj = MovingObject(object_id, ids, rng.normal(0.0, 0.1, (len(ids), 3)))
+        for s in stamps:
+            obj.poses[s] = make_pose(np.eye(3), rng.normal(0.0, 0.1, 3))
+            index = np.sort(rng.choice(len(ids), 12, replace=False)).astype(np.int64)
+            obj.keyposes.append(ObjectObservations(s, np.eye(4), index, rng.normal(0.0, 1.0, (12, 3))))
+        return obj
+
+    window = 8
+    host = with_keyposes(1, np.arange(0, 60), list(range(0, 400, 10)))  # 40 keyposes, every 10
+    other = with_keyposes(2, np.arange(40, 100), [*range(5, 400, 20), 230, 390])  # interleaved, two shared stamps
+    other.keyposes.sort(key=lambda kp: kp.stamp_ns)
+    full = fuse_into(host, other, 390)
+    host_p, other_p = deepcopy(host), deepcopy(other)
+    host_p.keep_keyposes(window)
+    other_p.keep_keyposes(window)
+    assert len(host_p.keyposes) == window and len(other_p.keyposes) == window
+    pruned = fuse_into(host_p, other_p, 390)
+
+    def ba_window(obj: MovingObject) -> list[tuple[int, list[int]]]:
+        kps = [obj.keyposes[0]] + obj.keyposes[1:][-(window - 1) :]
+        return [(kp.stamp_ns, obj.point_ids[kp.point_index].tolist()) for kp in kps]
+
+    assert ba_window(pruned) == ba_window(full)
