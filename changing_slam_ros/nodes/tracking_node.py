@@ -567,7 +567,7 @@ class TrackingNode(QuietQosEvents, Node):
                 return
             if depth.shape != rgb.shape[:2]:
                 raise ValueError(f"depth {depth.shape} and colour {rgb.shape[:2]} sizes differ")
-            depth = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)  # NaN depths = no reading
+            # (image_to_depth_m returns float32 with NaN, inf and <= 0 already set to 0 = no reading)
             frame = RgbdFrame(stamp_ns=item.stamp_ns, rgb=rgb, depth_m=depth, camera=camera, index=self.frames_in)
         except (SlamError, ValueError) as err:
             self.frames_rejected += 1

@@ -271,3 +271,34 @@ def test_detections_skip_late_stops_waiting_while_detections_come_too_late_and_r
     assert node.stats()["frames_not_waited_for_late_detections"] == 1
     assert len(node.detection_delay_ms) == 3 and min(node.detection_delay_ms[:2]) > 50.0 > node.detection_delay_ms[2]
     node.destroy_node()
+
+
+def test_a_frame_waiting_for_detections_that_never_come_is_tracked_at_its_deadline_by_the_drain_timer(ros_context):
+    """The drain timer is armed at the waiting frame's deadline (not a fixed poll): spinning the executor, the
+    frame is tracked once its 0.3 s wait is over, not before, and the timer stops when nothing waits."""
+    import itertools
+    import time
+
+    from helpers import FR1_XYZ_10, require
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    f = next(itertools.islice(iter(src), 1))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=0.3),
+        Parameter("debug_image", value=False),
+    ])  # fmt: skip
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    assert node._drain_timer.is_canceled()  # noqa: SLF001 - nothing waits yet: no wake-ups
+    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, f.stamp_ns, "camera"))
+    t0 = time.monotonic()
+    node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
+    node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
+    assert node.frames_in == 0 and not node._drain_timer.is_canceled()  # noqa: SLF001
+    assert spin_until(executor, lambda: node.frames_in == 1, 5.0)
+    waited_s = time.monotonic() - t0
+    assert 0.29 <= waited_s < 2.0 and node.frames_without_detections == 1
+    assert node._drain_timer.is_canceled()  # noqa: SLF001 - the queue is empty again
+    executor.remove_node(node)
+    node.destroy_node()
