@@ -253,6 +253,12 @@ def main() -> int:
                          + (f" missed {','.join(r['missed'])}" if r["missed"] else ""))
         whole = [v for s in args.scenarios for k, v in results[s][name]["errs"].items() if not k.endswith("*")]
         print(f"| {name} | " + " | ".join(cells) + f" | {max(allerr):.1f} / {nover} | {max(whole):.1f} |")
+    print("\ncentroid error to the ground-truth box centre (volume centre) cm, mean / max, per scenario")
+    print("| estimator | " + " | ".join(args.scenarios) + " |")
+    print("|---|" + "---|" * len(args.scenarios))
+    for name in args.estimators:
+        vols = [list(results[s][name]["vol"].values()) for s in args.scenarios]
+        print(f"| {name} | " + " | ".join(f"{np.mean(v):.1f} / {max(v):.1f}" for v in vols) + " |")
     if args.per_object:
         for s in args.scenarios:
             objs = sorted({k for r in results[s].values() for k in r["errs"]})

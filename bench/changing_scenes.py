@@ -16,8 +16,8 @@ run's metrics.json.
 Centroids are compared two ways (`eval/object_metrics.py`): with the ground-truth box centre (the volume
 centre; what metrics.json reports) and, fairly, with the ground-truth *visible-surface* centroid (the mean of
 the object's mask pixels back-projected with the simulator's depth and ground-truth poses over the frames
-where it stood at its final place): a MapObject's centroid is a mean of surface points, so an object seen
-from one side has its centroid on that side however good the points are. The bench recomputes the object
+where it stood at its final place): a MapObject's centroid is a (weighted, docs/changing_scenes.md session 6)
+mean of surface points, so an object seen from one side has its centroid on that side however good the points are. The bench recomputes the object
 metrics from each run's object_map.json and trajectory.txt with the same SE(3) alignment as `changing-slam run`.
 
 Each cell is one `changing-slam run` (the same command a user types), whose metrics.json is read back:
