@@ -56,7 +56,6 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -93,6 +92,7 @@ from changing_slam_ros.nodes.conversions import (
     rgb_to_image,
     stamp_to_ns,
 )
+from changing_slam_ros.nodes.frame_queue import FrameQueue, PendingFrame
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, keyframe_marker, marker_of
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
@@ -101,17 +101,6 @@ from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # BGR-free RGB colours of the debug image per KeypointClass (static, movable, dynamic, unused).
 CLASS_RGB = {0: (0, 220, 0), 1: (0, 120, 255), 2: (255, 0, 0), 3: (160, 160, 160)}
-
-
-@dataclass
-class PendingFrame:
-    """A colour/depth pair waiting for its detections (or its deadline, steady-clock seconds)."""
-
-    stamp_ns: int
-    rgb_msg: Any
-    depth_msg: Any
-    received_s: float
-    deadline_s: float
 
 
 class TrackingNode(QuietQosEvents, Node):
@@ -192,11 +181,9 @@ class TrackingNode(QuietQosEvents, Node):
         self.frames_not_waited = 0  # detections_skip_late: frames tracked at once as detections came late
         self._recent_delays_ms: deque[float] = deque(maxlen=max(1, p["detections_late_window"]))
         self._processed_received_s: dict[int, float] = {}  # stamp -> colour received, of frames already tracked
-        if p["frame_policy"] not in ("all", "latest"):
-            raise SlamError(f"tracking: parameter frame_policy: '{p['frame_policy']}' unknown; expected all or latest")
         self._warned: set[str] = set()
         self._received_s: dict[int, float] = {}
-        self._pending: deque[PendingFrame] = deque()
+        self.queue = FrameQueue(p["frame_policy"], self.detections.__contains__)  # frames waiting for detections
         self._detections_seen = False
         self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
         from changing_slam_ros.core.late_detections import CarryConfig
@@ -346,7 +333,7 @@ class TrackingNode(QuietQosEvents, Node):
         self._detections_seen = True
         self.detections_in += 1
         received = self._received_s.get(ds.stamp_ns) or self._processed_received_s.get(ds.stamp_ns) or next(
-            (f.received_s for f in self._pending if f.stamp_ns == ds.stamp_ns), None)
+            self.queue.received_s(ds.stamp_ns))
         if received is not None:  # also for frames tracked already: how late detections come
             delay_ms = (time.monotonic() - received) * 1e3
             self.detection_delay_ms.append(delay_ms)
@@ -497,7 +484,7 @@ class TrackingNode(QuietQosEvents, Node):
         self._processed_received_s[stamp_ns] = received
         while len(self._processed_received_s) > 200:
             del self._processed_received_s[next(iter(self._processed_received_s))]
-        self._pending.append(PendingFrame(stamp_ns, rgb_msg, depth_msg, received, now + wait))
+        self.queue.push(PendingFrame(stamp_ns, rgb_msg, depth_msg, received, now + wait))
         self._drain()
 
     def _detections_hopelessly_late(self, wait_s: float) -> bool:
@@ -521,7 +508,8 @@ class TrackingNode(QuietQosEvents, Node):
     def _arm_drain_timer(self) -> None:
         """The timer fires at the earliest deadline of a waiting frame or of the held ack (`_awaiting`); every
         change to either goes through `_drain`, so this is the only place that sets it."""
-        due = [f.deadline_s for f in self._pending]
+        first = self.queue.next_deadline_s()
+        due = [] if first is None else [first]
         if self._awaiting is not None:
             due.append(self._awaiting["deadline"])
         if not due:
@@ -533,19 +521,12 @@ class TrackingNode(QuietQosEvents, Node):
 
     def _drain_pending(self) -> None:
         self._check_wait()
-        if self.params["frame_policy"] == "latest" and len(self._pending) > 1 and self._awaiting is None:
-            now = time.monotonic()
-            ready = [i for i, f in enumerate(self._pending) if f.stamp_ns in self.detections or now >= f.deadline_s]
-            for _ in range(ready[-1] if ready else 0):
-                stale = self._pending.popleft()
+        if self._awaiting is None:
+            for stale in self.queue.take_stale(time.monotonic()):
                 self.detections.pop(stale.stamp_ns, None)
                 self.frames_dropped_stale += 1
                 self._ack(stale.rgb_msg.header)
-        while self._pending and self._awaiting is None:
-            head = self._pending[0]
-            if head.stamp_ns not in self.detections and time.monotonic() < head.deadline_s:
-                return
-            self._pending.popleft()
+        while self._awaiting is None and (head := self.queue.pop_ready(time.monotonic())) is not None:
             self._process(head)
 
     def _frame_camera(self, width: int, height: int) -> CameraIntrinsics | None:
@@ -768,8 +749,8 @@ class TrackingNode(QuietQosEvents, Node):
         if self._finished:
             return []
         self._finished = True
-        while self._pending:
-            self._process(self._pending.popleft())
+        while self.queue:
+            self._process(self.queue.pop())
         if self.movers is not None and self._movers_stamp_ns and self.context.ok():
             try:
                 self.publish_moving_objects(self._movers_stamp_ns)  # the final trajectories

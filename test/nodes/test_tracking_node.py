@@ -210,7 +210,7 @@ def test_frame_policy_latest_tracks_the_newest_ready_frame_and_drops_the_older_o
     for f in frames:
         node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
         node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
-    assert node.frames_in == 0 and len(node._pending) == 3  # noqa: SLF001 - all wait for their detections
+    assert node.frames_in == 0 and len(node.queue) == 3  # all wait for their detections
 
     def detections_for(k: int) -> None:
         node.on_detections(DetectionArray(header=cv.make_header(frames[k].stamp_ns, "camera"), detections=[]))
