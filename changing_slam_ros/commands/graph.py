@@ -22,7 +22,8 @@ DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, trac
 tracking), semantic_map.json, local_mapping_stats.json and map.npz (from local_mapping, the split backend's map owner: the
 whole map in `changing-slam run`'s format, for a later `--map-in`; semantic_map.json from tracking when in_process), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
 for evo and Foxglove, written after the run), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
-process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts), and with the
+process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts, CPU seconds per
+process during playback: `commands/process_cpu.py`), and with the
 config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's class-agnostic
 movers; in outputs.mcap as /moving_objects/object_<id>/pose, /tracking/moving_objects, /tracking/moving_object_markers).
 Drops: colour frames in the bag that did not become a pose (not received, not paired, or not tracked).

@@ -332,8 +332,8 @@ class TrackingNode(QuietQosEvents, Node):
         ds = detections_from_msg(msg)
         self._detections_seen = True
         self.detections_in += 1
-        received = self._received_s.get(ds.stamp_ns) or self._processed_received_s.get(ds.stamp_ns) or next(
-            self.queue.received_s(ds.stamp_ns))
+        received = (self._received_s.get(ds.stamp_ns) or self._processed_received_s.get(ds.stamp_ns)
+                    or self.queue.received_s(ds.stamp_ns))  # fmt: skip
         if received is not None:  # also for frames tracked already: how late detections come
             delay_ms = (time.monotonic() - received) * 1e3
             self.detection_delay_ms.append(delay_ms)

@@ -86,7 +86,15 @@ def test_graph_without_detections_reproduces_the_offline_runner_byte_for_byte(tm
             else:
                 np.testing.assert_array_equal(g[name], o[name], err_msg=name)
         assert not np.array_equal(g["m0_pt_n_visible"], o["m0_pt_n_visible"])  # 8 frames after the one keyframe
-    assert json.loads((graph / "graph_summary.json").read_text())["poses_published"] == 9
+    summary = json.loads((graph / "graph_summary.json").read_text())
+    assert summary["poses_published"] == 9
+    # CPU per process during playback: tracking tracked 9 frames of 640x480 (~30 ms each), local mapping mapped
+    # (the player's own play() figure, from its log line, is there too); the total is the sum per bag frame.
+    cpu, per_frame = summary["cpu_s_during_play"], summary["cpu_ms_per_bag_frame"]
+    assert set(cpu) == {"tracking", "local_mapping", "loop_closing", "bag_player"}
+    assert 0.1 < cpu["tracking"] < 30.0 and cpu["local_mapping"] > 0.0 and cpu["bag_player"] < 5.0
+    frames = summary["colour_frames_in_bag"]
+    assert abs(per_frame["total"] - 1e3 * sum(cpu.values()) / frames) < 0.05 * len(cpu)
 
 
 def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path):

@@ -302,3 +302,28 @@ def test_a_frame_waiting_for_detections_that_never_come_is_tracked_at_its_deadli
     assert node._drain_timer.is_canceled()  # noqa: SLF001 - the queue is empty again
     executor.remove_node(node)
     node.destroy_node()
+
+
+def test_detections_for_a_frame_never_received_are_kept_and_a_waiting_frames_delay_is_measured(ros_context):
+    """Real time: the middleware may drop a colour image the detector got; its detections must not break the
+    node (a regression of session 6 crashed tracking here). A waiting frame's detections are used at once."""
+    import itertools
+
+    from helpers import FR1_XYZ_10, require
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    f = next(itertools.islice(iter(src), 1))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=60.0),
+        Parameter("debug_image", value=False),
+    ])  # fmt: skip
+    node.on_detections(DetectionArray(header=cv.make_header(f.stamp_ns - 33_000_000, "camera"), detections=[]))
+    assert node.detections_in == 1 and node.detection_delay_ms == []  # no frame of that stamp: no delay
+    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, f.stamp_ns, "camera"))
+    node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
+    node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
+    assert node.frames_in == 0 and len(node.queue) == 1
+    node.on_detections(DetectionArray(header=cv.make_header(f.stamp_ns, "camera"), detections=[]))
+    assert node.frames_in == 1 and node.frames_without_detections == 0 and len(node.detection_delay_ms) == 1
+    node.destroy_node()
