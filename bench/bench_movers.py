@@ -21,6 +21,7 @@ system's run (tracking only sees the flags) is the same with either.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import subprocess
 import sys
@@ -153,6 +154,14 @@ def parse_sets(items: list[str]) -> dict[str, Any]:
     return out
 
 
+def merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """`base` with `over` applied, nested mappings merged key by key."""
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sim_dir", help="a simulated folder with a mover, e.g. unknown_mover")
@@ -169,7 +178,10 @@ def main() -> int:
     from changing_slam_ros.core.camera import CameraIntrinsics
     from changing_slam_ros.core.mover_tracking import MoverConfig, MoverTracker
 
-    variants = {v: section(MoverConfig, {"enabled": True, **parse_sets(v.split())}, f"bench_movers --variant {v}") for v in args.variant}
+    # Overrides go onto the default MoverConfig's values, nested sections included: a YAML-style section
+    # alone would rebuild e.g. `segmentation` from SegmentationConfig's class defaults, not the stage's.
+    defaults = dataclasses.asdict(MoverConfig(enabled=True))
+    variants = {v: section(MoverConfig, merged(defaults, parse_sets(v.split())), f"bench_movers --variant {v}") for v in args.variant}
 
     with tempfile.TemporaryDirectory(prefix="bench-movers-") as tmp_dir:
         tmp = Path(tmp_dir)

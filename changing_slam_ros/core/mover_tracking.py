@@ -70,6 +70,9 @@ class MoverConfig:
       (720 frames, system run) 1 gave moving-keypoint P 0.966 / R 0.968, object ATE 1.46 cm, and 2 gave
       P 0.973 / R 0.967, 0.65 cm at about 0.78x the stage's CPU time per frame (`bench/bench_movers.py`);
       the live objects' models flag their points on the frames in between.
+    - `idle_segment_every_frames`: the cadence while the stage is idle (no live object, and the last
+      segmentation put no point on a target); 0 = `segment_every_frames`. A static scene then costs the
+      feature tracks and one segmentation every n frames; a new mover is found at most n - 1 frames later.
     - `spread_px`, `spread_depth_m`: a keypoint within `spread_px` pixels and `spread_depth_m` depth of a
       keypoint flagged by its track is flagged too (keypoints new on the object have no track history
       yet; 0 = off).
@@ -94,6 +97,7 @@ class MoverConfig:
     max_hamming: int = 64
     max_shift_px: float = 80.0
     segment_every_frames: int = 2
+    idle_segment_every_frames: int = 0
     min_object_points: int = 6
     spread_px: float = 20.0
     model_radius_m: float = 0.03
@@ -107,9 +111,11 @@ class MoverConfig:
     def __post_init__(self) -> None:
         if self.window_frames < 2 or self.window_step_frames < 1 or self.segment_every_frames < 1:
             raise ConfigError(
-                f"dynamic.movers: window_frames must be >= 2 and window_step_frames >= 1, got "
-                f"{self.window_frames}, {self.window_step_frames}"
+                f"dynamic.movers: window_frames must be >= 2, window_step_frames and segment_every_frames >= 1, "
+                f"got {self.window_frames}, {self.window_step_frames}, {self.segment_every_frames}"
             )
+        if self.idle_segment_every_frames < 0:
+            raise ConfigError(f"dynamic.movers.idle_segment_every_frames: expected >= 0, got {self.idle_segment_every_frames}")
         if not 0.0 < self.match_ratio <= 1.0:
             raise ConfigError(f"dynamic.movers.match_ratio: expected 0 < r <= 1, got {self.match_ratio}")
 
@@ -203,7 +209,9 @@ class MoverTracker:
         pending = _Pending(stamp_ns, ids, features.keypoints_px, features.depths_m, camera)
         self._pending, self._segmented = pending, None
         T_pred = self._predicted_pose()
-        due = (self._frames + 1) % cfg.segment_every_frames == 0
+        idle = not self.live and len(self._segmented_moving) == 0
+        every = cfg.idle_segment_every_frames if idle and cfg.idle_segment_every_frames > 0 else cfg.segment_every_frames
+        due = (self._frames + 1) % every == 0
         if due and T_pred is not None and len(self._history) == self._history.maxlen:
             self._camera = camera
             current = self._measurements(pending, T_pred)

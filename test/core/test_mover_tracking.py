@@ -105,3 +105,27 @@ def test_a_failed_frame_is_skipped_and_config_is_checked() -> None:
         MoverConfig(window_frames=1)
     with pytest.raises(ConfigError, match="match_ratio"):
         MoverConfig(match_ratio=0.0)
+
+
+def test_an_idle_stage_segments_less_often_and_still_finds_the_box() -> None:
+    static = _scene(np.random.default_rng(2), 30, speed_m_per_frame=0.0)
+    windows = {}
+    for idle in (0, 4):
+        movers = MoverTracker(MoverConfig(enabled=True, idle_segment_every_frames=idle))
+        for k, (feats, _, _) in enumerate(static):
+            assert not movers.before_tracking(int(k * 1e9 / 30), feats, CAMERA).any()
+            movers.after_tracking(np.eye(4))
+        windows[idle] = len(movers.segmentation_ms)
+    assert windows[4] <= windows[0] // 2 + 1 and windows[4] >= 5, windows
+    carried = _scene(np.random.default_rng(1), 45, speed_m_per_frame=0.01)
+    movers = MoverTracker(MoverConfig(enabled=True, min_track_frames=5, idle_segment_every_frames=4))
+    tp = fp = fn = 0
+    for k, (feats, on_box, _) in enumerate(carried):
+        moving = movers.before_tracking(int(k * 1e9 / 30), feats, CAMERA)
+        movers.after_tracking(np.eye(4))
+        if k >= 20:
+            tp, fp, fn = tp + int(np.sum(moving & on_box)), fp + int(np.sum(moving & ~on_box)), fn + int(np.sum(on_box & ~moving))
+    assert tp / (tp + fp) > 0.99 and tp / (tp + fn) > 0.9
+    assert len(movers.tracks()) == 1
+    with pytest.raises(ConfigError, match="idle_segment_every_frames"):
+        MoverConfig(idle_segment_every_frames=-1)
