@@ -19,9 +19,9 @@ semantic map itself. `slam:=false`: frames are paired, converted and acknowledge
 Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour
 stamp for at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is
 there, or `detections_required:=true`), then goes through the system with them (or with none: the object EKFs
-then predict). `frame_policy:=latest` (real time): when several paired frames wait, the newest ready one (its
-detections in, or its wait over) is tracked and the older ones are dropped (`frames_dropped_stale`), so no
-queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
+then predict). `frame_policy:=latest` (real time; `nodes/frame_queue.py`): when several paired frames wait, the
+newest ready one (its detections in, or its wait over) is tracked and the older ones are dropped
+(`frames_dropped_stale`), so no queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
 only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window` detections
 all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once instead of
 waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again.
@@ -41,7 +41,8 @@ Inputs (defaults are the TUM bag names; remap with --ros-args -r):
   `compressed:=true` their /compressed CompressedImage topics (JPEG/PNG colour, PNG or compressedDepth depth),
   /camera/rgb/camera_info, /detection/detections, /local_mapping/map_updates,
   /loop_closing/loop_corrections, /object_map/object_states
-Outputs: ~/pose (PoseStamped, map frame), ~/odometry, ~/path (the online poses; rebuilt from the optimised
+Outputs (`nodes/tracking_outputs.py`; odometry, path, TF and debug image only while subscribed): ~/pose
+  (PoseStamped, map frame), ~/odometry, ~/path (the online poses; rebuilt from the optimised
   trajectory after a loop closure), ~/keyframes, ~/semantic_map (MapObjectArray, transient-local, after each
   keyframe the object layer worked on), ~/debug_image (keypoints used for tracking, coloured by class, and the
   frame's detection boxes), TF map->odom (identity: no separate odometry yet) and odom->camera (REP-105,
@@ -60,18 +61,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped, TransformStamped
-from nav_msgs.msg import Odometry, Path as PathMsg
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
-from tf2_msgs.msg import TFMessage
-from visualization_msgs.msg import MarkerArray
 
-from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArray, MapUpdate, MovingObjectArray
+from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArray, MapUpdate
 from changing_slam_msgs.msg import ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_ros.core.camera import CameraIntrinsics
@@ -85,11 +82,6 @@ from changing_slam_ros.nodes.conversions import (
     image_to_rgb,
     keyframe_to_msg,
     make_header,
-    matrix_to_pose,
-    matrix_to_transform,
-    moving_object_markers,
-    moving_objects_to_msg,
-    rgb_to_image,
     stamp_to_ns,
 )
 from changing_slam_ros.nodes.frame_queue import FrameQueue, PendingFrame
@@ -97,10 +89,9 @@ from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, keyframe_ma
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
+from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# BGR-free RGB colours of the debug image per KeypointClass (static, movable, dynamic, unused).
-CLASS_RGB = {0: (0, 220, 0), 1: (0, 120, 255), 2: (255, 0, 0), 3: (160, 160, 160)}
 
 
 class TrackingNode(QuietQosEvents, Node):
@@ -254,23 +245,18 @@ class TrackingNode(QuietQosEvents, Node):
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
 
-        self.pose_pub = self.create_publisher(PoseStamped, "~/pose", output_qos)
-        self.odom_pub = self.create_publisher(Odometry, "~/odometry", output_qos)
-        self.path_pub = self.create_publisher(PathMsg, "~/path", output_qos)
+        self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], p["odom_frame"], p["camera_frame"],
+                                     p["publish_tf"])  # pose, odometry, path, TF  # fmt: skip
         self.keyframe_pub = self.create_publisher(KeyframeMsg, "~/keyframes", QoSProfile(depth=100))
         self.object_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.debug_pub = self.create_publisher(Image, "~/debug_image", 2) if p["debug_image"] else None
         self.movers = None if self.backend is None or self.backend.dynamic is None else self.backend.dynamic.movers
-        if self.movers is not None:  # class-agnostic movers (Dai et al.): tracked here, with camera tracking
-            self.movers_pub = self.create_publisher(MovingObjectArray, "~/moving_objects", output_qos)
-            self.mover_markers_pub = self.create_publisher(MarkerArray, "~/moving_object_markers", output_qos)
-        self._movers_sent_s = -float("inf")
+        # class-agnostic movers (Dai et al.): tracked here, with camera tracking
+        self.movers_out = None if self.movers is None else MoverOutputs(self, output_qos, p["map_frame"],
+                                                                        p["moving_objects_period_s"])  # fmt: skip
         self._movers_stamp_ns = 0
-        self.moving_objects_published = 0
-        self.tf_pub = self.create_publisher(TFMessage, "/tf", 100) if p["publish_tf"] else None
         self.ack_pub = self.create_publisher(Header, p["ack_topic"], 100) if p["ack_topic"] else None
-        self.path = PathMsg(header=Header(frame_id=p["map_frame"]))
         # Steady clock: the stats line and the detection deadlines keep going when use_sim_time is on and the
         # bag is paused.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -432,7 +418,7 @@ class TrackingNode(QuietQosEvents, Node):
             self.movers = side.backend.dynamic.movers
         self.epochs.adopt(marker)
         self.loads += 1
-        self.path.poses = []  # the path goes on in the loaded map's frame
+        self.poses_out.replace_path([], [])  # the path goes on in the loaded map's frame
         self._kf_sent_s.clear()
         self._relays_seen.clear()
         self.keyframe_pub.publish(keyframe_marker(marker))
@@ -590,10 +576,11 @@ class TrackingNode(QuietQosEvents, Node):
         if out.objects is not None:
             self.publish_semantic_map(item.stamp_ns)
         self._movers_stamp_ns = item.stamp_ns
-        if self.movers is not None and time.monotonic() - self._movers_sent_s >= self.params["moving_objects_period_s"]:
+        if self.movers_out is not None and self.movers_out.due():
             self.publish_moving_objects(item.stamp_ns)
         if self.debug_pub is not None and self.debug_pub.get_subscription_count() > 0:
-            self.debug_pub.publish(self._debug_image(frame, out, dets))
+            last = self.backend.system.tracker.last_frame
+            self.debug_pub.publish(debug_image(frame, last, out.dynamic, dets, self.params["camera_frame"]))
         self.process_ms.append((time.monotonic() - t0) * 1e3)
         self.process_cpu_ms.append((time.process_time() - c0) * 1e3)
         if self._awaiting is None:
@@ -611,39 +598,16 @@ class TrackingNode(QuietQosEvents, Node):
         self.keyframe_pub.publish(msg)
 
     def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
-        """Pose, odometry, path and TF (odom = map until loop corrections separate them). Each goes out only
-        while something subscribes (all are volatile: nobody misses one): the path message grows by a pose per
-        frame, and converting it for nobody cost ~1 ms a frame after 300 frames."""
-        p = self.params
-        header = make_header(stamp_ns, p["map_frame"])
-        pose = PoseStamped(header=header, pose=matrix_to_pose(T_world_cam))
-        self.pose_pub.publish(pose)
-        if self.odom_pub.get_subscription_count() > 0:
-            odom = Odometry(header=header, child_frame_id=p["camera_frame"])
-            odom.pose.pose = pose.pose
-            self.odom_pub.publish(odom)
-        self.path.header.stamp = header.stamp
-        self.path.poses.append(pose)
-        if self.path_pub.get_subscription_count() > 0:
-            self.path_pub.publish(self.path)
+        """Pose, odometry, path and TF (odom = map until loop corrections separate them; `PoseOutputs`)."""
+        self.poses_out.publish(stamp_ns, T_world_cam)
         self.published_poses += 1
-        if self.tf_pub is not None and self.tf_pub.get_subscription_count() > 0:
-            map_odom = TransformStamped(header=header, child_frame_id=p["odom_frame"])
-            map_odom.transform = matrix_to_transform(np.eye(4))
-            odom_cam = TransformStamped(header=make_header(stamp_ns, p["odom_frame"]), child_frame_id=p["camera_frame"])
-            odom_cam.transform = matrix_to_transform(T_world_cam)
-            self.tf_pub.publish(TFMessage(transforms=[map_odom, odom_cam]))
 
     def _rebuild_path(self) -> None:
         """After a loop closure: the path becomes the optimised (final) trajectory so far."""
         traj = self.backend.system.final_trajectory()
         if len(traj) == 0:
             return
-        frame = self.params["map_frame"]
-        self.path.poses = [
-            PoseStamped(header=make_header(round(t * 1e9), frame), pose=matrix_to_pose(T))
-            for t, T in zip(traj.stamps_s, traj.poses(), strict=True)
-        ]
+        self.poses_out.replace_path(traj.stamps_s, traj.poses())
 
     def publish_semantic_map(self, stamp_ns: int) -> None:
         from changing_slam_ros.nodes.object_map_node import semantic_map_to_msg
@@ -653,37 +617,9 @@ class TrackingNode(QuietQosEvents, Node):
         self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(stamp_ns, self.params["map_frame"])))
 
     def publish_moving_objects(self, stamp_ns: int) -> None:
-        """~/moving_objects and ~/moving_object_markers: every mover tracked in at least the config's
-        `min_track_frames` frames, with its trajectory so far (sent only once there is one)."""
-        if self.movers is None:
-            return
-        objects = [o for o in self.movers.objects() if len(o.poses) >= self.movers.config.min_track_frames]
-        if not objects:
-            return
-        self._movers_sent_s = time.monotonic()
-        tracks = [o.to_track() for o in objects]
-        header = make_header(stamp_ns, self.params["map_frame"])
-        self.movers_pub.publish(moving_objects_to_msg(tracks, {o.object_id: o.points_obj for o in objects}, header))
-        self.mover_markers_pub.publish(moving_object_markers(tracks, header))
-        self.moving_objects_published += 1
-
-    def _debug_image(self, frame: RgbdFrame, out: Any, dets: Any) -> Image:
-        """Colour image with the keypoints tracking used (coloured by class) and the detection boxes (red)."""
-        import cv2
-
-        img = np.ascontiguousarray(frame.rgb.copy())
-        last = self.backend.system.tracker.last_frame
-        if out.dynamic is not None and last is not None and len(last.features) == int(out.dynamic.keep.sum()):
-            classes = out.dynamic.kp_classes[out.dynamic.keep]
-            for (u, v), c in zip(last.features.keypoints_px, classes, strict=True):
-                cv2.circle(img, (int(u), int(v)), 2, CLASS_RGB.get(int(c), (255, 255, 255)), -1)
-        elif last is not None:
-            for u, v in last.features.keypoints_px:
-                cv2.circle(img, (int(u), int(v)), 2, CLASS_RGB[0], -1)
-        for d in () if dets is None else dets.detections:
-            x0, y0, x1, y1 = (int(round(v)) for v in d.box_xyxy)
-            cv2.rectangle(img, (x0, y0), (x1, y1), (255, 0, 0), 1)
-        return rgb_to_image(img, frame.stamp_ns, self.params["camera_frame"])
+        """~/moving_objects and ~/moving_object_markers (`MoverOutputs`): the movers tracked long enough."""
+        if self.movers is not None and self.movers_out is not None:
+            self.movers_out.publish(self.movers, stamp_ns)
 
     def stats(self) -> dict[str, Any]:
         """Counts and latencies for tracking_stats.json and the log."""
@@ -715,7 +651,7 @@ class TrackingNode(QuietQosEvents, Node):
             "provisional_points_created": prov.n_created if prov is not None else None,
             "provisional_points_replaced": prov.n_replaced if prov is not None else None,
             "provisional_points_dropped": prov.n_dropped if prov is not None else None,
-            "moving_objects_messages": self.moving_objects_published,
+            "moving_objects_messages": self.movers_out.published if self.movers_out is not None else 0,
             "map_loads": self.loads,
             "load_relocalised_after_s": self._relocalised_after_load_s(),
             "dropped_before_load": self.epochs.dropped,

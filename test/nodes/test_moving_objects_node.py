@@ -86,7 +86,7 @@ def test_tracking_node_publishes_the_carried_box_and_its_trajectory(ros_context,
     assert tracking.frames_in == FRAMES and tracking.published_poses == FRAMES
 
     # The last message: the longest track is the box, near its ground truth (camera-aligned like the offline test).
-    assert movers and markers and tracking.moving_objects_published >= 10
+    assert movers and markers and tracking.movers_out.published >= 10
     tracks = cv.moving_objects_from_msg(movers[-1])
     track, points = max(tracks, key=lambda tp: len(tp[0].stamps_ns))
     assert len(track.stamps_ns) >= 40 and len(points) == track.n_points >= 50

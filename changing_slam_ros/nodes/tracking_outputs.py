@@ -1,0 +1,121 @@
+"""What the tracking node publishes per frame besides keyframe packets: pose, odometry, path and TF
+(`PoseOutputs`), the class-agnostic movers (`MoverOutputs`) and the debug image (`debug_image`).
+
+Per-frame outputs that nobody reads cost CPU on every frame (the path message grows by one pose per frame), so
+odometry, path, TF and the debug image are built only while something subscribes; all are volatile, so no
+late subscriber misses one. The pose itself always goes out (the graph's and the tests' main output).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nav_msgs.msg import Odometry, Path as PathMsg
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import Image
+from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
+
+from changing_slam_msgs.msg import MovingObjectArray
+from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.nodes.conversions import (
+    make_header,
+    matrix_to_pose,
+    matrix_to_transform,
+    moving_object_markers,
+    moving_objects_to_msg,
+    rgb_to_image,
+)
+
+# RGB colours of the debug image per KeypointClass (static, movable, dynamic, unused).
+CLASS_RGB = {0: (0, 220, 0), 1: (0, 120, 255), 2: (255, 0, 0), 3: (160, 160, 160)}
+
+
+class PoseOutputs:
+    """~/pose, ~/odometry, ~/path (the online poses so far) and TF map->odom (identity) -> odom->camera."""
+
+    def __init__(self, node: Node, qos: QoSProfile | int, map_frame: str, odom_frame: str, camera_frame: str,
+                 publish_tf: bool) -> None:  # fmt: skip
+        self.map_frame, self.odom_frame, self.camera_frame = map_frame, odom_frame, camera_frame
+        self.pose_pub = node.create_publisher(PoseStamped, "~/pose", qos)
+        self.odom_pub = node.create_publisher(Odometry, "~/odometry", qos)
+        self.path_pub = node.create_publisher(PathMsg, "~/path", qos)
+        self.tf_pub = node.create_publisher(TFMessage, "/tf", 100) if publish_tf else None
+        self.path = PathMsg(header=Header(frame_id=map_frame))
+
+    def publish(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
+        header = make_header(stamp_ns, self.map_frame)
+        pose = PoseStamped(header=header, pose=matrix_to_pose(T_world_cam))
+        self.pose_pub.publish(pose)
+        if self.odom_pub.get_subscription_count() > 0:
+            odom = Odometry(header=header, child_frame_id=self.camera_frame)
+            odom.pose.pose = pose.pose
+            self.odom_pub.publish(odom)
+        self.path.header.stamp = header.stamp
+        self.path.poses.append(pose)
+        if self.path_pub.get_subscription_count() > 0:
+            self.path_pub.publish(self.path)
+        if self.tf_pub is not None and self.tf_pub.get_subscription_count() > 0:
+            map_odom = TransformStamped(header=header, child_frame_id=self.odom_frame)
+            map_odom.transform = matrix_to_transform(np.eye(4))
+            odom_cam = TransformStamped(header=make_header(stamp_ns, self.odom_frame), child_frame_id=self.camera_frame)
+            odom_cam.transform = matrix_to_transform(T_world_cam)
+            self.tf_pub.publish(TFMessage(transforms=[map_odom, odom_cam]))
+
+    def replace_path(self, stamps_s: Any, poses: Any) -> None:
+        """The path becomes these poses (after a loop closure: the optimised trajectory so far; [] after a load)."""
+        self.path.poses = [
+            PoseStamped(header=make_header(round(t * 1e9), self.map_frame), pose=matrix_to_pose(T))
+            for t, T in zip(stamps_s, poses, strict=True)
+        ]
+
+
+class MoverOutputs:
+    """~/moving_objects (MovingObjectArray) and ~/moving_object_markers (MarkerArray), at most every `period_s`."""
+
+    def __init__(self, node: Node, qos: QoSProfile | int, map_frame: str, period_s: float) -> None:
+        self.map_frame, self.period_s = map_frame, period_s
+        self.movers_pub = node.create_publisher(MovingObjectArray, "~/moving_objects", qos)
+        self.markers_pub = node.create_publisher(MarkerArray, "~/moving_object_markers", qos)
+        self.sent_s = -float("inf")
+        self.published = 0
+
+    def due(self) -> bool:
+        return time.monotonic() - self.sent_s >= self.period_s
+
+    def publish(self, movers: Any, stamp_ns: int) -> None:
+        """Every mover tracked in at least the config's `min_track_frames` frames, with its trajectory so far
+        (nothing is sent before there is one)."""
+        objects = [o for o in movers.objects() if len(o.poses) >= movers.config.min_track_frames]
+        if not objects:
+            return
+        self.sent_s = time.monotonic()
+        tracks = [o.to_track() for o in objects]
+        header = make_header(stamp_ns, self.map_frame)
+        self.movers_pub.publish(moving_objects_to_msg(tracks, {o.object_id: o.points_obj for o in objects}, header))
+        self.markers_pub.publish(moving_object_markers(tracks, header))
+        self.published += 1
+
+
+def debug_image(frame: RgbdFrame, last_frame: Any, dynamic: Any, detections: Any, frame_id: str) -> Image:
+    """Colour image with the keypoints tracking used (`last_frame`'s, coloured by the dynamic stage's class when
+    it kept exactly those, else green) and the detection boxes (red)."""
+    import cv2
+
+    img = np.ascontiguousarray(frame.rgb.copy())
+    if dynamic is not None and last_frame is not None and len(last_frame.features) == int(dynamic.keep.sum()):
+        classes = dynamic.kp_classes[dynamic.keep]
+        for (u, v), c in zip(last_frame.features.keypoints_px, classes, strict=True):
+            cv2.circle(img, (int(u), int(v)), 2, CLASS_RGB.get(int(c), (255, 255, 255)), -1)
+    elif last_frame is not None:
+        for u, v in last_frame.features.keypoints_px:
+            cv2.circle(img, (int(u), int(v)), 2, CLASS_RGB[0], -1)
+    for d in () if detections is None else detections.detections:
+        x0, y0, x1, y1 = (int(round(v)) for v in d.box_xyxy)
+        cv2.rectangle(img, (x0, y0), (x1, y1), (255, 0, 0), 1)
+    return rgb_to_image(img, frame.stamp_ns, frame_id)
