@@ -91,6 +91,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-in", metavar="MAP", default="",
                         help="multi-session: start from a map saved by `changing-slam run` (its DIR/map.npz); "
                              "tracking relocalises in it, poses stay in its frame")
+    parser.add_argument("--nice", action="append", default=[], metavar="NODE=N",
+                        help="start NODE with its niceness raised by N (repeatable; e.g. local_mapping=5 lets tracking "
+                             "and detection take the cores first when they are short; a restart keeps it)")
     parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
                         help="fault injection: SIGKILL NODE S seconds after playback starts (repeatable)")
 
@@ -107,6 +110,7 @@ class NodeProcess:
     log_path: Path | None = None
     exit_codes: list[int] = field(default_factory=list)
     restart_argv: list[str] | None = None  # the command of a restart, when it differs from the first start's
+    nice: int = 0  # niceness added to the process (and all its threads) before it starts
 
     def start(self, env: dict[str, str]) -> None:
         suffix = "" if self.starts == 0 else f".{self.starts}"
@@ -114,7 +118,9 @@ class NodeProcess:
         argv = self.restart_argv if self.starts > 0 and self.restart_argv is not None else self.argv
         log = open(self.log_path, "wb")  # noqa: SIM115 - the child keeps writing it
         try:
-            self.proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+            increment = self.nice
+            self.proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                                         preexec_fn=(lambda: os.nice(increment)) if increment else None)  # fmt: skip
         finally:
             log.close()
         self.starts += 1
@@ -197,6 +203,22 @@ def _uses_detections(config: str) -> bool:
     return dyn.enabled and dyn.detection_filtering
 
 
+def parse_nice(specs: list[str], known: tuple[str, ...]) -> dict[str, int]:
+    """`--nice NODE=N` specs as {node: increment}; an unknown node or a value outside 0..19 is a ConfigError."""
+    out: dict[str, int] = {}
+    for spec in specs:
+        name, _, value = spec.partition("=")
+        if name not in known:
+            raise ConfigError(f"--nice {spec}: unknown node {name!r} (nodes: {', '.join(known)})")
+        try:
+            out[name] = int(value)
+        except ValueError as err:
+            raise ConfigError(f"--nice {spec}: expected NODE=N with N an integer 0..19, e.g. local_mapping=5") from err
+        if not 0 <= out[name] <= 19:
+            raise ConfigError(f"--nice {spec}: N must be 0..19 (raising a priority needs privileges)")
+    return out
+
+
 def _parse_kills(specs: list[str]) -> list[tuple[str, float]]:
     out = []
     for spec in specs:
@@ -275,6 +297,8 @@ class Graph:
                   "min_subscribers": 2 if self.detection else 1, "wait_subscribers": True,
                   "dds_ack_wait": False}  # fmt: skip
         self.player = NodeProcess("bag_player", _node_argv("bag_player_node", player), self.logs)
+        for name, increment in parse_nice(getattr(a, "nice", []), (*self.nodes, "bag_player")).items():
+            (self.player if name == "bag_player" else self.nodes[name]).nice = increment
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _start(self, node: NodeProcess, timeout_s: float) -> None:
