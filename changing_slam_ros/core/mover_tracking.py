@@ -51,8 +51,10 @@ BoolArr = npt.NDArray[np.bool_]
 
 
 def _window_segmentation() -> SegmentationConfig:
-    # The paper's two-frame (tracking) mode with the graph bounded to 500 points (the rest labelled from it).
-    return replace(SegmentationConfig.two_frame(), max_points=500)
+    # The paper's two-frame (tracking) mode with the graph bounded to 500 points (the rest labelled from it)
+    # and two Gauss-Newton iterations: on unknown_mover (720 frames) the third changed no flag and no
+    # track and cost 8 ms of the 44 ms per window (`bench/bench_movers.py`, session 6).
+    return replace(SegmentationConfig.two_frame(), max_points=500, iterations_per_round=2)
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,8 @@ class MoverConfig:
     - `idle_segment_every_frames`: the cadence while the stage is idle (no live object, and the last
       segmentation put no point on a target); 0 = `segment_every_frames`. A static scene then costs the
       feature tracks and one segmentation every n frames; a new mover is found at most n - 1 frames later.
+      Default 4: on unknown_mover (no mover for the first 4.5 s) 326 windows instead of 359 with the same
+      flags and tracks.
     - `spread_px`, `spread_depth_m`: a keypoint within `spread_px` pixels and `spread_depth_m` depth of a
       keypoint flagged by its track is flagged too (keypoints new on the object have no track history
       yet; 0 = off).
@@ -97,7 +101,7 @@ class MoverConfig:
     max_hamming: int = 64
     max_shift_px: float = 80.0
     segment_every_frames: int = 2
-    idle_segment_every_frames: int = 0
+    idle_segment_every_frames: int = 4
     min_object_points: int = 6
     spread_px: float = 20.0
     model_radius_m: float = 0.03
