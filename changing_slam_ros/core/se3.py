@@ -73,3 +73,24 @@ def rotation_angle_rad(r: F64) -> float:
     """Angle of a rotation matrix, radians in [0, pi]."""
     c = (np.trace(r) - 1.0) / 2.0
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+
+def _left_jacobian(rvec: F64) -> F64:
+    """SO(3)'s left Jacobian V(w): the SE(3) exponential's translation is V(w) u."""
+    theta = float(np.linalg.norm(rvec))
+    w = np.array([[0.0, -rvec[2], rvec[1]], [rvec[2], 0.0, -rvec[0]], [-rvec[1], rvec[0], 0.0]])
+    if theta < 1e-6:
+        return np.eye(3) + 0.5 * w + w @ w / 6.0
+    return (np.eye(3) + (1.0 - np.cos(theta)) / theta**2 * w + (theta - np.sin(theta)) / theta**3 * (w @ w))
+
+
+def scale_motion(t: F64, k: float) -> F64:
+    """The rigid motion `t` (4, 4) raised to the power `k` (k >= 0, fractional allowed): exp(k log t) on SE(3),
+    the same screw motion continued k times as long (k = 2 gives t @ t)."""
+    import cv2
+
+    rvec = cv2.Rodrigues(np.ascontiguousarray(t[:3, :3], dtype=np.float64))[0].ravel()
+    u = np.linalg.solve(_left_jacobian(rvec), t[:3, 3])
+    r_k = cv2.Rodrigues(rvec * float(k))[0]
+    return make_pose(r_k, _left_jacobian(rvec * float(k)) @ (u * float(k)))

@@ -26,7 +26,7 @@ from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.matcher import ProjectionQuery, match_brute_force, search_by_projection
 from changing_slam_ros.core.orb_features import FeatureConfig
 from changing_slam_ros.core.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose, orthonormalised
-from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.se3 import invert, scale_motion
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
 
 F64 = npt.NDArray[np.float64]
@@ -50,6 +50,10 @@ class TrackingConfig:
     - `min_frames_between_keyframes`, `max_frames_between_keyframes`: keyframe spacing bounds.
     - `close_tracked_min`, `close_untracked_min`: ORB-SLAM's "need close points" rule (100 / 70).
     - `max_time_gap_s`: a larger (or negative) stamp step invalidates the motion model.
+    - `velocity_rescale_tolerance`: the constant-velocity prediction is the last frame-to-frame motion, scaled
+      by the ratio of this frame's stamp step to that motion's when the two differ by more than this fraction
+      (frames dropped in real time, gaps in a recording); within it the motion is used as is (ORB-SLAM). A
+      negative value never scales.
     - `n_reloc_candidates`: keyframes tried per relocalisation; `lost_frames_new_map`: failures before a new map.
     - `loaded_map_grace_s`: a session started from a saved map (`Tracker.start_from_map`) tries relocalisation
       against it on every frame for this long (seconds from the first frame) before it starts a new map.
@@ -69,6 +73,7 @@ class TrackingConfig:
     close_tracked_min: int = 100
     close_untracked_min: int = 70
     max_time_gap_s: float = 0.5
+    velocity_rescale_tolerance: float = 0.25
     n_reloc_candidates: int = 6
     lost_frames_new_map: int = 30
     loaded_map_grace_s: float = 2.0
@@ -121,6 +126,7 @@ class Tracker:
         self.inv_sigma2 = 1.0 / features.level_sigma2()
         self.last_frame: Frame | None = None
         self.velocity: F64 | None = None  # T_last_current as camera motion, (4, 4)
+        self.velocity_dt_s = 0.0  # the stamp step `velocity` was measured over
         self.ref_kf_id = -1
         self.last_kf_index = -(10**9)
         self.last_reloc_index = -(10**9)
@@ -220,7 +226,7 @@ class Tracker:
     def _track_frame_to_frame(self, frame: Frame, gap: bool) -> bool:
         last = self.last_frame
         assert last is not None and last.T_world_cam is not None
-        T_wc_pred = last.T_world_cam @ self.velocity if (self.velocity is not None and not gap) else last.T_world_cam
+        T_wc_pred = last.T_world_cam @ self._motion(frame) if (self.velocity is not None and not gap) else last.T_world_cam
         pts = self.map.points
         ids = last.point_ids[last.tracked_mask()]
         ids = ids[pts.usable()[ids]] if len(ids) else ids
@@ -240,6 +246,15 @@ class Tracker:
         if n < 15:
             return False
         return self._optimise(frame, invert(last.T_world_cam)) >= 10
+
+    def _motion(self, frame: Frame) -> F64:
+        """The predicted camera motion from the last frame to `frame` (constant velocity over the stamp step)."""
+        assert self.velocity is not None and self.last_frame is not None
+        tol = self.cfg.velocity_rescale_tolerance
+        if tol < 0 or self.velocity_dt_s <= 0:
+            return self.velocity
+        k = (frame.stamp_ns - self.last_frame.stamp_ns) * 1e-9 / self.velocity_dt_s
+        return self.velocity if abs(k - 1.0) <= tol else scale_motion(self.velocity, k)
 
     def _search(self, frame: Frame, T_cw: F64, ids: npt.NDArray[np.int64], radius: float, ratio: float) -> int:
         """Projection search of map points `ids`; fills `frame.point_ids`, returns the number matched."""
@@ -358,6 +373,7 @@ class Tracker:
         last = self.last_frame
         if last is not None and last.T_world_cam is not None and frame.index - last.index == 1:
             self.velocity = orthonormalised(invert(last.T_world_cam) @ frame.T_world_cam)
+            self.velocity_dt_s = (frame.stamp_ns - last.stamp_ns) * 1e-9
         else:
             self.velocity = None
         frame.ref_kf_id = self.ref_kf_id
