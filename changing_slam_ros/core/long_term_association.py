@@ -58,7 +58,7 @@ class ObjectCandidate:
 
     `truncated`: the box touches the image border; its centroid is biased toward the visible part, so it
     neither updates a mapped object's belief nor counts as a sighting of it, nor joins its point set (the
-    centroid and 3D box). Its points still belong to an object (§4.2: every map point created in a box takes the
+    centroid and 3D box), unless the object is itself known only from cut views (`cut_only_views_join`). Its points still belong to an object (§4.2: every map point created in a box takes the
     box's MapObject, and follows its active flag): they are labelled with the nearest mapped object of its
     class within `ltda_threshold_m` and take its flag, or make a new object (with `truncated_views`; off, cut
     views are skipped as before).
@@ -194,6 +194,15 @@ class LongTermAssociation:
             target = self._nearest_same_class(existing, cand.class_id, centroid)  # lines 3-6
             if cand.truncated and not cfg.truncated_views:
                 assignments.append(-1)
+                continue
+            if cand.truncated and target is not None and target.n_observations == 0 and cfg.cut_only_views_join:
+                # an object known only from cut views has nothing better: its cut views join its point set
+                # (`_point_flag_changes` gives the joiners its flag), still without a belief update or a sighting
+                # (`last_seen_keyframe`); seen in this keyframe all the same, so the vicinity search does not miss it
+                target.add_points(np.asarray(cand.point_ids, np.int64), pts)
+                target.current_box_xyxy = cand.box_xyxy
+                seen.add(target.id)
+                assignments.append(target.id)
                 continue
             if cand.truncated and target is not None:
                 # a cut view's points are labelled with the mapped object and take its active flag (the map

@@ -78,6 +78,11 @@ class ObjectMapConfig:
       scenarios it deactivated many more map points (more objects at belief 0.5) and the one run each showed
       camera ATE up to +2.6 cm (vanishing 3.8 -> 6.5 cm) and shift's chair centroid 5.7 -> 26.7 cm from its
       volume centre (a chair first mapped from a cut view); off, cut views are skipped as before.
+    - `cut_only_views_join`: with `truncated_views`, an object known only from cut views (no whole view yet,
+      `MapObject.n_observations` 0) takes the points of its later cut views into its point set (no belief
+      update, no sighting), and cut boxes give depth samples like whole ones: such an object has nothing
+      better, and the union of its cut views covers what was seen of it. Off: it keeps the points of the
+      view that created it (a plant whose top the camera never saw: 29 map points of one keyframe).
     Centroid and box (ours, docs/changing_scenes.md "Session 6"; `object_point_weights.py`):
     - `centroid_voxel_m`: each occupied cube of this side counts once in the centroid (0: every point counts).
     - `structure_plane_dist_m`: object points closer than this to one of the room's large planes (floor,
@@ -119,6 +124,7 @@ class ObjectMapConfig:
     min_points: int = 5
     semantic_min_belief: float = 0.5
     truncated_views: bool = False
+    cut_only_views_join: bool = True
     centroid_voxel_m: float = 0.025
     structure_plane_dist_m: float = 0.02
     structure_plane_min_fraction: float = 0.05

@@ -13,8 +13,10 @@ and before loop closing, so that loop closing already sees the points this keyfr
      `band_map_points` only those within the box's depth band (below) are kept: a box also holds keypoints
      of the wall or the table seen past the object, which pulled a monitor's box 40 cm back to the wall;
    - depth samples inside its box (`depth_samples` on a grid, within `depth_band_m` of the box's median
-     depth, back-projected from the keyframe): the object's shape even while its keypoints are filtered
-     (a movable object the EKF has not yet called static has no map point at all). They carry negative ids
+     depth, back-projected from the keyframe; cut boxes too with `truncated_views` and `cut_only_views_join`,
+     kept only where an object known only from cut views takes them): the object's shape even while its
+     keypoints are filtered (a movable object the EKF has not yet called static has no map point at all).
+     They carry negative ids
      (below -1) and never enter the metric map;
 3. Algorithm 1 (`LongTermAssociation.process_keyframe`) merges, creates and belief-updates objects and
    runs the vicinity search with the keyframe's depth image;
@@ -297,7 +299,9 @@ class ObjectLayer:
                 ids, pts_w, pts_c = ids[near], pts_w[near], pts_c[near]
             box = tuple(float(v) for v in o.box_xyxy)
             truncated = box_truncated(box, kf.camera)  # type: ignore[arg-type]
-            if depth_m is not None and self.config.depth_samples > 0 and not truncated:
+            assoc = self.config.association
+            cut_samples = assoc.truncated_views and assoc.cut_only_views_join  # for objects known only cut
+            if depth_m is not None and self.config.depth_samples > 0 and (cut_samples or not truncated):
                 sample_c = box_depth_samples(depth_m, o.box_xyxy, kf.camera, self.config.depth_samples,
                                              self.config.depth_band_m)
                 sample_ids = np.arange(mo.next_sample_id, mo.next_sample_id - len(sample_c), -1, dtype=np.int64)
@@ -362,8 +366,13 @@ class ObjectLayer:
     def _anchor(mo: _MapObjects, kf: Keyframe, cands: Sequence[tuple[ObjectCandidate, F64]],
                 res: AssociationResult) -> None:
         for (cand, pts_c), oid in zip(cands, res.assignments):
-            if oid >= 0:
-                mo.anchors.add(kf.id, cand.point_ids, pts_c)
+            if oid < 0:
+                continue
+            ids = cand.point_ids
+            if cand.truncated:  # a cut view's depth samples count only where the object took them
+                keep = (ids >= 0) | np.isin(ids, mo.lta.objects[oid].point_ids)
+                ids, pts_c = ids[keep], pts_c[keep]
+            mo.anchors.add(kf.id, ids, pts_c)
 
     @staticmethod
     def _positions(mo: _MapObjects, slam_map: SlamMap, ids: I64) -> tuple[F64, npt.NDArray[np.bool_]]:

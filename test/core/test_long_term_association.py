@@ -245,7 +245,7 @@ def test_truncated_candidates_give_their_points_to_an_object_without_updating_it
     point set (centroid, box), and its biased centroid neither updates the belief nor counts as a sighting."""
     cut = _cand([0.0, 0.0, 1.0], 100)
     cut = ObjectCandidate(CHAIR, (60, 40, 160, 120), cut.point_ids, cut.points_w, truncated=True)
-    lta = LongTermAssociation(CFG_CUT)
+    lta = LongTermAssociation(dataclasses.replace(CFG_CUT, cut_only_views_join=False))
     res = lta.process_keyframe(0, [cut], LOOK_Z, CAM, WALL)
     assert res.new_object_ids == (0,) and res.assignments == (0,)
     assert not lta.objects[0].active and res.deactivated_point_ids.tolist() == list(range(100, 120))
@@ -285,3 +285,29 @@ def test_the_first_whole_view_of_an_object_known_from_cut_views_is_no_long_term_
     assert lta.objects[0].n_observations == 1
     res = lta.process_keyframe(40, [_cand([0.05, 0.0, 1.0], 300)], LOOK_Z, CAM, WALL)
     assert [c.reason for c in res.belief_changes] == ["seen"] and lta.objects[0].belief > 0.5
+
+
+def test_an_object_known_only_from_cut_views_takes_the_points_of_its_later_cut_views() -> None:
+    """`cut_only_views_join`: while no whole view exists, each cut view adds its points (the union of what was
+    seen: a plant whose top the camera never saw), without a belief update or a sighting; once the object has
+    been seen whole, cut views are labelled only and its centroid stays that of its whole views."""
+    left = _cand([-0.1, 0.0, 1.0], 100)
+    right = _cand([0.1, 0.0, 1.0], 200)
+    lta = LongTermAssociation(CFG_CUT)
+    lta.process_keyframe(0, [ObjectCandidate(CHAIR, (0, 40, 60, 120), left.point_ids, left.points_w, True)],
+                         LOOK_Z, CAM, WALL)
+    res = lta.process_keyframe(9, [ObjectCandidate(CHAIR, (100, 40, 160, 120), right.point_ids, right.points_w,
+                                                   True)], LOOK_Z, CAM, WALL)
+    obj = lta.objects[0]
+    assert res.assignments == (0,) and res.new_object_ids == () and res.belief_changes == ()
+    assert obj.n_points == 40 and obj.n_observations == 0 and obj.last_seen_keyframe == 0 and obj.belief == 0.5
+    np.testing.assert_allclose(obj.centroid_w, [0.0, 0.0, 1.0], atol=1e-12)  # was -0.1: one side only
+    assert res.deactivated_point_ids.tolist() == list(range(200, 220))  # the joiners take its (inactive) flag
+    whole = _cand([0.0, 0.0, 1.0], 300)
+    lta.process_keyframe(12, [whole], LOOK_Z, CAM, WALL)
+    assert obj.n_observations == 1 and obj.n_points == 60
+    later = _cand([0.4, 0.0, 1.0], 400)
+    res = lta.process_keyframe(14, [ObjectCandidate(CHAIR, (100, 40, 160, 120), later.point_ids, later.points_w,
+                                                    True)], LOOK_Z, CAM, WALL)
+    assert res.assignments == (0,) and obj.n_points == 60  # seen whole: a cut view is labelled only
+    np.testing.assert_allclose(obj.centroid_w, [0.0, 0.0, 1.0], atol=1e-12)

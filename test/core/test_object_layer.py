@@ -168,3 +168,32 @@ def test_map_points_of_the_wall_seen_past_the_object_stay_out_of_it() -> None:
     (obj2,) = loose.objects(0)
     assert (obj2.point_ids >= 0).sum() == 12 and obj2.centroid_w[2] > 2.05 and obj2.box_size_m[2] > 1.5
     assert object_layer_config({"band_map_points": False}).band_map_points is False
+
+
+def test_a_cut_box_gives_depth_samples_to_an_object_known_only_from_cut_views() -> None:
+    """`cut_only_views_join` (with `truncated_views`): an object whose keypoints have no map point yet (the EKF
+    has not called it static) and whose box is cut by the image border is made from the box's depth samples;
+    once the object has been seen whole, a cut view's samples are neither in its points nor anchored."""
+    cut_box = (0.0, 60.0, 80.0, 180.0)
+    depth = np.full((240, 320), 4.0, np.float32)
+    depth[60:180, 0:80] = 2.0
+    on = ObjectLayer(object_layer_config({"truncated_views": True}))
+    off = ObjectLayer(object_layer_config({"truncated_views": True, "cut_only_views_join": False}))
+    for layer in (on, off):
+        m, kf = _map_with_keyframe(0, np.eye(4), n_obj=0)
+        layer.after_keyframe(kf, m, depth, [_state(ObjectMotion.UNKNOWN, cut_box)])
+    assert off.objects() == []  # no map point, and no samples from a cut box
+    (obj,) = on.objects(0)
+    assert obj.n_observations == 0 and (obj.point_ids < -1).sum() > 30 and abs(obj.centroid_w[2] - 2.0) < 1e-6
+    kf1 = _map_with_keyframe(1, np.eye(4), n_obj=0)[1]  # the same place seen whole (the camera turned a little)
+    m.add_keyframe(kf1)
+    whole = np.full((240, 320), 4.0, np.float32)
+    whole[60:180, 4:84] = 2.0
+    on.after_keyframe(kf1, m, whole, [_state(ObjectMotion.UNKNOWN, (4.0, 60.0, 84.0, 180.0))])
+    assert obj.n_observations == 1
+    n_points, n_anchors = obj.n_points, len(on.saved_objects(0).anchor_ids)
+    kf2 = _map_with_keyframe(2, np.eye(4), n_obj=0)[1]
+    m.add_keyframe(kf2)
+    out = on.after_keyframe(kf2, m, depth, [_state(ObjectMotion.UNKNOWN, cut_box)])
+    assert out.association is not None and out.association.assignments == (obj.id,)
+    assert obj.n_points == n_points and len(on.saved_objects(0).anchor_ids) == n_anchors
