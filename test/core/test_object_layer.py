@@ -197,3 +197,17 @@ def test_a_cut_box_gives_depth_samples_to_an_object_known_only_from_cut_views() 
     out = on.after_keyframe(kf2, m, depth, [_state(ObjectMotion.UNKNOWN, cut_box)])
     assert out.association is not None and out.association.assignments == (obj.id,)
     assert obj.n_points == n_points and len(on.saved_objects(0).anchor_ids) == n_anchors
+
+
+def test_a_sliver_cut_by_the_border_gives_no_depth_samples() -> None:
+    """`cut_min_side_m`: a cut box 3 px wide (2.3 cm at 2 m) holds mostly what lies behind the object; it makes
+    no object, while the same box 20 px wide (15 cm) does."""
+    depth = np.full((240, 320), 4.0, np.float32)
+    depth[60:180, 0:20] = 2.0
+    for width, expected in ((3.0, 0), (20.0, 1)):
+        layer = ObjectLayer(object_layer_config({"truncated_views": True}))
+        m, kf = _map_with_keyframe(0, np.eye(4), n_obj=0)
+        layer.after_keyframe(kf, m, depth, [_state(ObjectMotion.UNKNOWN, (0.0, 60.0, width, 180.0))])
+        assert len(layer.objects()) == expected
+    with pytest.raises(ConfigError, match="cut_min_side_m"):
+        object_layer_config({"cut_min_side_m": -0.1})
