@@ -273,11 +273,9 @@ def test_detections_skip_late_stops_waiting_while_detections_come_too_late_and_r
     node.destroy_node()
 
 
-def test_a_frame_waiting_for_detections_that_never_come_is_tracked_at_its_deadline_by_the_drain_timer(ros_context):
-    """The drain timer is armed at the waiting frame's deadline (not a fixed poll): spinning the executor, the
-    frame is tracked once its 0.3 s wait is over, not before, and the timer stops when nothing waits."""
+def _first_frame_and_node_waiting_for_detections(ros_context, wait_s: float):
+    """fr1_xyz's first frame, and an in-process tracking node that waits `wait_s` for each frame's detections."""
     import itertools
-    import time
 
     from helpers import FR1_XYZ_10, require
 
@@ -285,9 +283,18 @@ def test_a_frame_waiting_for_detections_that_never_come_is_tracked_at_its_deadli
     f = next(itertools.islice(iter(src), 1))
     node = TrackingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
-        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=0.3),
+        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=wait_s),
         Parameter("debug_image", value=False),
     ])  # fmt: skip
+    return src, f, node
+
+
+def test_a_frame_waiting_for_detections_that_never_come_is_tracked_at_its_deadline_by_the_drain_timer(ros_context):
+    """The drain timer is armed at the waiting frame's deadline (not a fixed poll): spinning the executor, the
+    frame is tracked once its 0.3 s wait is over, not before, and the timer stops when nothing waits."""
+    import time
+
+    src, f, node = _first_frame_and_node_waiting_for_detections(ros_context, wait_s=0.3)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     assert node._drain_timer.is_canceled()  # noqa: SLF001 - nothing waits yet: no wake-ups
@@ -307,17 +314,8 @@ def test_a_frame_waiting_for_detections_that_never_come_is_tracked_at_its_deadli
 def test_detections_for_a_frame_never_received_are_kept_and_a_waiting_frames_delay_is_measured(ros_context):
     """Real time: the middleware may drop a colour image the detector got; its detections must not break the
     node (a regression of session 6 crashed tracking here). A waiting frame's detections are used at once."""
-    import itertools
 
-    from helpers import FR1_XYZ_10, require
-
-    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
-    f = next(itertools.islice(iter(src), 1))
-    node = TrackingNode(context=ros_context, parameter_overrides=[
-        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
-        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=60.0),
-        Parameter("debug_image", value=False),
-    ])  # fmt: skip
+    src, f, node = _first_frame_and_node_waiting_for_detections(ros_context, wait_s=60.0)
     node.on_detections(DetectionArray(header=cv.make_header(f.stamp_ns - 33_000_000, "camera"), detections=[]))
     assert node.detections_in == 1 and node.detection_delay_ms == []  # no frame of that stamp: no delay
     node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, f.stamp_ns, "camera"))
