@@ -74,7 +74,7 @@ def run(config: DynamicObjectsConfig) -> list[tuple[bool, ObjectMotion]]:
 
 
 def test_a_static_chair_entering_at_the_border_is_never_dynamic_and_static_once_whole() -> None:
-    verdicts = run(DynamicObjectsConfig())
+    verdicts = run(DynamicObjectsConfig(cut_box_border_px=1.0, dynamic_min_sigmas=1.0))
     n_cut = sum(cut for cut, _ in verdicts)
     assert n_cut >= 15 and len(verdicts) - n_cut >= 20  # a long entry, then a long full view
     assert all(m != ObjectMotion.DYNAMIC for _, m in verdicts)
@@ -86,7 +86,7 @@ def test_a_static_chair_entering_at_the_border_is_never_dynamic_and_static_once_
 def test_measuring_cut_boxes_calls_the_entering_chair_dynamic() -> None:
     """The failure the setting avoids: with every box measured the same chair is called dynamic while it
     enters, and still is several frames after it is whole."""
-    verdicts = run(DynamicObjectsConfig(cut_box_border_px=0.0))
+    verdicts = run(DynamicObjectsConfig(cut_box_border_px=0.0, dynamic_min_sigmas=1.0))
     assert any(m == ObjectMotion.DYNAMIC for cut, m in verdicts if cut)
     whole = [m for cut, m in verdicts if not cut]
     assert whole[0] == ObjectMotion.DYNAMIC
@@ -95,7 +95,7 @@ def test_measuring_cut_boxes_calls_the_entering_chair_dynamic() -> None:
 def test_a_speed_within_a_sigma_of_the_threshold_is_no_verdict() -> None:
     """Whole views only: with `dynamic_min_sigmas` 0 the third measurement (velocity sigma near 0.8 m/s) calls
     the chair dynamic on a centimetre of centroid jitter."""
-    whole = [m for cut, m in run(DynamicObjectsConfig(dynamic_min_sigmas=0.0)) if not cut]
+    whole = [m for cut, m in run(DynamicObjectsConfig(cut_box_border_px=1.0, dynamic_min_sigmas=0.0)) if not cut]
     assert ObjectMotion.DYNAMIC in whole[:10]
     assert whole[-1] == ObjectMotion.STATIC
 
