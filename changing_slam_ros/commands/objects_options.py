@@ -133,9 +133,11 @@ def find_objects_ground_truth(source: str | Path) -> Path | None:
 
 
 def aligned_objects(objects: list[MapObject], T_gt_est: F64) -> list[MapObject]:
-    """Copies of `objects` with their points moved by T_gt_est (4, 4) (centroids and boxes recomputed in that frame)."""
+    """Copies of `objects` with their points moved by T_gt_est (4, 4) (centroids and boxes recomputed in that frame,
+    viewing directions turned)."""
     R, t = T_gt_est[:3, :3], T_gt_est[:3, 3]
-    return [dataclasses.replace(o, point_ids=o.point_ids.copy(), points_w=o.points_w @ R.T + t) for o in objects]
+    return [dataclasses.replace(o, point_ids=o.point_ids.copy(), points_w=o.points_w @ R.T + t,
+                                view_sum_w=R @ o.view_sum_w) for o in objects]
 
 
 def trajectory_alignment(gt: Trajectory, est: Trajectory, lever_m: float = POSE_LEVER_M) -> F64 | None:

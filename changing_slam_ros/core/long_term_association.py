@@ -218,6 +218,8 @@ class LongTermAssociation:
                                 keyframe_id, belief=0.5, active=0.5 >= cfg.belief_threshold,
                                 point_ids=np.asarray(cand.point_ids, np.int64), points_w=pts,
                                 n_observations=0 if cand.truncated else 1)
+                if not cand.truncated:
+                    obj.add_view(T_world_cam[:3, 3], centroid)
                 obj.last_belief_update_keyframe = keyframe_id
                 self.objects[obj.id] = obj
                 self._next_id += 1
@@ -239,6 +241,7 @@ class LongTermAssociation:
             target.current_box_xyxy = cand.box_xyxy
             target.last_seen_keyframe = keyframe_id  # lines 10 and 17
             target.n_observations += 1
+            target.add_view(T_world_cam[:3, 3], centroid)
             if target.id not in merged_ids:
                 merged_ids.append(target.id)
             seen.add(target.id)

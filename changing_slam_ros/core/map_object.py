@@ -33,6 +33,33 @@ F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 
+# Typical depth in metres (the smaller horizontal side) of indoor COCO classes (0-based ids), for box completion:
+# round figures of common furniture and household objects, not fitted to the simulator's models.
+TYPICAL_CLASS_DEPTH_M: dict[int, float] = {
+    13: 0.4,   # bench
+    24: 0.2,   # backpack
+    26: 0.12,  # handbag
+    28: 0.25,  # suitcase
+    39: 0.07,  # bottle
+    41: 0.08,  # cup
+    56: 0.5,   # chair
+    57: 0.85,  # couch
+    58: 0.35,  # potted plant
+    59: 1.4,   # bed
+    60: 0.75,  # dining table
+    61: 0.55,  # toilet
+    62: 0.1,   # tv
+    63: 0.25,  # laptop
+    68: 0.35,  # microwave
+    69: 0.6,   # oven
+    71: 0.45,  # sink
+    72: 0.65,  # refrigerator
+    73: 0.2,   # book
+    75: 0.12,  # vase
+    77: 0.2,   # teddy bear
+}
+
+
 @dataclass(frozen=True)
 class ObjectMapConfig:
     """YAML section `objects:`. The paper names these thresholds but gives no values; ours are chosen
@@ -93,6 +120,14 @@ class ObjectMapConfig:
     - `shared_point_dist_m`: an object's points within this of the points of another object whose box is
       smaller (the teddy bear on a chair) are that object's and left out (0: off).
     An object keeps all its points (uniform weights) when fewer than `min_points` would be left.
+    Box completion (ours, `object_box_completion.py`; docs/changing_scenes.md "Session 7: box completion"):
+    - `box_completion`: the semantic map's 3D box of an object seen from one side only is grown away from the
+      camera until its depth along the mean viewing direction reaches its class's typical depth
+      (`class_depth_m`, COCO 0-based id -> metres; classes not listed are never grown). A camera sees the front of
+      a plant, never its back: the box of its points ends 10-15 cm short of the real one, and so does its centre.
+    - `completion_min_concentration`: the object's viewing directions must agree (length of their mean unit
+      vector >= this; 1 = one direction, 0.64 = spread evenly over a half circle): an object seen from around has
+      its depth in its points already.
     Semantic map (§4.8):
     - `min_points`: objects with fewer points are left out of the semantic map and never merged into.
     - `semantic_min_belief`: the semantic map holds the objects with belief >= this (0.5: every object seen
@@ -133,9 +168,17 @@ class ObjectMapConfig:
     structure_plane_max_points: int = 4000
     structure_refit_keyframes: int = 5
     shared_point_dist_m: float = 0.03
+    box_completion: bool = True
+    class_depth_m: dict[int, float] = field(default_factory=lambda: dict(TYPICAL_CLASS_DEPTH_M))
+    completion_min_concentration: float = 0.75
 
     def __post_init__(self) -> None:
         where = "objects"
+        if any(v < 0.0 for v in self.class_depth_m.values()):
+            raise ConfigError(f"{where}.class_depth_m: expected depths >= 0, got {self.class_depth_m}")
+        if not 0.0 <= self.completion_min_concentration <= 1.0:
+            raise ConfigError(f"{where}.completion_min_concentration: expected within [0, 1], got "
+                              f"{self.completion_min_concentration}")
         if self.ltda_threshold_m <= 0.0:
             raise ConfigError(f"{where}.ltda_threshold_m: expected > 0, got {self.ltda_threshold_m}")
         if self.n_keyframes_unseen < 0:
@@ -212,7 +255,9 @@ class MapObject:
     `centroid_w` (3,) is the mean of `points_w` weighted by `point_weights` (None: all 1); `box_center_w` (3,)
     and `box_size_m` (3,) the robust world-axis-aligned box (see `box_extent`) of the points of positive weight. Boxes are pixel (x_min, y_min, x_max, y_max).
     `n_observations`: keyframes whose whole (untruncated) view went into the object; 0 for an object known
-    only from views cut by the image border so far.
+    only from views cut by the image border so far. `view_sum_w` (3,): sum of the unit vectors from the camera
+    to the view's centroid over those whole views (`add_view`), map frame; its length over `n_views` says how
+    much the viewing directions agree (box completion).
     """
 
     id: int
@@ -231,8 +276,11 @@ class MapObject:
     last_belief_update_keyframe: int = -1
     n_observations: int = 1
     point_weights: F64 | None = None
+    view_sum_w: F64 = field(default_factory=lambda: np.zeros(3))
+    n_views: int = 0
 
     def __post_init__(self) -> None:
+        self.view_sum_w = np.asarray(self.view_sum_w, dtype=np.float64).reshape(3)
         self.set_points(self.point_ids, self.points_w, self.point_weights)
 
     @property
@@ -259,6 +307,14 @@ class MapObject:
             else:
                 self.centroid_w = (w @ pts) / w.sum()
                 self.box_center_w, self.box_size_m = box_extent(pts[w > 0.0])
+
+    def add_view(self, camera_center_w: F64, centroid_w: F64) -> None:
+        """Count one whole view: the camera at `camera_center_w` (3,) saw the object's points around `centroid_w` (3,)."""
+        d = np.asarray(centroid_w, np.float64).reshape(3) - np.asarray(camera_center_w, np.float64).reshape(3)
+        n = float(np.linalg.norm(d))
+        if n > 0.0 and np.isfinite(n):
+            self.view_sum_w = self.view_sum_w + d / n
+            self.n_views += 1
 
     def set_weights(self, weights: F64 | None) -> None:
         """Re-weight the current points (see `set_points`)."""

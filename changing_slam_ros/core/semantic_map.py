@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.detector import class_name
 from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
+from changing_slam_ros.core.object_box_completion import completed_box
 
 F64 = npt.NDArray[np.float64]
 
@@ -29,7 +30,9 @@ F64 = npt.NDArray[np.float64]
 class SemanticObject:
     """One object of the semantic map, world (map) frame, metres.
 
-    centroid_w (3,) mean of the points; box_center_w (3,) and box_size_m (3,) the world-axis-aligned box.
+    centroid_w (3,) mean of the points; box_center_w (3,) and box_size_m (3,) the world-axis-aligned box, grown
+    to the class's typical depth for an object seen from one side only (`object_box_completion`; the box of the
+    points themselves without a config).
     """
 
     id: int
@@ -78,11 +81,16 @@ def _triple(a: F64) -> tuple[float, float, float]:
     return float(v[0]), float(v[1]), float(v[2])
 
 
-def semantic_object(obj: MapObject) -> SemanticObject:
-    """The semantic-map record of one MapObject."""
+def semantic_object(obj: MapObject, config: ObjectMapConfig | None = None) -> SemanticObject:
+    """The semantic-map record of one MapObject (its box completed per `config`, when given)."""
+    if config is None:
+        center, size = obj.box_center_w, obj.box_size_m
+    else:
+        box = completed_box(obj, config)
+        center, size = box.center_w, box.size_m
     return SemanticObject(
-        obj.id, obj.class_id, class_name(obj.class_id), _triple(obj.centroid_w), _triple(obj.box_center_w),
-        _triple(obj.box_size_m), float(obj.belief), bool(obj.active), obj.n_points, obj.first_keyframe,
+        obj.id, obj.class_id, class_name(obj.class_id), _triple(obj.centroid_w), _triple(center),
+        _triple(size), float(obj.belief), bool(obj.active), obj.n_points, obj.first_keyframe,
         obj.last_seen_keyframe,
     )
 
@@ -94,7 +102,7 @@ def build_semantic_map(objects: Iterable[MapObject], config: ObjectMapConfig, in
     config.min_points points. `min_belief=config.belief_threshold` gives the confirmed objects only."""
     threshold = config.semantic_min_belief if min_belief is None else float(min_belief)
     kept = [
-        semantic_object(o) for o in sorted(objects, key=lambda o: o.id)
+        semantic_object(o, config) for o in sorted(objects, key=lambda o: o.id)
         if o.n_points >= config.min_points and (include_inactive or o.belief >= threshold)
     ]
     return SemanticMap(tuple(kept), threshold, frame_id)

@@ -134,6 +134,7 @@ def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
                 "n_observations": o.n_observations, "belief": o.belief, "active": o.active,
                 "points": [[int(i), *(float(v) for v in p)] for i, p in zip(o.point_ids, o.points_w)],
                 **({} if o.point_weights is None else {"point_weights": [float(w) for w in o.point_weights]}),
+                "view_sum_w": [float(v) for v in o.view_sum_w], "n_views": o.n_views,
             }
             for o in sorted(objects, key=lambda o: o.id)
         ],
@@ -165,6 +166,13 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0
                        for v in weights)):
             raise MapFileError(f"{w}.point_weights: expected {len(arr)} finite numbers >= 0, one per point")
+        view_sum = item.get("view_sum_w", [0.0, 0.0, 0.0])  # optional (box completion, session 7)
+        if (not isinstance(view_sum, list) or len(view_sum) != 3
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in view_sum)):
+            raise MapFileError(f"{w}.view_sum_w: expected 3 finite numbers")
+        n_views = _field(item, "n_views", int, w) if "n_views" in item else 0
+        if n_views < 0:
+            raise MapFileError(f"{w}.n_views: expected >= 0, got {n_views}")
         obj = MapObject(
             _field(item, "id", int, w), _field(item, "class_id", int, w), _box(item, "first_box_xyxy", w),
             _box(item, "current_box_xyxy", w), _field(item, "first_keyframe", int, w),
@@ -173,6 +181,7 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
             last_belief_update_keyframe=_field(item, "last_belief_update_keyframe", int, w),
             n_observations=_field(item, "n_observations", int, w),
             point_weights=None if weights is None else np.asarray(weights, float),
+            view_sum_w=np.asarray(view_sum, float), n_views=n_views,
         )
         out.append(obj)
     ids = [o.id for o in out]
