@@ -116,10 +116,26 @@ def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path)
     lm = s["local_mapping"]  # every keyframe mapped in local_mapping (some culled later: >= the final count)
     assert s["backend"] == "split" and lm["keyframes_mapped"] == lm["keyframes_received"] >= s["keyframes"]
     # What object_map received from local_mapping's object layer (/local_mapping/semantic_map, autosaved): the
-    # monitor (COCO tv) on the table, confirmed.
+    # monitor (COCO tv) on the table, confirmed, where the simulator put it (map aligned to ground truth by the
+    # trajectory). A second tv may be the rocket poster on the wall, which the SSD calls tv (score 0.3-0.53)
+    # while the image top cuts it (docs/changing_scenes.md, "Session 7: the EKF options and the poster").
+    import numpy as np
+
+    from changing_slam_ros.commands.objects_options import trajectory_alignment
+    from changing_slam_ros.eval.object_metrics import load_ground_truth_objects
+    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+    gt_dir = REPO / "bags" / "sim_walking_changing_gt"
+    T = trajectory_alignment(read_tum_trajectory(gt_dir / "groundtruth.txt"), read_tum_trajectory(out / "trajectory.txt"))
+    truth = load_ground_truth_objects(gt_dir / "objects.json")
+    box = next(o for o in truth.objects if o.name == "monitor").box_at(len(truth.stamps_ns) - 1)
+    monitor = (box[0] + box[1]) / 2.0
     objects = json.loads((out / "semantic_map_node.json").read_text())["objects"]
     tvs = [o for o in objects if o["class_name"] == "tv" and o["active"]]
-    assert len(tvs) == 1 and tvs[0]["belief"] >= 0.6 and tvs[0]["n_points"] > 500
+    dist = [float(np.linalg.norm(T[:3, :3] @ np.asarray(o["box_center_m"]) + T[:3, 3] - monitor)) for o in tvs]
+    near = [o for o, d in zip(tvs, dist) if d < 0.15]
+    assert len(near) == 1 and near[0]["belief"] >= 0.6 and near[0]["n_points"] > 500, (dist, tvs)
+    assert all(d > 1.0 for d in dist if d >= 0.15)  # nothing else called tv near the monitor
 
 
 def test_a_killed_local_mapping_is_restarted_and_maps_what_it_missed(tmp_path):
