@@ -1,6 +1,7 @@
 """Detector speed: ms per 640x480 frame, old and new settings measured in the same run (prints, never asserts).
 
-    .venv/bin/python bench/bench_detector.py [--model PATH] [--frames 30] [--threads 2] [--int8]
+    .venv/bin/python bench/bench_detector.py [--model PATH] [--frames 30] [--threads 2] [--int8] [--graph-nms]
+        [--spin-us 500]
 
 Every setting gets its own `Detector`; frames are timed round-robin (one frame per setting in turn), so load
 from other processes hits all settings alike and the ratios hold even when the absolute figures do not. The
@@ -9,6 +10,11 @@ absent). Per part: pre-processing (input tensor), `session.run`, post-processing
 `Detector.last_timing` reports them; CPU = process CPU time per frame, all threads together (spinning counts);
 load = constructing the `Detector` (session creation; the first start of a
 cached setting prepares its graph, later ones load it, so run twice to see both).
+
+The baseline (first row) is session 6's default: the graph cut before its NMS, not slimmed, no spinning. The
+other rows: the slimmed graph (`detector.slim_graph`) without spinning, with spinning, with spinning bounded to
+`--spin-us` microseconds, and on one thread; `--graph-nms` adds the graph's own NMS (20-45 s to load). At the
+end every setting's detections are compared with the baseline's on all images (class lists, boxes, scores).
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ import os
 import statistics
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -49,22 +55,35 @@ def load_images() -> list[tuple[str, np.ndarray]]:
     return [(f.name, np.ascontiguousarray(cv2.imread(str(f), cv2.IMREAD_COLOR)[:, :, ::-1])) for f in files]
 
 
-def settings(model: str, threads: int, cache_dir: str, int8: bool) -> list[Setting]:
+def settings(model: str, threads: int, cache_dir: str, int8: bool, graph_nms: bool, spin_us: int) -> list[Setting]:
     base = DetectorConfig(model_path=model, intra_op_threads=threads, cache_dir=cache_dir)
     out = [
-        # The settings before this change: the graph's own NMS, onnxruntime's default spinning, no cache.
-        Setting("old: graph NMS, spinning", DetectorConfig(model_path=model, intra_op_threads=threads,
-                                                           nms="graph", allow_spinning=True, model_cache=False)),
-        Setting("graph NMS, no spinning", DetectorConfig(model_path=model, intra_op_threads=threads,
-                                                         nms="graph", allow_spinning=False, model_cache=False)),
-        Setting("numpy NMS, spinning", DetectorConfig(model_path=model, intra_op_threads=threads,
-                                                      allow_spinning=True, cache_dir=cache_dir)),
-        Setting("new default: numpy NMS, no spinning", base),
-    ]  # fmt: skip
+        Setting("old: numpy NMS, not slim, no spin", replace(base, slim_graph=False)),
+        Setting("slim, no spinning", base),
+        Setting("slim, spinning", replace(base, allow_spinning=True)),
+        Setting(f"slim, spinning <= {spin_us} us", replace(base, allow_spinning=True, spin_duration_us=spin_us)),
+        Setting("slim, 1 thread", replace(base, intra_op_threads=1)),
+    ]
+    if graph_nms:
+        out.append(Setting("graph NMS, no spinning", replace(base, nms="graph", model_cache=False)))
     if int8:
-        out.append(Setting("numpy NMS, no spinning, INT8", DetectorConfig(
-            model_path=model, intra_op_threads=threads, quantize_int8=True, cache_dir=cache_dir)))  # fmt: skip
+        out.append(Setting("slim, no spinning, INT8", replace(base, quantize_int8=True)))
     return out
+
+
+def compare_exact(reference: Detector, other: Detector, images: list[tuple[str, np.ndarray]]) -> str:
+    """Over all images: do the class lists match, and the largest box (px) and score differences."""
+    same, box, score, n = 0, 0.0, 0.0, 0
+    for _, rgb in images:
+        a, b = reference.detect(rgb).detections, other.detect(rgb).detections
+        n += len(a)
+        if [d.class_id for d in a] != [d.class_id for d in b]:
+            continue
+        same += 1
+        if a:
+            box = max(box, float(np.abs(np.array([d.box_xyxy for d in a]) - np.array([d.box_xyxy for d in b])).max()))
+            score = max(score, max(abs(x.score - y.score) for x, y in zip(a, b)))
+    return f"same classes on {same}/{len(images)} images ({n} detections), max box diff {box:.2e} px, max score diff {score:.2e}"
 
 
 def compare(reference: Detector, other: Detector, images: list[tuple[str, np.ndarray]]) -> str:
@@ -92,12 +111,15 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=30, help="timed frames per setting")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--int8", action="store_true", help="also time dynamic INT8 quantisation")
+    parser.add_argument("--graph-nms", action="store_true", help="also time the graph's own NMS (slow to load)")
+    parser.add_argument("--spin-us", type=int, default=500, help="bounded spinning setting (microseconds)")
     parser.add_argument("--cache-dir", default="", help="prepared-graph cache (default: a fresh temporary folder)")
+    parser.add_argument("--images", default="", help="folder of extra PNG frames for the detection comparison")
     args = parser.parse_args()
     images = load_images()
     with tempfile.TemporaryDirectory(prefix="bench-detector-") as tmp:
         cache_dir = args.cache_dir or tmp
-        runs = settings(args.model, args.threads, cache_dir, args.int8)
+        runs = settings(args.model, args.threads, cache_dir, args.int8, args.graph_nms, args.spin_us)
         print(f"load average before: {os.getloadavg()}")
         for s in runs:
             t0 = time.perf_counter()
@@ -117,23 +139,27 @@ def main() -> int:
                 s.run_ms.append(t.run_ms)
                 s.post_ms.append(t.postprocess_ms)
         print(f"load average after: {os.getloadavg()}")
-        old = statistics.median(runs[0].total_ms)
+        old, old_cpu = statistics.median(runs[0].total_ms), statistics.median(runs[0].cpu_ms)
         print(f"{args.frames} frames per setting, round-robin, {args.threads} threads, images: {', '.join(n for n, _ in images)}")
         med = statistics.median
         for s in runs:
             assert s.detector is not None
             print(
                 f"  {s.name:40s} median {med(s.total_ms):6.1f} ms/frame (x{med(s.total_ms) / old:.2f} of old), "
-                f"min {min(s.total_ms):6.1f}, CPU {med(s.cpu_ms):6.1f}; pre {med(s.pre_ms):.2f} run {med(s.run_ms):.1f} post {med(s.post_ms):.2f}; "
+                f"min {min(s.total_ms):6.1f}, CPU {med(s.cpu_ms):6.1f} (x{med(s.cpu_ms) / old_cpu:.2f}); pre {med(s.pre_ms):.2f} run {med(s.run_ms):.1f} post {med(s.post_ms):.2f}; "
                 f"load {s.load_s:.1f} s{' (cache hit)' if s.detector.cache_hit else ''}"
             )
         ref = runs[0].detector
         assert ref is not None
         found = ", ".join(f"{class_name(d.class_id)} {d.score:.2f}" for d in ref.detect(images[0][1]).detections)
         print(f"  detections (old) on {images[0][0]}: {found}")
+        checked = images + [(f.name, np.ascontiguousarray(cv2.imread(str(f), cv2.IMREAD_COLOR)[:, :, ::-1]))
+                            for f in sorted(Path(args.images).glob("*.png"))] if args.images else images
         for s in runs[1:]:
             assert s.detector is not None
-            print(f"  {s.name} vs old:\n{compare(ref, s.detector, images)}")
+            print(f"  {s.name} vs old: {compare_exact(ref, s.detector, checked)}")
+            if len(images) <= 4:
+                print(compare(ref, s.detector, images))
     return 0
 
 

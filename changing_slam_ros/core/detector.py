@@ -158,6 +158,11 @@ class DetectorConfig:
     - `graph_optimization`: onnxruntime level, "disable", "basic", "extended" or "all".
     - `allow_spinning`: let onnxruntime's threads busy-wait between operators (faster alone, slower when the
       cores are shared with tracking).
+    - `spin_duration_us`: with `allow_spinning`, how long an idle onnxruntime thread spins before it sleeps
+      (0 = onnxruntime's default).
+    - `slim_graph`: with the SSD graph cut before its NMS, also replace its preprocessing loop by one resize and
+      compute only the 80 classes' score channels (`detector_session.slim_ssd_head`): same detections, about
+      10 % less CPU.
     - `quantize_int8`: dynamic INT8 quantisation of the graph, made at first use into the cache (opt-in).
     - `model_cache` / `cache_dir`: keep prepared graphs (cut, quantised, optimised) in `cache_dir`
       (empty = `$XDG_CACHE_HOME/changing_slam_ros/onnx`), so later start-ups only load them.
@@ -179,6 +184,8 @@ class DetectorConfig:
     ssd_nms_iou_threshold: float = 0.6
     graph_optimization: str = "all"
     allow_spinning: bool = False
+    spin_duration_us: int = 0
+    slim_graph: bool = True
     quantize_int8: bool = False
     model_cache: bool = True
     cache_dir: str = ""
@@ -196,6 +203,8 @@ class DetectorConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ConfigError(f"detector.{name}: expected a value in [0, 1], got {v}")
+        if self.spin_duration_us < 0:
+            raise ConfigError(f"detector.spin_duration_us: expected >= 0, got {self.spin_duration_us}")
         if self.intra_op_threads < 0:
             raise ConfigError(f"detector.intra_op_threads: expected >= 0, got {self.intra_op_threads}")
         if self.yolo_input_size_px < 32 or self.max_detections < 1:
@@ -300,10 +309,12 @@ def postprocess_ssd_head(
     score_threshold: float,
     iou_threshold: float,
     max_detections: int,
+    column_ids: tuple[int, ...] | None = None,
 ) -> tuple[F64, F64, npt.NDArray[np.int64]]:
     """A TF-OD SSD's suppression done here, as the graph does it: `boxes` (A, 4) decoded anchors, normalised
     yxyx; `scores` (A, 1 + C) sigmoid scores, background in column 0 -> boxes (M, 4) xyxy pixels, scores (M,),
-    0-based class ids (M,), best first.
+    0-based class ids (M,), best first. With `column_ids` (the slimmed graph, `detector_session.slim_ssd_head`)
+    `scores` is (A, K) and column j holds original COCO id `column_ids[j]` (no background column).
 
     Per class (TF's multiclass_non_max_suppression): keep scores above `score_threshold` (strictly, in float32
     like the graph), clip the boxes to the image and drop empty ones, greedy NMS at `iou_threshold`; then the
@@ -314,9 +325,13 @@ def postprocess_ssd_head(
     flat = np.flatnonzero(s.ravel() > np.float32(score_threshold))  # one pass over the contiguous scores
     anchor, col = np.divmod(flat, s.shape[1])
     area = (b[anchor, 2] - b[anchor, 0]) * (b[anchor, 3] - b[anchor, 1])
-    ok = (col > 0) & (area > 0.0)  # column 0 is the background
-    anchor, col = anchor[ok], col[ok]
-    cls = col - 1
+    if column_ids is None:
+        ok = (col > 0) & (area > 0.0)  # column 0 is the background
+        coco91 = col
+    else:
+        ok = area > 0.0
+        coco91 = np.asarray(column_ids, dtype=np.int64)[col]
+    anchor, col, cls = anchor[ok], col[ok], coco91[ok] - 1
     cand_scores = s[anchor, col].astype(np.float64)
     kept: list[npt.NDArray[np.int64]] = []
     for c in np.unique(cls):
@@ -391,7 +406,7 @@ def _clip_boxes(xyxy: F64, width: int, height: int) -> F64:
 
 _SESSION_FIELDS = (
     "model_path", "layout", "intra_op_threads", "providers", "nms", "graph_optimization", "allow_spinning",
-    "quantize_int8", "model_cache", "cache_dir",
+    "spin_duration_us", "slim_graph", "quantize_int8", "model_cache", "cache_dir",
 )  # fmt: skip
 
 
@@ -429,10 +444,13 @@ class Detector:
                 nms=cfg.nms,
                 quantize_int8=cfg.quantize_int8,
                 cache_dir=cache_dir,
+                ssd_class_columns=COCO91_IDS if cfg.slim_graph else (),
+                spin_duration_us=cfg.spin_duration_us,
             ),
         )
         self._session: Any = prepared.session
         self.ssd_nms_in_graph = not prepared.ssd_head
+        self.score_columns = prepared.score_columns  # COCO-91 id per score column of a slimmed graph
         self.cache_path = prepared.cache_path
         self.cache_hit = prepared.cache_hit
         self.providers: tuple[str, ...] = tuple(self._session.get_providers())
@@ -477,7 +495,7 @@ class Detector:
             if not self.ssd_nms_in_graph:
                 boxes, scores, classes = postprocess_ssd_head(
                     outputs[0][0], outputs[1][0], w, h, cfg.score_threshold, cfg.ssd_nms_iou_threshold,
-                    cfg.max_detections,
+                    cfg.max_detections, self.score_columns,
                 )  # fmt: skip
             else:
                 get = {k.split(":")[0]: v for k, v in zip(self._outputs, outputs)}

@@ -121,3 +121,63 @@ def test_an_unreadable_cached_graph_is_prepared_again(tmp_path) -> None:
     again = Detector(DetectorConfig(model_path=str(path), cache_dir=str(cache)))
     assert not again.cache_hit and again.layout == "yolo"
     assert again.cache_path is not None and again.cache_path.read_bytes() != b"not an onnx graph"
+
+
+def test_ssd_head_postprocessing_reads_a_slimmed_graphs_columns_as_their_coco_ids() -> None:
+    boxes = np.array([[0.10, 0.10, 0.50, 0.30], [0.60, 0.60, 0.90, 0.90], [0.11, 0.10, 0.51, 0.30]], np.float32)
+    # Two columns, no background: COCO id 62 (chair) then 1 (person).
+    scores = np.array([[0.8, 0.1], [0.2, 0.7], [0.75, 0.2]], np.float32)
+    xyxy, s, c = postprocess_ssd_head(boxes, scores, 640, 480, 0.3, 0.6, 100, column_ids=(62, 1))
+    assert c.tolist() == [CHAIR_CLASS_ID, PERSON_CLASS_ID]  # the second chair box is suppressed
+    np.testing.assert_allclose(s, [0.8, 0.7], atol=1e-6)
+    np.testing.assert_allclose(xyxy[1], [384.0, 288.0, 576.0, 432.0], atol=1e-3)
+
+
+def test_the_slimmed_graph_gives_the_unslimmed_heads_detections_on_real_frames(tmp_path) -> None:
+    """The slimmed SSD head (no preprocessing loop, 80 score channels) against the head as cut: the same
+    detections, scores and boxes (the kept channels' arithmetic is untouched)."""
+    onnx = pytest.importorskip("onnx")
+    if not DEFAULT_MODEL_PATH.is_file():
+        pytest.skip("shipped model missing")
+    frames = [require(FR3_WALKING_FRAMES / "1341846313.553992.png"), require(FR3_WALKING_FRAMES / "walking_frame_b.png")]
+    slim = Detector(DetectorConfig(cache_dir=str(tmp_path)))
+    head = Detector(DetectorConfig(cache_dir=str(tmp_path), slim_graph=False))
+    again = Detector(DetectorConfig(cache_dir=str(tmp_path)))
+    assert slim.cache_path is not None and head.cache_path is not None and slim.cache_path != head.cache_path
+    assert "-slim80." in slim.cache_path.name and again.cache_hit and again.score_columns == slim.score_columns
+    assert slim.score_columns is not None and len(slim.score_columns) == 80 and head.score_columns is None
+    model = onnx.load(str(slim.cache_path))
+    assert not [n for n in model.graph.node if n.op_type == "Loop"]  # the preprocessing loop is gone
+    assert model.graph.input[0].type.tensor_type.shape.dim[0].dim_value == 1
+    assert [o.shape[-1] for o in slim._session.get_outputs()] == [4, 80]
+    found = 0
+    for path in frames:
+        rgb = np.ascontiguousarray(cv2.imread(str(path), cv2.IMREAD_COLOR)[:, :, ::-1])
+        want = head.detect(rgb).detections
+        for det in (slim, again):
+            got = det.detect(rgb).detections
+            assert [d.class_id for d in got] == [d.class_id for d in want]
+            np.testing.assert_allclose([d.score for d in got], [d.score for d in want], atol=1e-6)
+            np.testing.assert_allclose([d.box_xyxy for d in got], [d.box_xyxy for d in want], atol=1e-3)
+        found += len(want)
+    assert found >= 6  # persons, chairs, a tv and keyboards on the first frame, a person and a chair on the second
+
+
+def test_slimming_leaves_a_graph_without_the_tf_od_preprocessing_loop_alone() -> None:
+    from changing_slam_ros.core.detector_session import slim_ssd_head
+
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    graph = helper.make_graph(
+        [helper.make_node("Identity", ["x"], ["y"])], "plain",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 4])],
+    )  # fmt: skip
+    assert slim_ssd_head(helper.make_model(graph).SerializeToString(), (1, 2)) is None
+    assert onnx is not None
+
+
+def test_negative_spin_duration_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="detector.spin_duration_us"):
+        DetectorConfig(spin_duration_us=-1)
