@@ -84,23 +84,25 @@ def refresh_points(slam_map: SlamMap, ids: I64, level_scales: npt.NDArray[np.flo
     pts = slam_map.points
     kfs = slam_map.keyframes
     ids = ids[~pts.bad[ids]]
-    # 1. Flatten the observations: (point row, keyframe centre, descriptor, octave).
-    rows, centres, descs, octs, is_ref = [], [], [], [], []
-    for r, pid in enumerate(ids.tolist()):
-        ref = int(pts.ref_kf[pid])
-        for k, i in pts.observations[pid].items():
-            kf = kfs.get(k)
-            if kf is None:
-                continue
-            rows.append(r)
-            centres.append(kf.T_world_cam[:3, 3])
-            descs.append(kf.descriptors[i])
-            octs.append(int(kf.octaves[i]))
-            is_ref.append(k == ref)
-    if not rows:
+    # 1. Flatten the observations, point by point in insertion order: (point row, keyframe id, keypoint index).
+    obs = pts.observations
+    flat = [(r, k, i) for r, pid in enumerate(ids.tolist()) for k, i in obs[pid].items() if k in kfs]
+    if not flat:
         return
-    row = np.array(rows)
-    rays = pts.positions[ids[row]] - np.array(centres)
+    row, kf_of, kp = (np.array(c, np.int64) for c in zip(*flat))
+    # Per keyframe: its centre, and its keypoints' descriptors and octaves, gathered in one indexing each.
+    n = len(row)
+    centres = np.empty((n, 3))
+    descs = np.empty((n, 32), np.uint8)
+    octs = np.empty(n, np.int64)
+    kf_u, kf_idx = np.unique(kf_of, return_inverse=True)
+    for j, k in enumerate(kf_u.tolist()):
+        at = np.flatnonzero(kf_idx == j)
+        kf = kfs[k]
+        centres[at] = kf.T_world_cam[:3, 3]
+        descs[at] = kf.descriptors[kp[at]]
+        octs[at] = kf.octaves[kp[at]]
+    rays = pts.positions[ids[row]] - centres
     dist = np.linalg.norm(rays, axis=1)
     # 2. Mean viewing direction.
     acc = np.zeros((len(ids), 3))
@@ -109,16 +111,18 @@ def refresh_points(slam_map: SlamMap, ids: I64, level_scales: npt.NDArray[np.flo
     seen = norm > 0
     pts.normals[ids[seen]] = acc[seen] / norm[seen, None]
     # 3. Scale-invariance distances from the reference observation (ORB-SLAM `UpdateNormalAndDepth`).
-    ref_mask = np.array(is_ref)
+    ref_mask = kf_of == pts.ref_kf[ids[row]]
     r_ref = row[ref_mask]
-    max_d = dist[ref_mask] * level_scales[np.array(octs)[ref_mask]]
+    max_d = dist[ref_mask] * level_scales[octs[ref_mask]]
     pts.max_dist[ids[r_ref]] = max_d
     pts.min_dist[ids[r_ref]] = max_d / level_scales[-1]
-    # 4. Distinctive descriptor for points seen at least three times.
-    desc = np.array(descs)
+    # 4. Distinctive descriptor for points seen at least three times, all points with the same number of
+    # observations at once: (P, c, c) distances, the row with the least median per point.
     starts = np.searchsorted(row, np.arange(len(ids)))
     counts = np.bincount(row, minlength=len(ids))
-    for r in np.flatnonzero(counts > 2).tolist():
-        d = desc[starts[r]: starts[r] + counts[r]]
-        ham = hamming(d[:, None, :], d[None, :, :])
-        pts.descriptors[ids[r]] = d[int(np.argmin(np.median(ham, axis=1)))]
+    for c in np.unique(counts[counts > 2]).tolist():
+        rs = np.flatnonzero(counts == c)
+        d = descs[starts[rs][:, None] + np.arange(c)]  # (P, c, 32)
+        ham = hamming(d[:, :, None, :], d[:, None, :, :])  # (P, c, c)
+        best = np.argmin(np.median(ham, axis=2), axis=1)
+        pts.descriptors[ids[rs]] = d[np.arange(len(rs)), best]

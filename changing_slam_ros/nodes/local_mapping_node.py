@@ -26,11 +26,14 @@ Service ~/load_map (LoadMap): the same mid-run. The file is loaded and checked i
 path or file: success false, the message names the file and field, the running map untouched); then it replaces
 the map, a load marker on ~/map_updates makes tracking and loop_closing load the same file, and keyframes and
 loop corrections made before they did are dropped (`nodes/map_load.py`).
+Profiling: with the environment variable CHANGING_SLAM_PROFILE_LOCAL_MAPPING=PATH (inherited through
+`changing-slam graph`) the process runs under cProfile and writes its pstats to PATH at exit.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -54,6 +57,7 @@ from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, marker_of, 
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.replication_conversions import loop_result_from_msg, packet_from_msg, update_to_msg
 
+PROFILE_ENV = "CHANGING_SLAM_PROFILE_LOCAL_MAPPING"  # a path: cProfile the node's process into it (pstats file)
 KEYFRAME_QOS = QoSProfile(depth=100)  # reliable, volatile: every keyframe counts
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -379,7 +383,18 @@ class LocalMappingNode(Node):
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    return run_node(lambda argv: LocalMappingNode(), args)
+    profile_out = os.environ.get(PROFILE_ENV, "")
+    if not profile_out:
+        return run_node(lambda argv: LocalMappingNode(), args)
+    import cProfile
+
+    profiler = cProfile.Profile()  # the executor's thread: every callback of the node
+    profiler.enable()
+    try:
+        return run_node(lambda argv: LocalMappingNode(), args)
+    finally:
+        profiler.disable()
+        profiler.dump_stats(profile_out)
 
 
 if __name__ == "__main__":

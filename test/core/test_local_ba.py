@@ -187,3 +187,35 @@ def test_the_chi2_of_outlier_removal_is_the_factor_graph_s_own() -> None:
             values.insert(L(0), p[0])
             assert chi2[0] > 1.0
             np.testing.assert_allclose(2.0 * f.error(values), chi2[0], rtol=1e-6)
+
+
+def test_stop_that_never_fires_gives_gtsams_optimize_bit_for_bit() -> None:
+    """`optimise` with a `stop` (gtsam's loop written out, real time) equals `optimize()` while stop says no."""
+    maps = [_build_map(np.random.default_rng(5), pose_noise=0.02, point_noise_m=0.02)[0] for _ in range(2)]
+    asked: list[int] = []
+    a = local_bundle_adjust(maps[0], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF))
+    b = local_bundle_adjust(maps[1], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF),
+                            stop=lambda: asked.append(1) is not None)  # always False
+    assert not b.stopped and b.iterations >= 2 and len(asked) == b.iterations  # before each but the last
+    assert a.rms_after_px == b.rms_after_px
+    for k in range(5):
+        assert maps[0].keyframes[k].T_world_cam.tobytes() == maps[1].keyframes[k].T_world_cam.tobytes()
+    assert maps[0].points.positions.tobytes() == maps[1].points.positions.tobytes()
+
+
+def test_stop_cuts_the_ba_short_with_what_it_reached() -> None:
+    """A keyframe waiting (stop says yes) ends the BA after the iterations run so far: the error is lowered
+    less than by the full BA, never raised; stopped before the first iteration nothing moves."""
+    rng_seed = 3
+    full_map, poses_true, _ = _build_map(np.random.default_rng(rng_seed), pose_noise=0.02, point_noise_m=0.02)
+    full = local_bundle_adjust(full_map, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF))
+    calls = iter([False, True])  # one iteration, then a keyframe arrives
+    m1, _, _ = _build_map(np.random.default_rng(rng_seed), pose_noise=0.02, point_noise_m=0.02)
+    one = local_bundle_adjust(m1, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF), stop=lambda: next(calls))
+    assert one.stopped and one.iterations == 1 and full.iterations == -1
+    assert full.rms_after_px < one.rms_after_px < one.rms_before_px
+    m0, _, _ = _build_map(np.random.default_rng(rng_seed), pose_noise=0.02, point_noise_m=0.02)
+    poses0 = [m0.keyframes[k].T_world_cam.copy() for k in range(5)]
+    none = local_bundle_adjust(m0, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF), stop=lambda: True)
+    assert none.stopped and none.iterations == 0
+    assert all(np.array_equal(poses0[k], m0.keyframes[k].T_world_cam) for k in range(5))

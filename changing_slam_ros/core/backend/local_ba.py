@@ -13,6 +13,8 @@ keyframe only are left out of the graph and move rigidly with it (`carry_lone_po
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
@@ -25,6 +27,20 @@ from changing_slam_ros.core.pose_optimizer import CHI2_MONO, CHI2_STEREO
 from changing_slam_ros.core.slam_map import SlamMap
 
 F64 = npt.NDArray[np.float64]
+
+
+_X_BASE = ord("x") << 56  # gtsam Symbol keys: the character in the top byte, the index below
+_L_BASE = ord("l") << 56
+
+
+def pose_keys(kf_ids: npt.NDArray[np.int64]) -> npt.NDArray[np.uint64]:
+    """gtsam keys X(k) of keyframe ids (the same integers as `gtsam.symbol_shorthand.X`), vectorised."""
+    return np.asarray(kf_ids, dtype=np.uint64) + np.uint64(_X_BASE)
+
+
+def point_keys(point_ids: npt.NDArray[np.int64]) -> npt.NDArray[np.uint64]:
+    """gtsam keys L(p) of map point ids (`gtsam.symbol_shorthand.L`), vectorised."""
+    return np.asarray(point_ids, dtype=np.uint64) + np.uint64(_L_BASE)
 
 
 @dataclass(frozen=True)
@@ -72,6 +88,8 @@ class LocalBAResult:
     rms_before_px: float
     rms_after_px: float
     n_outliers_removed: int
+    iterations: int = -1  # Levenberg-Marquardt iterations run (-1: not counted, gtsam's own loop ran)
+    stopped: bool = False  # cut short by `stop` (a new keyframe waits; real time only)
 
 
 def gather_observations(slam_map: SlamMap, kf_ids: list[int], point_ids: npt.NDArray[np.int64], bf: float) -> Observations:
@@ -104,9 +122,11 @@ def reprojection_chi2(
 
     `disparity_sigma_ratio` > 0: keypoints with depth are weighed by `stereo_noise` (u, v and the disparity
     bf / depth, the latter with sigma = ratio * level scale); 0: ORB-SLAM's (u_l, u_r, v), each with the level scale."""
-    T_cw = {k: np.linalg.inv(T) for k, T in poses_wc.items()}
-    R = np.stack([T_cw[k][:3, :3] for k in obs.kf_ids.tolist()]) if len(obs.kf_ids) else np.zeros((0, 3, 3))
-    t = np.stack([T_cw[k][:3, 3] for k in obs.kf_ids.tolist()]) if len(obs.kf_ids) else np.zeros((0, 3))
+    # Each observation's camera-from-world rotation and translation, gathered per distinct keyframe.
+    kf_u, kf_of_obs = np.unique(obs.kf_ids, return_inverse=True)
+    T_cw = np.stack([np.linalg.inv(poses_wc[k]) for k in kf_u.tolist()]) if len(kf_u) else np.zeros((0, 4, 4))
+    R = np.ascontiguousarray(T_cw[kf_of_obs, :3, :3])
+    t = np.ascontiguousarray(T_cw[kf_of_obs, :3, 3])
     pw = np.asarray(positions)[obs.point_ids]
     pc = np.einsum("nij,nj->ni", R, pw) + t
     z = np.where(np.abs(pc[:, 2]) < 1e-6, 1e-6, pc[:, 2])
@@ -152,13 +172,17 @@ def add_reprojection_factors(
     huber_m = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO)))
     noise_s = [gtsam.noiseModel.Robust.Create(huber_s, stereo_noise(float(s), disparity_sigma_ratio)) for s in np.asarray(scales)]
     noise_m = [gtsam.noiseModel.Robust.Create(huber_m, gtsam.noiseModel.Isotropic.Sigma(2, float(s))) for s in np.asarray(scales)]
-    for k, p, (u, v), ur, lv in zip(
-        obs.kf_ids.tolist(), obs.point_ids.tolist(), obs.uv.tolist(), obs.u_right.tolist(), obs.level.tolist()
-    ):
+    # One pybind11 call per factor and measurement: keys computed in numpy (`pose_keys`, `point_keys`), the
+    # constructors bound to locals. The factors and their order are those of a loop calling X(k) and L(p).
+    add, stereo, stereo_pt, mono = graph.add, gtsam.GenericStereoFactor3D, gtsam.StereoPoint2, gtsam.GenericProjectionFactorCal3_S2
+    for xk, lp, (u, v), ur, lv in zip(
+        pose_keys(obs.kf_ids).tolist(), point_keys(obs.point_ids).tolist(), obs.uv.tolist(), obs.u_right.tolist(),
+        obs.level.tolist(),
+    ):  # fmt: skip
         if ur >= 0:
-            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), noise_s[lv], X(k), L(p), k_stereo))
+            add(stereo(stereo_pt(u, ur, v), noise_s[lv], xk, lp, k_stereo))
         else:
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise_m[lv], X(k), L(p), k_mono))
+            add(mono(np.array([u, v]), noise_m[lv], xk, lp, k_mono))
 
 
 def carry_lone_points(slam_map: SlamMap, poses_before: dict[int, F64]) -> int:
@@ -191,20 +215,63 @@ def carry_lone_points(slam_map: SlamMap, poses_before: dict[int, F64]) -> int:
     return n
 
 
-def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> LocalBAResult:
-    """Optimise the window around keyframe `kf_id` in place; erase outlier observations."""
+def fixed_keyframes(slam_map: SlamMap, point_ids: npt.NDArray[np.int64], local: set[int], max_fixed: int) -> list[int]:
+    """Keyframes outside `local` that observe `point_ids`, most observations first, at most `max_fixed`; ties
+    in the order they are first met walking the points in order and each point's observations in insertion
+    order (the order of a dict counting them)."""
+    obs = slam_map.points.observations
+    seen = np.fromiter((k for pid in point_ids.tolist() for k in obs[pid]), np.int64)
+    if len(seen) == 0:
+        return []
+    outside = ~np.isin(seen, np.fromiter(local, np.int64, len(local)))
+    outside &= np.isin(seen, np.fromiter(slam_map.keyframes, np.int64, len(slam_map.keyframes)))
+    kfs, first, counts = np.unique(seen[outside], return_index=True, return_counts=True)
+    order = np.lexsort((first, -counts))[:max_fixed]
+    return kfs[order].tolist()
+
+
+def optimise(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, params: gtsam.LevenbergMarquardtParams,
+             stop: Callable[[], bool] | None = None) -> tuple[gtsam.Values, int, bool]:
+    """Levenberg-Marquardt; returns (values, iterations run (-1 without `stop`), stopped).
+
+    Without `stop`: gtsam's `optimize()`. With it: gtsam's own loop (`NonlinearOptimizer::defaultOptimize`:
+    iterate while under the iteration cap, not converged (`checkConvergence`) and the error is finite) written
+    out, asking `stop()` before the first iteration and between iterations; when it says yes the values reached
+    so far are returned (each accepted LM step lowered the error, so they are never worse than the start).
+    ORB-SLAM's real-time rule: local BA gives way when a new keyframe is waiting. While `stop()` says no,
+    the result is gtsam's `optimize()`'s bit for bit (checked by test_local_ba.py)."""
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    if stop is None:
+        return opt.optimize(), -1, False
+    new_error = opt.error()
+    if new_error <= params.getErrorTol() or params.getMaxIterations() <= 0:
+        return opt.values(), 0, False
+    if stop():
+        return opt.values(), 0, True
+    while True:
+        current = new_error
+        opt.iterate()
+        new_error = opt.error()
+        if (opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, current, new_error)
+                or not math.isfinite(current)):  # fmt: skip
+            return opt.values(), opt.iterations(), False
+        if stop():
+            return opt.values(), opt.iterations(), True
+
+
+def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig,
+                        stop: Callable[[], bool] | None = None) -> LocalBAResult:
+    """Optimise the window around keyframe `kf_id` in place; erase outlier observations.
+
+    `stop` (real time): asked between solver iterations (`optimise`); when it returns True the BA ends with
+    what it reached (outliers are still erased against it)."""
     scales = np.asarray(cfg.level_scales)
     # 1. Local keyframes: the new one and its best covisible neighbours.
     local = [kf_id] + [k for k in slam_map.covisible(kf_id, cfg.n_window) if k in slam_map.keyframes]
     local_set = set(local)
     point_ids = slam_map.local_point_ids(local)
     # 2. Fixed keyframes: others seeing those points, most observations first.
-    counts: dict[int, int] = {}
-    for pid in point_ids.tolist():
-        for k in slam_map.points.observations[pid]:
-            if k not in local_set and k in slam_map.keyframes:
-                counts[k] = counts.get(k, 0) + 1
-    fixed = sorted(counts, key=lambda k: -counts[k])[: cfg.max_fixed]
+    fixed = fixed_keyframes(slam_map, point_ids, local_set, cfg.max_fixed)
     if not fixed:
         # Fix the gauge: the oldest local keyframe stays where it is.
         oldest = min(local)
@@ -238,15 +305,17 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
     fixed_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
     for k in fixed:
         graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(poses[k]), fixed_noise))
-    for pid in keep_pts.tolist():
-        values.insert(L(pid), slam_map.points.positions[pid])
+    l_keys = point_keys(keep_pts).tolist()
+    insert_point, positions = values.insertPoint3, slam_map.points.positions
+    for key, pid in zip(l_keys, keep_pts.tolist()):
+        insert_point(key, positions[pid])
     add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales, cfg.disparity_sigma_ratio)
 
     # 4. Optimise.
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.iterations)
     try:
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        result, iterations, stopped = optimise(graph, values, params, stop)
     except RuntimeError:
         # Cheirality or an indeterminate system: keep the map as it was.
         return LocalBAResult(len(local), len(fixed), len(keep_pts), len(obs.kf_ids), 0.0, 0.0, 0)
@@ -255,7 +324,8 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
     before = {k: slam_map.keyframes[k].T_world_cam for k in local}
     for k in local:
         slam_map.keyframes[k].T_world_cam = result.atPose3(X(k)).matrix()
-    new_pos = np.array([result.atPoint3(L(p)) for p in keep_pts.tolist()])
+    at_point = result.atPoint3
+    new_pos = np.array([at_point(key) for key in l_keys])
     slam_map.points.positions[keep_pts] = new_pos
     carry_lone_points(slam_map, before)
     poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
@@ -267,5 +337,5 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig) -> Lo
         slam_map.erase_observation(int(obs.kf_ids[i]), int(obs.kp_index[i]))
     return LocalBAResult(
         len(local), len(fixed), len(keep_pts), len(obs.kf_ids),
-        float(np.sqrt(e2_before.mean())), float(np.sqrt(e2_after.mean())), len(bad),
+        float(np.sqrt(e2_before.mean())), float(np.sqrt(e2_after.mean())), len(bad), iterations, stopped,
     )

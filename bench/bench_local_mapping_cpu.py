@@ -1,0 +1,224 @@
+"""CPU per keyframe of local mapping, per stage, in `changing-slam run`: prints figures, asserts nothing.
+
+    .venv/bin/python bench/bench_local_mapping_cpu.py BAG [--config sim] [--baseline REF] [--runs 2]
+        [--cprofile N] [--current DIR]
+
+Each run is `changing-slam run BAG --config NAME --out TMP` in a child process (this checkout, and with
+`--baseline` a `git archive REF` of it, alternating) with local mapping's stages wrapped from outside (the
+library is not changed for it), timed in thread CPU time (`time.thread_time_ns`, not wall time: the machine is
+shared). Time is exclusive: a stage called inside another is counted in the innermost one only. Stages:
+
+- `create`: points from depth (`LocalMapper._create_points`); `triangulate`: from depth-less keypoints;
+- `fuse`: fusion with the covisible keyframes (`_fuse` without `refresh`); `refresh`: descriptors, normals and
+  scale distances of the touched points (`map_fusion.refresh_points`, called by fusion and triangulation);
+- `connections`: covisibility updates; `cull_points`, `segmentation`, `cull_keyframes`;
+- `ba_build`: local BA outside the solver and the two helpers below (window, observations, values, write
+  back, outlier erasure); `ba_factors`: building the gtsam factors; `ba_chi2`: the two reprojection-error
+  passes; `ba_solve`: gtsam's Levenberg-Marquardt;
+- `other`: the rest of `LocalMapper.process`; `mapping` = the sum of the above (what the local_mapping node's
+  `LocalMapper` costs per keyframe); `objects`: the object layer per keyframe (`SlamSystem._after_objects`).
+
+Per tree: the median over runs of ms per keyframe per stage, keyframes, ATE and the sha256 of trajectory.txt
+(an exact change keeps it). Table in docs/architecture.md, "Session 7: local mapping CPU".
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+REPO = Path(__file__).resolve().parents[1]
+STAGES = ("create", "triangulate", "fuse", "refresh", "connections", "cull_points", "segmentation", "ba_build",
+          "ba_factors", "ba_chi2", "ba_solve", "cull_keyframes", "other")
+
+
+class StageClock:
+    """Exclusive thread-CPU time per label: a stack of open stages, time goes to the innermost."""
+
+    def __init__(self) -> None:
+        self.ns: dict[str, int] = {}
+        self.calls: dict[str, int] = {}
+        self._stack: list[str] = []
+        self._t = 0
+
+    def _switch(self) -> None:
+        now = time.thread_time_ns()
+        if self._stack:
+            top = self._stack[-1]
+            self.ns[top] = self.ns.get(top, 0) + now - self._t
+        self._t = now
+
+    def wrap(self, fn: Callable[..., Any], label: str) -> Callable[..., Any]:
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            self._switch()
+            self._stack.append(label)
+            self.calls[label] = self.calls.get(label, 0) + 1
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self._switch()
+                self._stack.pop()
+
+        return timed
+
+
+class _TimedOptimizer:
+    """A gtsam optimizer whose `optimize` / `iterate` calls are timed as `ba_solve`."""
+
+    def __init__(self, inner: Any, clock: StageClock) -> None:
+        self._inner = inner
+        self.optimize = clock.wrap(inner.optimize, "ba_solve")
+        self.iterate = clock.wrap(inner.iterate, "ba_solve")
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+
+def _instrument(clock: StageClock) -> None:
+    """Wrap the stages in this (child) process: class attributes and module-level names."""
+    import types
+
+    from changing_slam_ros.core import local_mapping as lm
+    from changing_slam_ros.core import map_fusion, slam_map, system
+    from changing_slam_ros.core.backend import local_ba
+
+    def wrap(obj: Any, name: str, label: str) -> None:
+        if hasattr(obj, name):
+            setattr(obj, name, clock.wrap(getattr(obj, name), label))
+
+    wrap(lm.LocalMapper, "process", "other")
+    wrap(lm.LocalMapper, "_create_points", "create")
+    wrap(lm.LocalMapper, "_triangulate", "triangulate")
+    wrap(lm.LocalMapper, "_fuse", "fuse")
+    wrap(lm.LocalMapper, "_cull_points", "cull_points")
+    wrap(lm.LocalMapper, "_cull_keyframes", "cull_keyframes")
+    wrap(lm, "segment_keyframe_window", "segmentation")
+    wrap(lm, "refresh_points", "refresh")
+    wrap(map_fusion, "refresh_points", "refresh")
+    wrap(lm, "local_bundle_adjust", "ba_build")
+    wrap(local_ba, "add_reprojection_factors", "ba_factors")
+    wrap(local_ba, "reprojection_chi2", "ba_chi2")
+    wrap(slam_map.SlamMap, "update_connections", "connections")
+    wrap(system.SlamSystem, "_after_objects", "objects")
+    gt = local_ba.gtsam
+    proxy = types.ModuleType("gtsam_timed")
+    proxy.__dict__.update(gt.__dict__)
+    lmo = gt.LevenbergMarquardtOptimizer
+    proxy.LevenbergMarquardtOptimizer = lambda *a: _TimedOptimizer(lmo(*a), clock)  # type: ignore[attr-defined]
+    local_ba.gtsam = proxy
+
+
+def run_child(bag: str, config: str, out: Path, cprofile: int) -> dict[str, Any]:
+    """One instrumented `changing-slam run` in this process; per-keyframe CPU ms per stage."""
+    from changing_slam_ros.commands import run as run_cmd
+
+    clock = StageClock()
+    _instrument(clock)
+    parser = argparse.ArgumentParser()
+    run_cmd.add_arguments(parser)
+    args = parser.parse_args([bag, "--config", config, "--out", str(out), "--quiet", "--no-plot"])
+    prof = None
+    if cprofile:
+        import cProfile
+
+        prof = cProfile.Profile()
+        prof.enable()
+    run_cmd.main(args)
+    if prof is not None:
+        prof.disable()
+    n_kf = clock.calls.get("other", 0)
+    per_kf = {k: v / 1e6 / max(n_kf, 1) for k, v in clock.ns.items()}
+    metrics = json.loads((out / "metrics.json").read_text()) if (out / "metrics.json").exists() else {}
+    res: dict[str, Any] = {
+        "keyframes_mapped": n_kf,
+        "ms_per_keyframe": per_kf,
+        "trajectory_sha256": hashlib.sha256((out / "trajectory.txt").read_bytes()).hexdigest(),
+        "ate_cm": round(100 * metrics["ate_rmse_m"], 3) if metrics.get("ate_rmse_m") is not None else None,
+    }
+    if prof is not None:
+        import io
+        import pstats
+
+        s = io.StringIO()
+        pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(cprofile)
+        res["cprofile"] = s.getvalue()
+    return res
+
+
+def run_tree(tree: Path, bag: str, config: str, cprofile: int = 0) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory(prefix="bench_lm_") as tmp:
+        env = {**os.environ, "PYTHONPATH": str(tree)}
+        cmd = [sys.executable, __file__, bag, "--config", config, "--child", tmp, "--cprofile", str(cprofile)]
+        subprocess.run(cmd, check=True, env=env, cwd=tree)
+        return json.loads((Path(tmp) / "bench.json").read_text())
+
+
+def mapping_ms(res: dict[str, Any]) -> float:
+    return sum(res["ms_per_keyframe"].get(k, 0.0) for k in STAGES)
+
+
+def report(name: str, runs: list[dict[str, Any]]) -> dict[str, float]:
+    med = {k: statistics.median(r["ms_per_keyframe"].get(k, 0.0) for r in runs) for k in (*STAGES, "objects")}
+    med["mapping"] = statistics.median(mapping_ms(r) for r in runs)
+    print(f"{name}: keyframes {[r['keyframes_mapped'] for r in runs]}, ATE cm {[r['ate_cm'] for r in runs]}, "
+          f"trajectory.txt sha256 {sorted({r['trajectory_sha256'][:16] for r in runs})}")
+    return med
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("bag")
+    parser.add_argument("--config", default="sim")
+    parser.add_argument("--baseline", metavar="REF", help="git ref to compare with (git archive into a temp folder)")
+    parser.add_argument("--runs", type=int, default=1)
+    parser.add_argument("--cprofile", type=int, default=0, metavar="N", help="print cProfile's top N (own time) of "
+                        "one extra run of this tree (overhead included)")  # fmt: skip
+    parser.add_argument("--current", metavar="DIR", default=str(REPO),
+                        help="source tree measured as 'current' (default: this checkout)")
+    parser.add_argument("--child", metavar="DIR", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        sys.path.insert(0, os.environ.get("PYTHONPATH", str(REPO)))
+        res = run_child(args.bag, args.config, Path(args.child) / "out", args.cprofile)
+        (Path(args.child) / "bench.json").write_text(json.dumps(res))
+        return 0
+    bag = str(Path(args.bag).resolve())
+    cur_runs: list[dict[str, Any]] = []
+    base_runs: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="bench_lm_base_") as tmp:
+        if args.baseline:
+            archive = subprocess.run(["git", "-C", str(REPO), "archive", args.baseline], check=True,
+                                     capture_output=True).stdout
+            subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        for _ in range(args.runs):
+            if args.baseline:
+                base_runs.append(run_tree(Path(tmp), bag, args.config))
+            cur_runs.append(run_tree(Path(args.current), bag, args.config))
+    print(f"{bag}, config {args.config}, {args.runs} run(s) per tree; thread CPU ms per keyframe, median of runs")
+    cur = report("current", cur_runs)
+    base = report(f"baseline {args.baseline}", base_runs) if base_runs else None
+    if base is not None:
+        same = {r["trajectory_sha256"] for r in cur_runs} == {r["trajectory_sha256"] for r in base_runs}
+        print(f"trajectory.txt byte-identical to the baseline: {'yes' if same else 'NO'}")
+    print(f"{'stage (CPU ms/keyframe)':<26}{'current':>9}" + (f"{'baseline':>10}{'ratio':>8}" if base else ""))
+    for k in (*STAGES, "mapping", "objects"):
+        line = f"{k:<26}{cur[k]:>9.1f}"
+        if base is not None:
+            line += f"{base[k]:>10.1f}" + (f"{cur[k] / base[k]:>8.2f}" if base[k] > 0 else f"{'-':>8}")
+        print(line)
+    if args.cprofile:
+        print(run_tree(Path(args.current), bag, args.config, args.cprofile)["cprofile"])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
