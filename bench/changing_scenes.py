@@ -212,6 +212,9 @@ def row(name: str, mode: str, m: dict[str, Any], static_ate: float | None,
         "max_volume_cm": max((100 * x["centroid_error_m"] for x in sm.get("matches", [])), default=math.nan),
         "over_10cm_surface": _over(sm, "surface_centroid_error_m") if sm else "",
         "over_10cm_volume": _over(sm, "centroid_error_m") if sm else "",
+        # the semantic map's box centre (completed for objects seen from one side) against the volume centre
+        "max_box_cm": max((100 * x["box_center_error_m"] for x in sm.get("matches", [])), default=math.nan),
+        "over_10cm_box": _over(sm, "box_center_error_m") if sm else "",
         "max_surface_cm_pos_align": max((100 * x["surface_centroid_error_m"]
                                          for x in (fair_pos or {}).get("semantic_map", {}).get("matches", [])
                                          if math.isfinite(x["surface_centroid_error_m"])), default=math.nan),
@@ -267,7 +270,7 @@ def main() -> int:
             "loops", "wrong_loops", "max_loop_err_cm", "max_loop_err_deg", "sm_matched", "sm_stale", "sm_spurious",
             "conf_matched", "conf_stale", "conf_spurious", "missed", "structure", "stale_names", "sm_centroid_cm",
             "sm_surface_cm", "max_surface_cm", "max_surface_cm_pos_align", "max_volume_cm", "over_10cm_surface",
-            "over_10cm_volume", "sm_iou", "layer_ms_kf"]
+            "over_10cm_volume", "max_box_cm", "over_10cm_box", "sm_iou", "layer_ms_kf"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

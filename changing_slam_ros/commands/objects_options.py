@@ -137,7 +137,7 @@ def aligned_objects(objects: list[MapObject], T_gt_est: F64) -> list[MapObject]:
     viewing directions turned)."""
     R, t = T_gt_est[:3, :3], T_gt_est[:3, 3]
     return [dataclasses.replace(o, point_ids=o.point_ids.copy(), points_w=o.points_w @ R.T + t,
-                                view_sum_w=R @ o.view_sum_w) for o in objects]
+                                view_sum_w=R @ o.view_sum_w, up_sum_w=R @ o.up_sum_w) for o in objects]
 
 
 def trajectory_alignment(gt: Trajectory, est: Trajectory, lever_m: float = POSE_LEVER_M) -> F64 | None:

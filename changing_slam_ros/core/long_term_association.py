@@ -167,12 +167,14 @@ class LongTermAssociation:
     # --- Algorithm 1 ---
     def process_keyframe(self, keyframe_id: int, candidates: Sequence[ObjectCandidate], T_world_cam: F64,
                          camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None,
-                         detected_boxes: Sequence[tuple[int, BoxXyxy]] = ()) -> AssociationResult:
+                         detected_boxes: Sequence[tuple[int, BoxXyxy]] = (),
+                         up_w: F64 | None = None) -> AssociationResult:
         """Associate this keyframe's candidates, update beliefs, run the vicinity search.
 
         T_world_cam (4, 4) optical-frame pose of the keyframe; depth_m (H, W) its depth image in metres
         (0 = invalid) for the occlusion test, or None to skip that test. `detected_boxes`: (class, box) of
         the keyframe's detections that are no candidate; they only explain misses away (see the module doc).
+        `up_w` (3,): the map's up direction, recorded with each whole view (`MapObject.add_view`; box completion).
         """
         cfg = self.config
         before = {oid: (obj.active, obj.n_points) for oid, obj in self.objects.items()}
@@ -219,7 +221,7 @@ class LongTermAssociation:
                                 point_ids=np.asarray(cand.point_ids, np.int64), points_w=pts,
                                 n_observations=0 if cand.truncated else 1)
                 if not cand.truncated:
-                    obj.add_view(T_world_cam[:3, 3], centroid)
+                    obj.add_view(T_world_cam[:3, 3], centroid, up_w)
                 obj.last_belief_update_keyframe = keyframe_id
                 self.objects[obj.id] = obj
                 self._next_id += 1
@@ -241,7 +243,7 @@ class LongTermAssociation:
             target.current_box_xyxy = cand.box_xyxy
             target.last_seen_keyframe = keyframe_id  # lines 10 and 17
             target.n_observations += 1
-            target.add_view(T_world_cam[:3, 3], centroid)
+            target.add_view(T_world_cam[:3, 3], centroid, up_w)
             if target.id not in merged_ids:
                 merged_ids.append(target.id)
             seen.add(target.id)

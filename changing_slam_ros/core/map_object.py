@@ -257,7 +257,8 @@ class MapObject:
     `n_observations`: keyframes whose whole (untruncated) view went into the object; 0 for an object known
     only from views cut by the image border so far. `view_sum_w` (3,): sum of the unit vectors from the camera
     to the view's centroid over those whole views (`add_view`), map frame; its length over `n_views` says how
-    much the viewing directions agree (box completion).
+    much the viewing directions agree; `up_sum_w` (3,) the sum of the up directions known at those views (the
+    floor's normal, `object_box_completion.gravity_up`; zero: none known). Both serve box completion only.
     """
 
     id: int
@@ -278,9 +279,11 @@ class MapObject:
     point_weights: F64 | None = None
     view_sum_w: F64 = field(default_factory=lambda: np.zeros(3))
     n_views: int = 0
+    up_sum_w: F64 = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self) -> None:
         self.view_sum_w = np.asarray(self.view_sum_w, dtype=np.float64).reshape(3)
+        self.up_sum_w = np.asarray(self.up_sum_w, dtype=np.float64).reshape(3)
         self.set_points(self.point_ids, self.points_w, self.point_weights)
 
     @property
@@ -308,13 +311,16 @@ class MapObject:
                 self.centroid_w = (w @ pts) / w.sum()
                 self.box_center_w, self.box_size_m = box_extent(pts[w > 0.0])
 
-    def add_view(self, camera_center_w: F64, centroid_w: F64) -> None:
-        """Count one whole view: the camera at `camera_center_w` (3,) saw the object's points around `centroid_w` (3,)."""
+    def add_view(self, camera_center_w: F64, centroid_w: F64, up_w: F64 | None = None) -> None:
+        """Count one whole view: the camera at `camera_center_w` (3,) saw the object's points around `centroid_w`
+        (3,); `up_w` (3,) unit: the map's up direction as known at that view (None: not known)."""
         d = np.asarray(centroid_w, np.float64).reshape(3) - np.asarray(camera_center_w, np.float64).reshape(3)
         n = float(np.linalg.norm(d))
         if n > 0.0 and np.isfinite(n):
             self.view_sum_w = self.view_sum_w + d / n
             self.n_views += 1
+            if up_w is not None:
+                self.up_sum_w = self.up_sum_w + np.asarray(up_w, np.float64).reshape(3)
 
     def set_weights(self, weights: F64 | None) -> None:
         """Re-weight the current points (see `set_points`)."""

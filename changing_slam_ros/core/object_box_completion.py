@@ -5,27 +5,30 @@ surfaces the camera saw. A potted plant by a wall, passed on one side, gives poi
 its box is 30 x 25 cm where the plant is 44 x 44 cm, and its centre sits 10-15 cm toward the camera
 (docs/changing_scenes.md, "Session 7: box completion"). Object-level SLAM systems fill the unseen part with a
 class prior on the object's size (CubeSLAM's and QuadricSLAM's size priors); here the prior is one figure per
-class, its typical depth (`ObjectMapConfig.class_depth_m`), and the box grows only along the direction it was
-seen from:
+class, its typical depth on the floor plan (`ObjectMapConfig.class_depth_m`), and the box grows only along the
+horizontal direction it was seen from:
 
-- `v`, the mean of the unit vectors from the camera to the object over its whole views (`MapObject.view_sum_w`
-  / `n_views`); its length R says how much the views agree. R below `completion_min_concentration` means the
-  object was seen from around, so its points already span its depth: no completion.
-- the depth seen, e = the 5-95 % spread of the points (those of positive weight) along v/|v| around the plane
-  that fits them best (`depth_seen`: the camera looks down on most objects, and a plain spread would count
-  their height as depth);
-- when e is below the class's typical depth D, the box is extended by D - e along v/|v|, away from the camera:
-  its centre moves by (D - e) / 2 along that direction and each axis grows by |v_i| (D - e) (the axis-aligned box
-  that holds the box and its copy pushed back).
+- `up`: the map's up direction, the mean of the ups recorded with the object's whole views
+  (`MapObject.up_sum_w`; each the floor's normal as the object layer knew it then, `gravity_up`). Without it
+  there is no completion: the map frame is the first camera's, and a camera looking down 20 degrees on a
+  90-cm plant would count 30 cm of its height as depth along the tilted viewing direction.
+- `h`: the mean of the unit vectors from the camera to the object over its whole views (`view_sum_w` /
+  `n_views`) with its vertical part removed. Its length R over the views' says how much they agree; R below
+  `completion_min_concentration` means the object was seen from around, so its points already span its depth.
+- the depth seen, e = the 5-95 % spread of the points (those of positive weight) along h;
+- when e is below the class's typical depth D, the box is extended by D - e along h, away from the camera: its
+  centre moves by (D - e) / 2 and each axis grows by |h_i| (D - e) (the axis-aligned box holding the box and
+  its copy pushed back).
 
 It never shrinks a box, never moves it toward the camera, and leaves classes without a prior alone. It changes
 only what the semantic map reports (box centre and size); the MapObject's own box and centroid (§4.2, used by
-the association and the persistence filter) are untouched. View directions are kept in the map frame when they
-are taken; a later loop correction that turns the map by a few degrees leaves them that much off.
+the association and the persistence filter) are untouched. Directions are kept in the map frame when they are
+taken; a later loop correction that turns the map by a few degrees leaves them that much off.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,24 +48,29 @@ class CompletedBox:
     extension_m: float
 
 
+def gravity_up(plane_normals: Sequence[F64], camera_up_w: F64, max_angle_deg: float = 45.0) -> F64 | None:
+    """The map's up direction (3,) unit: the normal of the first plane (the room's planes come largest first:
+    floor, walls, table tops) within `max_angle_deg` of the camera's up (its -y axis, `camera_up_w`), turned to
+    agree with it; None when no plane is that close. Walls are 90 degrees off; a camera pitched down 30 degrees
+    still picks the floor or a table top, which share the floor's normal."""
+    hint = np.asarray(camera_up_w, np.float64).reshape(3)
+    hint = hint / np.linalg.norm(hint)
+    cos_max = np.cos(np.radians(max_angle_deg))
+    for n in plane_normals:
+        n = np.asarray(n, np.float64).reshape(3)
+        c = float(n @ hint) / float(np.linalg.norm(n))
+        if abs(c) >= cos_max:
+            return np.sign(c) * n / np.linalg.norm(n)  # type: ignore[no-any-return]
+    return None
+
+
 def depth_seen(points_w: F64, direction: F64, fraction: float = 0.05) -> float:
-    """Depth (metres) of the surface that points (N, 3) show along the unit `direction` (3,): the
-    `fraction`..1 - `fraction` quantile spread of their coordinate along it, less what a plane through them
-    explains. Without the plane, a tall plant seen from 20 degrees above would count its height's share along
-    the tilted direction as depth (90 cm x sin 20 deg = 31 cm); with it, the front half of a round plant shows
-    about its radius, a flat poster nothing. Needs no gravity direction (the map frame has none)."""
-    pts = np.asarray(points_w, np.float64).reshape(-1, 3)
-    if len(pts) < 4:
+    """Spread (metres) of points (N, 3) along the unit `direction` (3,), from the `fraction` to the
+    1 - `fraction` quantile (robust to a few stray points)."""
+    proj = np.asarray(points_w, np.float64).reshape(-1, 3) @ np.asarray(direction, np.float64).reshape(3)
+    if len(proj) < 2:
         return 0.0
-    v = np.asarray(direction, np.float64).reshape(3)
-    helper = np.eye(3)[int(np.argmin(np.abs(v)))]
-    u1 = np.cross(v, helper)
-    u1 /= np.linalg.norm(u1)
-    u2 = np.cross(v, u1)
-    a = np.c_[pts @ u1, pts @ u2, np.ones(len(pts))]
-    along = pts @ v
-    coef, *_ = np.linalg.lstsq(a, along, rcond=None)
-    lo, hi = np.quantile(along - a @ coef, [fraction, 1.0 - fraction])
+    lo, hi = np.quantile(proj, [fraction, 1.0 - fraction])
     return float(hi - lo)
 
 
@@ -73,14 +81,17 @@ def completed_box(obj: MapObject, config: ObjectMapConfig) -> CompletedBox:
     size = np.asarray(obj.box_size_m, np.float64).copy()
     unchanged = CompletedBox(center, size, 0.0)
     prior = config.class_depth_m.get(int(obj.class_id), 0.0)
-    if not config.box_completion or prior <= 0.0 or obj.n_views < 1 or obj.n_points < 2:
+    up_norm = float(np.linalg.norm(obj.up_sum_w))
+    if not config.box_completion or prior <= 0.0 or obj.n_views < 1 or obj.n_points < 2 or not up_norm > 0.0:
         return unchanged
-    length = float(np.linalg.norm(obj.view_sum_w))
+    up = obj.up_sum_w / up_norm
+    h = obj.view_sum_w - (obj.view_sum_w @ up) * up  # the views' mean direction on the floor plan
+    length = float(np.linalg.norm(h))
     if not np.isfinite(length) or length / obj.n_views < config.completion_min_concentration:
         return unchanged
-    v = obj.view_sum_w / length
+    h = h / length
     pts = obj.points_w if obj.point_weights is None else obj.points_w[obj.point_weights > 0.0]
-    grow = prior - depth_seen(pts, v)
+    grow = prior - depth_seen(pts, h)
     if grow <= 0.0:
         return unchanged
-    return CompletedBox(center + 0.5 * grow * v, size + grow * np.abs(v), float(grow))
+    return CompletedBox(center + 0.5 * grow * h, size + grow * np.abs(h), float(grow))

@@ -53,6 +53,7 @@ from changing_slam_ros.core.long_term_association import (
 )
 from changing_slam_ros.core.map_point import PointStore
 from changing_slam_ros.core.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
+from changing_slam_ros.core.object_box_completion import gravity_up
 from changing_slam_ros.core.object_point_weights import Plane, fit_structure_planes, reweight_objects
 from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.core.semantic_map import SemanticMap, build_semantic_map
@@ -271,8 +272,9 @@ class ObjectLayer:
         # or a cut box without map points)
         flagged = [(int(o.class_id), tuple(float(v) for v in o.box_xyxy)) for o in short_term_objects]
         was_active = {oid: obj.active for oid, obj in mo.lta.objects.items()}
+        up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])  # the camera's -y is its up
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
-                                      detected_boxes=flagged)  # type: ignore[arg-type]
+                                      detected_boxes=flagged, up_w=up)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
         self._reweight(mo, slam_map, kf.id)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)

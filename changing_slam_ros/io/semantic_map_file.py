@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import yaml
 
 from changing_slam_ros.core.map_object import MapObject
@@ -135,6 +136,7 @@ def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
                 "points": [[int(i), *(float(v) for v in p)] for i, p in zip(o.point_ids, o.points_w)],
                 **({} if o.point_weights is None else {"point_weights": [float(w) for w in o.point_weights]}),
                 "view_sum_w": [float(v) for v in o.view_sum_w], "n_views": o.n_views,
+                "up_sum_w": [float(v) for v in o.up_sum_w],
             }
             for o in sorted(objects, key=lambda o: o.id)
         ],
@@ -166,10 +168,7 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0
                        for v in weights)):
             raise MapFileError(f"{w}.point_weights: expected {len(arr)} finite numbers >= 0, one per point")
-        view_sum = item.get("view_sum_w", [0.0, 0.0, 0.0])  # optional (box completion, session 7)
-        if (not isinstance(view_sum, list) or len(view_sum) != 3
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in view_sum)):
-            raise MapFileError(f"{w}.view_sum_w: expected 3 finite numbers")
+        view_sum, up_sum = _optional_vec3(item, "view_sum_w", w), _optional_vec3(item, "up_sum_w", w)  # session 7
         n_views = _field(item, "n_views", int, w) if "n_views" in item else 0
         if n_views < 0:
             raise MapFileError(f"{w}.n_views: expected >= 0, got {n_views}")
@@ -181,13 +180,22 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
             last_belief_update_keyframe=_field(item, "last_belief_update_keyframe", int, w),
             n_observations=_field(item, "n_observations", int, w),
             point_weights=None if weights is None else np.asarray(weights, float),
-            view_sum_w=np.asarray(view_sum, float), n_views=n_views,
+            view_sum_w=view_sum, n_views=n_views, up_sum_w=up_sum,
         )
         out.append(obj)
     ids = [o.id for o in out]
     if len(set(ids)) != len(ids):
         raise MapFileError(f"{where}: objects: duplicated ids")
     return out
+
+
+def _optional_vec3(item: dict[str, Any], key: str, where: str) -> npt.NDArray[np.float64]:
+    """An optional [x, y, z] of finite numbers (zeros when absent: files written before it existed)."""
+    v = item.get(key, [0.0, 0.0, 0.0])
+    if (not isinstance(v, list) or len(v) != 3
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in v)):
+        raise MapFileError(f"{where}.{key}: expected 3 finite numbers")
+    return np.asarray(v, np.float64)
 
 
 def write_object_map(path: str | Path, objects: list[MapObject]) -> None:

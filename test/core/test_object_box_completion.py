@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
-from changing_slam_ros.core.object_box_completion import completed_box, depth_seen
+from changing_slam_ros.core.object_box_completion import completed_box, depth_seen, gravity_up
 from changing_slam_ros.core.semantic_map import build_semantic_map
 from changing_slam_ros.io.semantic_map_file import object_map_from_dict, object_map_to_dict
 
@@ -23,7 +23,10 @@ def _surface(rng, n=4000):
     return CENTRE + p, normals
 
 
-def _seen_from(cameras, rng):
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _seen_from(cameras, rng, up=UP):
     """The plant as a MapObject whose points are the surface visible from any of `cameras`, one view each."""
     pts, normals = _surface(rng)
     visible = np.zeros(len(pts), bool)
@@ -32,7 +35,7 @@ def _seen_from(cameras, rng):
     obj = MapObject(1, PLANT, (0, 0, 1, 1), (0, 0, 1, 1), 0, 0, point_ids=np.arange(visible.sum()),
                     points_w=pts[visible])
     for c in cameras:
-        obj.add_view(c, obj.centroid_w)
+        obj.add_view(c, obj.centroid_w, up)
     return obj
 
 
@@ -74,13 +77,22 @@ def test_no_prior_no_switch_or_deep_enough_changes_nothing():
     assert np.allclose(smap.objects[0].centroid_w, obj.centroid_w)
 
 
-def test_depth_seen_is_the_surface_relief_along_a_direction_not_the_tilt():
-    rng = np.random.default_rng(4)
-    xy = rng.uniform(-0.5, 0.5, (2000, 2))
-    tilted = np.c_[xy, 0.6 * xy[:, 1]]  # a flat board, tilted: its points spread 0.5 m along z
-    assert depth_seen(tilted, np.array([0.0, 0.0, 1.0])) < 1e-9
-    bump = np.c_[xy, 0.3 * (np.abs(xy[:, 0]) < 0.25)]  # a 30 cm step in front of the board
-    assert depth_seen(bump, np.array([0.0, 0.0, 1.0])) == pytest.approx(0.3, abs=0.02)
+def test_without_a_known_up_there_is_no_completion():
+    obj = _seen_from(_cameras([-100, -90, -80]), np.random.default_rng(5), up=None)
+    assert completed_box(obj, ObjectMapConfig(class_depth_m={PLANT: 0.44})).extension_m == 0.0
+
+
+def test_depth_seen_is_the_robust_spread_along_a_direction():
+    pts = np.c_[np.linspace(0.0, 1.0, 101), np.zeros(101), np.zeros(101)]
+    assert depth_seen(pts, np.array([1.0, 0.0, 0.0])) == pytest.approx(0.9)
+    assert depth_seen(pts, np.array([0.0, 1.0, 0.0])) == pytest.approx(0.0)
+
+
+def test_gravity_up_is_the_floor_normal_near_the_camera_up_not_a_wall():
+    wall, floor = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0])  # the wall holds more points: first
+    pitched = np.array([0.0, np.sin(np.radians(30)), np.cos(np.radians(30))])  # a camera looking 30 deg down
+    assert np.allclose(gravity_up([wall, floor], pitched), [0.0, 0.0, 1.0])
+    assert gravity_up([wall], pitched) is None
 
 
 def test_viewing_directions_are_saved_and_turned_with_the_map():
@@ -88,7 +100,7 @@ def test_viewing_directions_are_saved_and_turned_with_the_map():
 
     obj = _seen_from(_cameras([-90, -80]), np.random.default_rng(3))
     back = object_map_from_dict(object_map_to_dict([obj]), "test")[0]
-    assert back.n_views == 2 and np.allclose(back.view_sum_w, obj.view_sum_w)
+    assert back.n_views == 2 and np.allclose(back.view_sum_w, obj.view_sum_w) and np.allclose(back.up_sum_w, 2 * UP)
     old = dict(object_map_to_dict([obj]))
     old["objects"] = [{k: v for k, v in old["objects"][0].items() if k not in ("view_sum_w", "n_views")}]
     assert object_map_from_dict(old, "old file")[0].n_views == 0  # files written before session 7 still load
