@@ -179,7 +179,7 @@ def slim_ssd_head(head_bytes: bytes, class_columns: tuple[int, ...]) -> bytes | 
     the TF-OD layout this expects:
 
     - the preprocessing `Loop` (TF's `map` over the batch: per image a Gather, Shape arithmetic, a transpose
-      and a resize of the full-size float image) becomes one Transpose + Resize for a batch of one, with the
+      and a resize of the full-size float image) becomes one Resize + Transpose for a batch of one, with the
       same Resize attributes (asymmetric bilinear, TF1's `resize_bilinear`); the input is fixed to
       (1, H, W, 3), which makes every shape downstream static, so onnxruntime folds the Shape/Slice/Concat
       chains of the box predictors;
@@ -251,13 +251,14 @@ def slim_ssd_head(head_bytes: bytes, class_columns: tuple[int, ...]) -> bytes | 
     for node in reshapes:
         node.input[1] = shape_name
 
-    # The preprocessing: NHWC float image -> NCHW -> resized, as the loop's stacked output.
+    # The preprocessing: the NHWC float image resized (same values as the loop's resize of the NCHW image, per
+    # channel), then the small result transposed to NCHW, as the loop's stacked output.
     attrs = {a.name: helper.get_attribute_value(a) for a in resize.attribute}
     sizes_name = "slim/resize_sizes"
-    graph.initializer.append(numpy_helper.from_array(np.array([1, 3, *out_hw], np.int64), sizes_name))
+    graph.initializer.append(numpy_helper.from_array(np.array([1, *out_hw, 3], np.int64), sizes_name))
     new_nodes = [
-        helper.make_node("Transpose", [cast.output[0]], ["slim/nchw"], name="slim/Transpose", perm=[0, 3, 1, 2]),
-        helper.make_node("Resize", ["slim/nchw", "", "", sizes_name], [loop.output[1]], name="slim/Resize", **attrs),
+        helper.make_node("Resize", [cast.output[0], "", "", sizes_name], ["slim/resized"], name="slim/Resize", **attrs),
+        helper.make_node("Transpose", ["slim/resized"], [loop.output[1]], name="slim/Transpose", perm=[0, 3, 1, 2]),
     ]
     graph.node.remove(loop)
     graph.node.extend(new_nodes)
@@ -319,9 +320,9 @@ def cache_key(sha256: str, settings: SessionSettings, provider: str) -> str:
     import onnxruntime as ort
 
     variant = {"graph": "full", "numpy": "head", "auto": "auto"}[settings.nms]
-    if settings.nms != "graph" and settings.ssd_class_columns:  # the slimmed head; v1 = this surgery's version
+    if settings.nms != "graph" and settings.ssd_class_columns:  # slimmed; "v2": bump when slim_ssd_head changes
         columns = hashlib.sha256(",".join(map(str, settings.ssd_class_columns)).encode()).hexdigest()[:8]
-        variant += f"-slim{len(settings.ssd_class_columns)}.{columns}.v1"
+        variant += f"-slim{len(settings.ssd_class_columns)}.{columns}.v2"
     variant += "-int8" if settings.quantize_int8 else ""
     return f"{sha256[:16]}-ort{ort.__version__}-{provider.replace('ExecutionProvider', '').lower()}-{variant}.onnx"
 
