@@ -7,18 +7,20 @@
 3. cull recently created points that tracking rarely finds (found / visible < 0.25) or that fewer than
    `min_observations` keyframes (`triangulation.min_observations` for triangulated points) see after two
    more keyframes;
-4. local bundle adjustment with gtsam (`backend.local_ba`);
+4. local bundle adjustment with gtsam (`backend.local_ba`); in real time `ba_stop` may cut it short when a
+   new keyframe waits (ORB-SLAM's abort flag; the split graph's local_mapping node sets it, offline never);
 5. cull keyframes whose points are 90 % seen by at least three other keyframes.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.backend.local_ba import LocalBAConfig, LocalBAResult, local_bundle_adjust
+from changing_slam_ros.core.backend.local_ba import FactorCache, LocalBAConfig, LocalBAResult, local_bundle_adjust
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.keyframe_segmentation import (
     KeyframeSegmentationConfig, KeyframeSegmentationResult, segment_keyframe_window,
@@ -93,6 +95,10 @@ class LocalMapper:
         self._recent: list[tuple[int, npt.NDArray[np.int64], int]] = []
         self._recent_map_id = atlas.current.id
         self.triangulated: dict[int, list[npt.NDArray[np.int64]]] = {}  # map id -> ids of triangulated points
+        # Real time only: asked between local BA iterations; True (a new keyframe waits) ends the BA with what it
+        # reached (`local_ba.optimise`). None (offline, lossless graph): the BA always runs to the end.
+        self.ba_stop: Callable[[], bool] | None = None
+        self.ba_factors = FactorCache()  # the last local BA's gtsam factors, reused where unchanged (exact)
 
     @property
     def map(self) -> SlamMap:
@@ -124,7 +130,7 @@ class LocalMapper:
             stats.segmentation = segment_keyframe_window(m, kf.id, self.cfg.segmentation)
         # 4. Local BA.
         if self.cfg.local_ba and len(m.keyframes) > 1:
-            stats.ba = local_bundle_adjust(m, kf.id, self.ba_config())
+            stats.ba = local_bundle_adjust(m, kf.id, self.ba_config(), self.ba_stop, self.ba_factors)
             m.update_connections(kf.id)
         # 5. Keyframe culling.
         if self.cfg.keyframe_culling:

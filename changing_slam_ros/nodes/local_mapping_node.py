@@ -9,7 +9,10 @@ of the map is published as a MapUpdate (see `nodes/split_backend.py`, `core/map_
 loop from loop_closing is applied (exactly, or as a correction when keyframes were mapped meanwhile) and the
 change published as a MapUpdate too, so tracking's and loop closing's replicas follow this map only.
 With `wait_for_loop_results:=true` (lossless graph) a keyframe waits until loop closing has answered for the
-previous one, so the order of work is the offline runner's.
+previous one, so the order of work is the offline runner's. In real time (`ba_yields_to_keyframes`, default on,
+never with `wait_for_loop_results`) local BA gives way to a keyframe that arrives while it runs (ORB-SLAM's
+abort): between solver iterations the node takes waiting keyframes off the subscription and, when there is
+one, the BA ends with what it reached (counted as `ba_stopped_early`).
 
 Inputs: /tracking/keyframes (Keyframe, reliable, deep queue), /loop_closing/loop_corrections (LoopCorrection),
   /object_map/object_states (beliefs come from the object layer here; subscribed for remapping only)
@@ -89,6 +92,9 @@ class LocalMappingNode(Node):
             ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
             ("update_subscribers_wait_s", 15.0, "... waiting at most this long after start"),
+            ("ba_yields_to_keyframes", True, "real time (wait_for_loop_results false): local BA ends early when a "
+                                             "new keyframe arrives meanwhile (ORB-SLAM's abort; checked between "
+                                             "solver iterations); never in the lossless graph"),
             ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz: the "
                              "Atlas and the saved objects; tracking and loop_closing load the same file; the map is then not asked of tracking, so a node restarted "
                              "in a running graph is started without it and gets the current map from tracking)"),
@@ -98,6 +104,7 @@ class LocalMappingNode(Node):
 
         self.cfg = load_backend_config(p["config"])
         self.owner = MapOwner.build(self.cfg, objects=p["objects"])
+        self._set_ba_stop()
         if p["map_file"]:
             from changing_slam_ros.io.map_file import load_map
 
@@ -118,7 +125,8 @@ class LocalMappingNode(Node):
         self._finished = False
         self.epochs = LoadEpochs.of("keyframes", "loops")  # ~/load_map: which messages belong to the loaded map
         self.loads = 0
-        self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
+        self.ba_stops = 0  # local BAs ended early because a keyframe arrived (ba_yields_to_keyframes)
+        self.keyframe_sub = self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, keyframe_qos)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
         self.update_pub = self.create_publisher(MapUpdate, "~/map_updates", keyframe_qos)
@@ -145,6 +153,10 @@ class LocalMappingNode(Node):
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_keyframe(self, msg: KeyframeMsg) -> None:
+        self._enqueue(msg)
+        self._drain()
+
+    def _enqueue(self, msg: KeyframeMsg) -> None:
         marker = marker_of(msg, msg.id)
         if marker is not None:  # tracking loaded the map: its packets from here on are of the loaded map
             self.epochs.on_marker("keyframes", marker)
@@ -160,7 +172,26 @@ class LocalMappingNode(Node):
         self.keyframes_in += 1
         packet.received_s = time.monotonic()  # type: ignore[attr-defined]
         self.queue.append(packet)
-        self._drain()
+
+    def _set_ba_stop(self) -> None:
+        """Real time with `ba_yields_to_keyframes`: the mapper's local BA asks `_keyframe_waiting` between iterations."""
+        on = self.params["ba_yields_to_keyframes"] and not self.params["wait_for_loop_results"]
+        self.owner.mapper.ba_stop = self._keyframe_waiting if on else None
+
+    def _keyframe_waiting(self) -> bool:
+        """Whether a keyframe is waiting to be mapped. The executor is busy in this node's callback, so keyframes
+        that arrived meanwhile are taken off the subscription here (as the executor would, in order) and queued."""
+        sub = self.keyframe_sub
+        while True:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                break
+            self._enqueue(taken[0])
+        if self.queue:
+            self.ba_stops += 1
+            return True
+        return False
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
         marker = marker_of(msg, msg.query_keyframe_id)
@@ -222,6 +253,7 @@ class LocalMappingNode(Node):
         owner = MapOwner.build(self.cfg, objects=self.params["objects"])
         owner.start_from_map(load_map(path))
         self.owner = owner
+        self._set_ba_stop()
         self.queue.clear()  # keyframes of the replaced map
         self.awaiting_loop_for = -1
         if not self.resync.ready:
@@ -336,7 +368,7 @@ class LocalMappingNode(Node):
             "merges_applied": self.merges_applied, "merges_skipped": self.merges_skipped,
             "map_points": int(self.owner.atlas.current.points.usable().sum()),
             "keyframes_in_map": self.owner.atlas.n_keyframes, "restored_keyframes": self.resync.restored_keyframes,
-            "map_loads": self.loads, "dropped_before_load": self.epochs.dropped,
+            "map_loads": self.loads, "dropped_before_load": self.epochs.dropped, "ba_stopped_early": self.ba_stops,
         }  # fmt: skip
         out.update(summarise_ms(self.process_ms, "keyframe"))
         out.update(summarise_ms(self.process_cpu_ms, "keyframe_cpu"))

@@ -219,3 +219,23 @@ def test_stop_cuts_the_ba_short_with_what_it_reached() -> None:
     none = local_bundle_adjust(m0, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF), stop=lambda: True)
     assert none.stopped and none.iterations == 0
     assert all(np.array_equal(poses0[k], m0.keyframes[k].T_world_cam) for k in range(5))
+
+
+def test_factor_cache_reuses_the_previous_bas_factors_with_the_same_result() -> None:
+    """Successive BAs with a `FactorCache` (local mapping) take most factors from the previous one and end
+    bit for bit where BAs building every factor end; a changed setting (bf) empties it."""
+    from changing_slam_ros.core.backend.local_ba import FactorCache
+
+    maps = [_build_map(np.random.default_rng(8), pose_noise=0.02, point_noise_m=0.02)[0] for _ in range(2)]
+    cache = FactorCache()
+    cfg = LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF)
+    for kf_id in (4, 3, 4):
+        local_bundle_adjust(maps[0], kf_id, cfg)
+        local_bundle_adjust(maps[1], kf_id, cfg, factors=cache)
+    assert cache.reused > 1000  # ~1200 observations per BA, the 2nd and 3rd BA reuse them
+    for k in range(5):
+        assert maps[0].keyframes[k].T_world_cam.tobytes() == maps[1].keyframes[k].T_world_cam.tobytes()
+    assert maps[0].points.positions.tobytes() == maps[1].points.positions.tobytes()
+    reused = cache.reused
+    local_bundle_adjust(maps[1], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF * 2), factors=cache)
+    assert cache.reused == reused

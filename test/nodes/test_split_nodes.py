@@ -78,9 +78,12 @@ def test_packets_and_updates_round_trip_through_their_messages(kitchen_packets):
 def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros_context, kitchen_packets, tmp_path):
     packets, owner, _ = kitchen_packets
     assert len(packets) >= 4
+    # All packets are published at once, so in real time every BA would give way to the next keyframe
+    # (ba_yields_to_keyframes): off here, the node must equal the owner.
     node = LocalMappingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="7scenes"), Parameter("objects", value="off"),
-        Parameter("diagnostics_period_s", value=0.2), Parameter("resync_timeout_s", value=0.0)])  # fmt: skip
+        Parameter("diagnostics_period_s", value=0.2), Parameter("resync_timeout_s", value=0.0),
+        Parameter("ba_yields_to_keyframes", value=False)])  # fmt: skip
     probe = Node("probe", context=ros_context)
     pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
     updates: list[MapUpdate] = []
@@ -126,6 +129,44 @@ def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
+
+
+def test_local_ba_gives_way_to_waiting_keyframes_in_real_time(ros_context, kitchen_packets):
+    """Real time (ba_yields_to_keyframes, the default without wait_for_loop_results): keyframes flooding in
+    while local BA runs end it early (taken off the subscription between solver iterations and mapped next, in
+    order); every keyframe is still mapped and the map stays close to the owner's (BA cut short, not skipped
+    throughout: the last keyframe, with nothing behind it, gets its full BA)."""
+    packets, owner, _ = kitchen_packets
+    node = LocalMappingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="7scenes"), Parameter("objects", value="off"),
+        Parameter("resync_timeout_s", value=0.0)])  # fmt: skip
+    assert node.owner.mapper.ba_stop is not None
+    probe = Node("probe", context=ros_context)
+    pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
+    updates: list[MapUpdate] = []
+    probe.create_subscription(MapUpdate, "/local_mapping/map_updates", updates.append, Q)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0 and node.update_pub.get_subscription_count() > 0)
+    for p in packets:
+        pub.publish(packet_to_msg(p, "map"))
+    assert spin_until(executor, lambda: len(updates) >= len(packets), 60.0)
+    assert [u.keyframe_id for u in updates] == [p.keyframe.id for p in packets]
+    stats = node.stats()
+    assert 1 <= stats["ba_stopped_early"] < len(packets) and stats["keyframes_mapped"] == len(packets)
+    m = node.owner.atlas.current
+    assert sorted(m.keyframes) == sorted(owner.keyframes)
+    moved = max(np.linalg.norm(m.keyframes[k].T_world_cam[:3, 3] - kf.T_world_cam[:3, 3]) for k, kf in owner.keyframes.items())
+    assert moved < 0.05, f"keyframes {moved * 100:.1f} cm from the owner's"
+    executor.shutdown()
+    node.destroy_node()
+    probe.destroy_node()
+    lossless = LocalMappingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="7scenes"), Parameter("objects", value="off"),
+        Parameter("wait_for_loop_results", value=True)])  # fmt: skip
+    assert lossless.owner.mapper.ba_stop is None  # the lossless graph repeats the offline work exactly
+    lossless.destroy_node()
 
 
 def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):

@@ -156,15 +156,29 @@ def stereo_noise(sigma_px: float, disparity_sigma_ratio: float) -> gtsam.noiseMo
     return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
+class FactorCache:
+    """The reprojection factors of the last local BA, for the next one (successive windows share most of their
+    observations). A factor is a function of its keys, measurement and level alone once the calibration and the
+    noise settings are fixed, so it is looked up by exactly those, (X key, L key, u, v, u_right, level), and the
+    whole cache is dropped when the settings change: a factor taken from it equals the one that would be built.
+    Only the factors the last BA used are kept. gtsam factors are immutable, so two graphs may share one."""
+
+    def __init__(self) -> None:
+        self.settings: tuple[float, ...] = ()
+        self.factors: dict[tuple[int, int, float, float, float, int], gtsam.NonlinearFactor] = {}
+        self.reused = 0  # factors taken from the cache so far (for benchmarks)
+
+
 def add_reprojection_factors(
     graph: gtsam.NonlinearFactorGraph, obs: Observations, cam: CameraIntrinsics, bf_m_px: float, scales: npt.ArrayLike,
-    disparity_sigma_ratio: float = 0.0,
+    disparity_sigma_ratio: float = 0.0, cache: FactorCache | None = None,
 ) -> None:
     """Add one robust reprojection factor X(k)-L(p) per observation to `graph` (local and global BA).
 
     Keypoints with depth give a stereo factor on (u_l, u_r, v), the others a monocular one on (u, v);
     sigma = the keypoint's pyramid level scale (`scales[level]`) in pixels; Huber kernels at the chi-square
-    95 % thresholds of the pose optimiser (`CHI2_STEREO`, `CHI2_MONO`).
+    95 % thresholds of the pose optimiser (`CHI2_STEREO`, `CHI2_MONO`). With a `cache` (local BA) the factors
+    of the previous call are reused where they are the same (`FactorCache`) and this call's are kept.
     """
     k_stereo = gtsam.Cal3_S2Stereo(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, bf_m_px / cam.fx)
     k_mono = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
@@ -172,17 +186,33 @@ def add_reprojection_factors(
     huber_m = gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO)))
     noise_s = [gtsam.noiseModel.Robust.Create(huber_s, stereo_noise(float(s), disparity_sigma_ratio)) for s in np.asarray(scales)]
     noise_m = [gtsam.noiseModel.Robust.Create(huber_m, gtsam.noiseModel.Isotropic.Sigma(2, float(s))) for s in np.asarray(scales)]
+    settings = (cam.fx, cam.fy, cam.cx, cam.cy, float(bf_m_px), float(disparity_sigma_ratio),
+                *(float(x) for x in np.asarray(scales)))  # fmt: skip
+    old: dict[tuple[int, int, float, float, float, int], gtsam.NonlinearFactor] = {}
+    if cache is not None and cache.settings == settings:
+        old = cache.factors
+    new: dict[tuple[int, int, float, float, float, int], gtsam.NonlinearFactor] = {}
     # One pybind11 call per factor and measurement: keys computed in numpy (`pose_keys`, `point_keys`), the
     # constructors bound to locals. The factors and their order are those of a loop calling X(k) and L(p).
     add, stereo, stereo_pt, mono = graph.add, gtsam.GenericStereoFactor3D, gtsam.StereoPoint2, gtsam.GenericProjectionFactorCal3_S2
-    for xk, lp, (u, v), ur, lv in zip(
-        pose_keys(obs.kf_ids).tolist(), point_keys(obs.point_ids).tolist(), obs.uv.tolist(), obs.u_right.tolist(),
-        obs.level.tolist(),
+    get, n_built = old.get, 0
+    for key in zip(
+        pose_keys(obs.kf_ids).tolist(), point_keys(obs.point_ids).tolist(), obs.uv[:, 0].tolist(), obs.uv[:, 1].tolist(),
+        obs.u_right.tolist(), obs.level.tolist(),
     ):  # fmt: skip
-        if ur >= 0:
-            add(stereo(stereo_pt(u, ur, v), noise_s[lv], xk, lp, k_stereo))
-        else:
-            add(mono(np.array([u, v]), noise_m[lv], xk, lp, k_mono))
+        factor = get(key)
+        if factor is None:
+            n_built += 1
+            xk, lp, u, v, ur, lv = key
+            if ur >= 0:
+                factor = stereo(stereo_pt(u, ur, v), noise_s[lv], xk, lp, k_stereo)
+            else:
+                factor = mono(np.array([u, v]), noise_m[lv], xk, lp, k_mono)
+        add(factor)
+        new[key] = factor
+    if cache is not None:
+        cache.reused += len(obs.kf_ids) - n_built
+        cache.settings, cache.factors = settings, new
 
 
 def carry_lone_points(slam_map: SlamMap, poses_before: dict[int, F64]) -> int:
@@ -260,11 +290,12 @@ def optimise(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, params: gt
 
 
 def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig,
-                        stop: Callable[[], bool] | None = None) -> LocalBAResult:
+                        stop: Callable[[], bool] | None = None, factors: FactorCache | None = None) -> LocalBAResult:
     """Optimise the window around keyframe `kf_id` in place; erase outlier observations.
 
     `stop` (real time): asked between solver iterations (`optimise`); when it returns True the BA ends with
-    what it reached (outliers are still erased against it)."""
+    what it reached (outliers are still erased against it). `factors`: reuse the previous BA's factors (same
+    result, less building; `FactorCache`)."""
     scales = np.asarray(cfg.level_scales)
     # 1. Local keyframes: the new one and its best covisible neighbours.
     local = [kf_id] + [k for k in slam_map.covisible(kf_id, cfg.n_window) if k in slam_map.keyframes]
@@ -309,7 +340,7 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig,
     insert_point, positions = values.insertPoint3, slam_map.points.positions
     for key, pid in zip(l_keys, keep_pts.tolist()):
         insert_point(key, positions[pid])
-    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales, cfg.disparity_sigma_ratio)
+    add_reprojection_factors(graph, obs, cam, cfg.bf_m_px, scales, cfg.disparity_sigma_ratio, factors)
 
     # 4. Optimise.
     params = gtsam.LevenbergMarquardtParams()
