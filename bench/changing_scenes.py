@@ -146,12 +146,12 @@ def fair_objects(root: Path, name: str, mode: str, lever_m: float | None = None,
     `lever_m`: the alignment's camera-axis lever arm (`trajectory_alignment`; None: its default, 0: positions only)."""
     import numpy as np
 
-    from changing_slam_ros.commands.objects_options import aligned_objects, trajectory_alignment
+    from changing_slam_ros.commands.objects_options import aligned_objects, aligned_planes, trajectory_alignment
     from changing_slam_ros.core.map_object import ObjectMapConfig
     from changing_slam_ros.core.semantic_map import build_semantic_map
     from changing_slam_ros.eval.object_metrics import evaluate_objects, load_ground_truth_objects
     from changing_slam_ros.io.dataset import open_dataset
-    from changing_slam_ros.io.semantic_map_file import read_object_map
+    from changing_slam_ros.io.semantic_map_file import read_object_map, read_structure_planes
     from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
     out = root / "runs" / f"{name}-{mode}{tag}"
@@ -165,10 +165,11 @@ def fair_objects(root: Path, name: str, mode: str, lever_m: float | None = None,
     truth = load_ground_truth_objects(root / name / "objects.json")
     surf = {k: np.asarray(v) for k, v in surface_centroids(root, name).items()}
     objs = aligned_objects(read_object_map(out / "object_map.json"), T)
+    planes = aligned_planes(read_structure_planes(out / "object_map.json"), T)
     cfg = ObjectMapConfig()
     result: dict[str, Any] = {}
     for key, min_belief in (("semantic_map", None), ("confirmed", cfg.belief_threshold)):
-        smap = build_semantic_map(objs, cfg, min_belief=min_belief)
+        smap = build_semantic_map(objs, cfg, min_belief=min_belief, planes=planes)
         result[key] = evaluate_objects(smap.objects, truth, surface_centroids=surf).to_dict()
     return result
 

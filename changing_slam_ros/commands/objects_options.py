@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.map_object import MapObject
 from changing_slam_ros.core.object_layer import ObjectLayer, object_layer_config
+from changing_slam_ros.core.object_point_weights import Plane
 from changing_slam_ros.core.se3 import invert, quat_to_rot, rotation_angle_rad
 from changing_slam_ros.core.semantic_map import build_semantic_map
 from changing_slam_ros.core.trajectory import Trajectory
@@ -140,6 +141,12 @@ def aligned_objects(objects: list[MapObject], T_gt_est: F64) -> list[MapObject]:
                                 view_sum_w=R @ o.view_sum_w, up_sum_w=R @ o.up_sum_w) for o in objects]
 
 
+def aligned_planes(planes: list[Plane], T_gt_est: F64) -> list[Plane]:
+    """The planes n . x + d = 0 moved by T_gt_est (4, 4): normal R n, offset d - (R n) . t."""
+    R, t = T_gt_est[:3, :3], T_gt_est[:3, 3]
+    return [Plane(R @ p.normal, float(p.offset - (R @ p.normal) @ t)) for p in planes]
+
+
 def trajectory_alignment(gt: Trajectory, est: Trajectory, lever_m: float = POSE_LEVER_M) -> F64 | None:
     """SE(3) T_gt_est (4, 4) aligning the estimate to ground truth (stamps within 20 ms), None if < 3 pairs.
 
@@ -181,7 +188,7 @@ def write_object_outputs(out: Path, layer: ObjectLayer, final: Trajectory, gt: T
     map_id = _main_map(layer)
     smap = layer.semantic_map(map_id)
     write_semantic_map(out / "semantic_map.json", smap)
-    write_object_map(out / "object_map.json", layer.objects(map_id))
+    write_object_map(out / "object_map.json", layer.objects(map_id), layer.planes(map_id))
     if not no_plot:
         from changing_slam_ros.errors import EvalError
         from changing_slam_ros.eval.semantic_map_plot import plot_semantic_map
@@ -190,7 +197,8 @@ def write_object_outputs(out: Path, layer: ObjectLayer, final: Trajectory, gt: T
         traj = final.positions @ T_LEVEL_MAP[:3, :3].T if len(final) else None
         try:
             plot_semantic_map(out / "semantic_map.png",
-                              build_semantic_map(levelled, layer.config.association, include_inactive=True), traj,
+                              build_semantic_map(levelled, layer.config.association, include_inactive=True,
+                                                 planes=aligned_planes(layer.planes(map_id), T_LEVEL_MAP)), traj,
                               title="semantic map (x right, y ahead of the first camera)")
         except EvalError as err:
             result["plot_error"] = str(err)
@@ -224,6 +232,6 @@ def object_metrics(layer: ObjectLayer, map_id: int, final: Trajectory, gt: Traje
     cfg = layer.config.association
     out: dict[str, Any] = {"ground_truth": str(gt_path)}
     for key, min_belief in (("semantic_map", None), ("confirmed", cfg.belief_threshold), ("loose", 0.5)):
-        smap = build_semantic_map(objs, cfg, min_belief=min_belief)
+        smap = build_semantic_map(objs, cfg, min_belief=min_belief, planes=aligned_planes(layer.planes(map_id), T))
         out[key] = evaluate_objects(smap.objects, truth).to_dict()
     return out

@@ -18,7 +18,7 @@ horizontal direction it was seen from:
 - the depth seen, e = the 5-95 % spread of the points (those of positive weight) along h;
 - when e is below the class's typical depth D, the box is extended by D - e along h, away from the camera: its
   centre moves by (D - e) / 2 and each axis grows by |h_i| (D - e) (the axis-aligned box holding the box and
-  its copy pushed back).
+  its copy pushed back); never past the first wall behind the object (the room's planes, when given).
 
 It never shrinks a box, never moves it toward the camera, and leaves classes without a prior alone. It changes
 only what the semantic map reports (box centre and size); the MapObject's own box and centroid (§4.2, used by
@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
+from changing_slam_ros.core.object_point_weights import Plane
 
 F64 = npt.NDArray[np.float64]
 
@@ -74,9 +75,27 @@ def depth_seen(points_w: F64, direction: F64, fraction: float = 0.05) -> float:
     return float(hi - lo)
 
 
-def completed_box(obj: MapObject, config: ObjectMapConfig) -> CompletedBox:
+def room_limit(center_w: F64, direction: F64, planes: Sequence[Plane], min_facing: float = 0.5) -> float:
+    """How far (metres) from `center_w` (3,) along the unit `direction` (3,) the nearest of the room's planes
+    facing that direction (|normal . direction| >= min_facing: walls for a horizontal direction, not the floor)
+    lies; inf when none is ahead."""
+    best = np.inf
+    for p in planes:
+        facing = float(p.normal @ direction)
+        if abs(facing) < min_facing:
+            continue
+        t = -(float(p.normal @ center_w) + p.offset) / facing
+        if t > 0.0:
+            best = min(best, t)
+    return float(best)
+
+
+def completed_box(obj: MapObject, config: ObjectMapConfig, planes: Sequence[Plane] = ()) -> CompletedBox:
     """The object's box, grown away from the camera to its class's typical depth when it was seen from one side
-    only (module doc); the MapObject's own box otherwise."""
+    only (module doc), but not through a wall: `planes` are the room's large planes (`object_point_weights`,
+    map frame), and the grown box ends at the first one behind the object (a chair against a wall whose points
+    span only the middle of its depth keeps its place instead of moving into the wall); the MapObject's own box
+    otherwise."""
     center = np.asarray(obj.box_center_w, np.float64).copy()
     size = np.asarray(obj.box_size_m, np.float64).copy()
     unchanged = CompletedBox(center, size, 0.0)
@@ -92,6 +111,11 @@ def completed_box(obj: MapObject, config: ObjectMapConfig) -> CompletedBox:
     h = h / length
     pts = obj.points_w if obj.point_weights is None else obj.points_w[obj.point_weights > 0.0]
     grow = prior - depth_seen(pts, h)
+    if planes and grow > 0.0:
+        proj = pts @ h
+        far = float(np.quantile(proj, 0.95)) if len(proj) else float(center @ h)
+        wall = float(center @ h) + room_limit(center, h, planes)
+        grow = min(grow, wall - far)
     if grow <= 0.0:
         return unchanged
     return CompletedBox(center + 0.5 * grow * h, size + grow * np.abs(h), float(grow))

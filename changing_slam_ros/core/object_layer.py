@@ -223,6 +223,10 @@ class ObjectLayer:
         ids = sorted(self._maps) if map_id is None else [map_id]
         return [o for m in ids if m in self._maps for _, o in sorted(self._maps[m].lta.objects.items())]
 
+    def planes(self, map_id: int) -> list[Plane]:
+        """The room's large planes of one map as last fitted (`object_point_weights`), map frame; [] before."""
+        return list(self._maps[map_id].planes) if map_id in self._maps else []
+
     def _for(self, map_id: int) -> _MapObjects:
         if map_id not in self._maps:
             self._maps[map_id] = _MapObjects(LongTermAssociation(self.config.association))
@@ -419,6 +423,7 @@ class ObjectLayer:
         """§4.8 semantic map of one map: objects with belief >= min_belief (default `semantic_min_belief`,
         0.5; each flagged `confirmed` at `belief_threshold`)."""
         return build_semantic_map(self.objects(map_id), self.config.association, include_inactive=include_inactive,
+                                  planes=self.planes(map_id),
                                   min_belief=min_belief)
 
     def summary(self) -> dict[str, Any]:

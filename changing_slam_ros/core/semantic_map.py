@@ -13,7 +13,7 @@ low-belief objects dashed).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +22,7 @@ import numpy.typing as npt
 from changing_slam_ros.core.detector import class_name
 from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
 from changing_slam_ros.core.object_box_completion import completed_box
+from changing_slam_ros.core.object_point_weights import Plane
 
 F64 = npt.NDArray[np.float64]
 
@@ -81,12 +82,13 @@ def _triple(a: F64) -> tuple[float, float, float]:
     return float(v[0]), float(v[1]), float(v[2])
 
 
-def semantic_object(obj: MapObject, config: ObjectMapConfig | None = None) -> SemanticObject:
-    """The semantic-map record of one MapObject (its box completed per `config`, when given)."""
+def semantic_object(obj: MapObject, config: ObjectMapConfig | None = None, planes: Sequence[Plane] = ()) -> SemanticObject:
+    """The semantic-map record of one MapObject (its box completed per `config`, when given, within the room's
+    `planes`)."""
     if config is None:
         center, size = obj.box_center_w, obj.box_size_m
     else:
-        box = completed_box(obj, config)
+        box = completed_box(obj, config, planes)
         center, size = box.center_w, box.size_m
     return SemanticObject(
         obj.id, obj.class_id, class_name(obj.class_id), _triple(obj.centroid_w), _triple(center),
@@ -96,13 +98,15 @@ def semantic_object(obj: MapObject, config: ObjectMapConfig | None = None) -> Se
 
 
 def build_semantic_map(objects: Iterable[MapObject], config: ObjectMapConfig, include_inactive: bool = False,
-                       frame_id: str = "map", min_belief: float | None = None) -> SemanticMap:
+                       frame_id: str = "map", min_belief: float | None = None,
+                       planes: Sequence[Plane] = ()) -> SemanticMap:
     """The objects with belief >= `min_belief` (by default config.semantic_min_belief: 0.5 keeps the objects
     seen in one continuous pass only, which Algorithm 1 never updates, flagged unconfirmed) and at least
-    config.min_points points. `min_belief=config.belief_threshold` gives the confirmed objects only."""
+    config.min_points points. `min_belief=config.belief_threshold` gives the confirmed objects only. `planes`: the
+    room's large planes in the objects' frame (`ObjectLayer.planes`), which bound box completion."""
     threshold = config.semantic_min_belief if min_belief is None else float(min_belief)
     kept = [
-        semantic_object(o, config) for o in sorted(objects, key=lambda o: o.id)
+        semantic_object(o, config, planes) for o in sorted(objects, key=lambda o: o.id)
         if o.n_points >= config.min_points and (include_inactive or o.belief >= threshold)
     ]
     return SemanticMap(tuple(kept), threshold, frame_id)

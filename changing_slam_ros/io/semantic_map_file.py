@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +31,7 @@ import numpy.typing as npt
 import yaml
 
 from changing_slam_ros.core.map_object import MapObject
+from changing_slam_ros.core.object_point_weights import Plane
 from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.atomic import atomic_write_text
@@ -198,9 +199,26 @@ def _optional_vec3(item: dict[str, Any], key: str, where: str) -> npt.NDArray[np
     return np.asarray(v, np.float64)
 
 
-def write_object_map(path: str | Path, objects: list[MapObject]) -> None:
-    """Write every MapObject to `path` (JSON) atomically."""
-    atomic_write_text(Path(path), json.dumps(object_map_to_dict(objects), separators=(",", ":")) + "\n")
+def write_object_map(path: str | Path, objects: list[MapObject], planes: Sequence[Plane] = ()) -> None:
+    """Write every MapObject to `path` (JSON) atomically, with the room's large planes (`structure_planes`:
+    [[nx, ny, nz, offset], ...], map frame) that bound the semantic map's box completion."""
+    doc = object_map_to_dict(objects)
+    doc["structure_planes"] = [[*(float(v) for v in p.normal), float(p.offset)] for p in planes]
+    atomic_write_text(Path(path), json.dumps(doc, separators=(",", ":")) + "\n")
+
+
+def read_structure_planes(path: str | Path) -> list[Plane]:
+    """The `structure_planes` of an object-map file (none in files written before session 7)."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise MapFileError(f"{p}: cannot read object map ({err})") from err
+    rows = doc.get("structure_planes", []) if isinstance(doc, dict) else None
+    if (not isinstance(rows, list) or any(not isinstance(r, list) or len(r) != 4 for r in rows)
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for r in rows for v in r)):
+        raise MapFileError(f"{p}: structure_planes: expected a list of [nx, ny, nz, offset] numbers")
+    return [Plane(np.asarray(r[:3], np.float64), float(r[3])) for r in rows]
 
 
 def read_object_map(path: str | Path) -> list[MapObject]:

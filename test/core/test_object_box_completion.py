@@ -108,3 +108,27 @@ def test_viewing_directions_are_saved_and_turned_with_the_map():
     T[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # 90 deg about z
     turned = aligned_objects([dataclasses.replace(obj)], T)[0]
     assert np.allclose(turned.view_sum_w, T[:3, :3] @ obj.view_sum_w)
+
+
+def test_completion_stops_at_the_wall_behind_the_object():
+    from changing_slam_ros.core.object_point_weights import Plane
+
+    obj = _seen_from(_cameras([-100, -90, -80]), np.random.default_rng(6))
+    free = completed_box(obj, ObjectMapConfig(class_depth_m={PLANT: 0.8}))  # a prior far deeper than the plant
+    wall = Plane(np.array([0.0, -1.0, 0.0]), CENTRE[1] + RADIUS + 0.02)  # y = 2.24, 2 cm behind the plant's back
+    bounded = completed_box(obj, ObjectMapConfig(class_depth_m={PLANT: 0.8}), [wall])
+    far_face = lambda b: b.center_w[1] + 0.5 * b.size_m[1]  # noqa: E731
+    assert far_face(free) > CENTRE[1] + 0.4 and far_face(bounded) < CENTRE[1] + RADIUS + 0.05
+    floor = Plane(np.array([0.0, 0.0, 1.0]), 0.0)  # not facing the viewing direction: no limit
+    assert completed_box(obj, ObjectMapConfig(class_depth_m={PLANT: 0.8}), [floor]).extension_m == free.extension_m
+
+
+def test_object_map_files_keep_the_room_planes(tmp_path):
+    from changing_slam_ros.core.object_point_weights import Plane
+    from changing_slam_ros.io.semantic_map_file import read_object_map, read_structure_planes, write_object_map
+
+    obj = _seen_from(_cameras([-90]), np.random.default_rng(7))
+    write_object_map(tmp_path / "o.json", [obj], [Plane(np.array([0.0, 0.0, 1.0]), -0.5)])
+    planes = read_structure_planes(tmp_path / "o.json")
+    assert len(planes) == 1 and np.allclose(planes[0].normal, [0, 0, 1]) and planes[0].offset == -0.5
+    assert read_object_map(tmp_path / "o.json")[0].n_views == 1
