@@ -203,6 +203,7 @@ class LongTermAssociation:
                 # (`last_seen_keyframe`); seen in this keyframe all the same, so the vicinity search does not miss it
                 target.add_points(np.asarray(cand.point_ids, np.int64), pts)
                 target.current_box_xyxy = cand.box_xyxy
+                target.add_view(T_world_cam[:3, 3], centroid, up_w)
                 seen.add(target.id)
                 assignments.append(target.id)
                 continue
@@ -220,8 +221,7 @@ class LongTermAssociation:
                                 keyframe_id, belief=0.5, active=0.5 >= cfg.belief_threshold,
                                 point_ids=np.asarray(cand.point_ids, np.int64), points_w=pts,
                                 n_observations=0 if cand.truncated else 1)
-                if not cand.truncated:
-                    obj.add_view(T_world_cam[:3, 3], centroid, up_w)
+                obj.add_view(T_world_cam[:3, 3], centroid, up_w)  # a cut view's direction is still where it was seen from
                 obj.last_belief_update_keyframe = keyframe_id
                 self.objects[obj.id] = obj
                 self._next_id += 1

@@ -256,7 +256,8 @@ class MapObject:
     and `box_size_m` (3,) the robust world-axis-aligned box (see `box_extent`) of the points of positive weight. Boxes are pixel (x_min, y_min, x_max, y_max).
     `n_observations`: keyframes whose whole (untruncated) view went into the object; 0 for an object known
     only from views cut by the image border so far. `view_sum_w` (3,): sum of the unit vectors from the camera
-    to the view's centroid over those whole views (`add_view`), map frame; its length over `n_views` says how
+    to the view's centroid over the views whose points went into the object (whole views, and the cut views of
+    an object known only from cut views; `add_view`), map frame; its length over `n_views` says how
     much the viewing directions agree; `up_sum_w` (3,) the sum of the up directions known at those views (the
     floor's normal, `object_box_completion.gravity_up`; zero: none known). Both serve box completion only.
     """

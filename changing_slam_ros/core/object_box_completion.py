@@ -15,7 +15,8 @@ horizontal direction it was seen from:
 - `h`: the mean of the unit vectors from the camera to the object over its whole views (`view_sum_w` /
   `n_views`) with its vertical part removed. Its length R over the views' says how much they agree; R below
   `completion_min_concentration` means the object was seen from around, so its points already span its depth.
-- the depth seen, e = the 5-95 % spread of the points (those of positive weight) along h;
+- the depth seen, e = the 5-95 % spread along h of the object's points off the room's planes (of positive weight
+  when no planes are given);
 - when e is below the class's typical depth D, the box is extended by D - e along h, away from the camera: its
   centre moves by (D - e) / 2 and each axis grows by |h_i| (D - e) (the axis-aligned box holding the box and
   its copy pushed back); never past the first wall behind the object (the room's planes, when given).
@@ -90,6 +91,18 @@ def room_limit(center_w: F64, direction: F64, planes: Sequence[Plane], min_facin
     return float(best)
 
 
+def _depth_points(obj: MapObject, planes: Sequence[Plane], structure_dist_m: float) -> F64:
+    """The points whose spread is the depth seen: with the room's planes, every point of the object off them
+    (a book on a chair's seat takes the seat's points out of the chair's centroid, `shared_point_dist_m`, but
+    the chair still spans its depth); without, those of positive weight."""
+    if not planes:
+        return obj.points_w if obj.point_weights is None else obj.points_w[obj.point_weights > 0.0]
+    off = np.ones(obj.n_points, bool)
+    for p in planes:
+        off &= p.distance(obj.points_w) >= structure_dist_m
+    return obj.points_w[off] if off.sum() >= 2 else obj.points_w
+
+
 def completed_box(obj: MapObject, config: ObjectMapConfig, planes: Sequence[Plane] = ()) -> CompletedBox:
     """The object's box, grown away from the camera to its class's typical depth when it was seen from one side
     only (module doc), but not through a wall: `planes` are the room's large planes (`object_point_weights`,
@@ -109,7 +122,7 @@ def completed_box(obj: MapObject, config: ObjectMapConfig, planes: Sequence[Plan
     if not np.isfinite(length) or length / obj.n_views < config.completion_min_concentration:
         return unchanged
     h = h / length
-    pts = obj.points_w if obj.point_weights is None else obj.points_w[obj.point_weights > 0.0]
+    pts = _depth_points(obj, planes, config.structure_plane_dist_m)
     grow = prior - depth_seen(pts, h)
     if planes and grow > 0.0:
         proj = pts @ h
