@@ -120,7 +120,8 @@ def test_completion_stops_at_the_wall_behind_the_object():
     far_face = lambda b: b.center_w[1] + 0.5 * b.size_m[1]  # noqa: E731
     assert far_face(free) > CENTRE[1] + 0.4 and far_face(bounded) < CENTRE[1] + RADIUS + 0.05
     floor = Plane(np.array([0.0, 0.0, 1.0]), 0.0)  # not facing the viewing direction: no limit
-    assert completed_box(obj, ObjectMapConfig(class_depth_m={PLANT: 0.8}), [floor]).extension_m == free.extension_m
+    assert completed_box(obj, ObjectMapConfig(class_depth_m={PLANT: 0.8}), [floor]).extension_m == pytest.approx(
+        free.extension_m, abs=0.01)  # (the floor plane only takes the points within 2 cm of it out of the depth)
 
 
 def test_object_map_files_keep_the_room_planes(tmp_path):
