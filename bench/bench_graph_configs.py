@@ -1,0 +1,58 @@
+"""CPU per process of `changing-slam graph` runs of this tree, alternating between config files (prints only).
+
+    .venv/bin/python bench/bench_graph_configs.py BAG CONFIG [CONFIG ...] [--runs 2] [--lossless]
+        [--work /tmp/bench_graph_configs]
+
+`bench/bench_graph_cpu.py` compares two trees on one config; this compares configs on one tree, e.g. the
+detector's thread count: copies of `config/sim.yaml` with a `detector:` section appended. Runs alternate
+between the configs so that other load on a shared machine hits them alike. Per config it prints the median
+over runs of the detection rate, CPU per detection, tracking CPU per tracked frame, total CPU per bag frame,
+poses, latency and ATE (`bench_graph_cpu.figures`). Table in docs/dynamic_integration.md, "Session 7: detector
+speed".
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_graph_cpu import REPO, figures, run_graph  # noqa: E402
+
+KEYS = (
+    "detection Hz", "detection ms/detection", "tracking ms/tracked frame", "total ms/frame", "poses",
+    "latency median ms", "ATE cm",
+)  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("bag")
+    parser.add_argument("configs", nargs="+", help="config names or YAML paths")
+    parser.add_argument("--runs", type=int, default=2, help="runs per config (alternating)")
+    parser.add_argument("--lossless", action="store_true")
+    parser.add_argument("--work", default="", help="folder for the runs (default: a temp dir)")
+    a = parser.parse_args()
+    work = Path(a.work or tempfile.mkdtemp(prefix="bench_graph_configs_"))
+    work.mkdir(parents=True, exist_ok=True)
+    bag = str(Path(a.bag).resolve())
+    results: dict[str, list[dict[str, float]]] = {c: [] for c in a.configs}
+    for i in range(a.runs):
+        for k, config in enumerate(a.configs):
+            s = run_graph(REPO, bag, work / f"run_{k}_{i}", config, a.lossless)
+            f = figures(s)
+            f["detection Hz"] = float(s.get("detection_rate_hz") or float("nan"))
+            results[config].append(f)
+            print(f"{Path(config).stem} run {i + 1}: " + ", ".join(f"{n} {v:.1f}" for n, v in f.items()), flush=True)
+    print(f"\nmedian over {a.runs} run(s), {bag}, {'lossless' if a.lossless else '1x'}:")
+    print(f"{'':28s}" + "".join(f"{Path(c).stem:>20s}" for c in a.configs))
+    for key in KEYS:
+        row = [statistics.median([r.get(key, float("nan")) for r in results[c]]) for c in a.configs]
+        print(f"{key:28s}" + "".join(f"{v:20.1f}" for v in row))
+
+
+if __name__ == "__main__":
+    main()
