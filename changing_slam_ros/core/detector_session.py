@@ -115,34 +115,29 @@ def cut_before_ssd_nms(model_bytes: bytes) -> bytes | None:
 
     model = onnx.load_model_from_string(model_bytes)
     graph = model.graph
-    producer = {out: node for node in graph.node for out in node.output}
-    if not all(name in producer for name in SSD_HEAD_OUTPUTS):
+    produced = {out for node in graph.node for out in node.output}
+    if not all(name in produced for name in SSD_HEAD_OUTPUTS):
         return None
-    needed: set[int] = set()
-    stack = list(SSD_HEAD_OUTPUTS)
-    while stack:
-        node = producer.get(stack.pop())
-        if node is None or id(node) in needed:
-            continue
-        needed.add(id(node))
-        stack.extend(name for name in node.input if name)
-    nodes = [node for node in graph.node if id(node) in needed]
-    used = {name for node in nodes for name in node.input}
-    for node in nodes:  # names read inside a kept node's subgraphs (the preprocessing loop)
-        for attr in node.attribute:
-            if attr.type == onnx.AttributeProto.GRAPH:
-                used.update(name for sub in attr.g.node for name in sub.input)
-    initializers = [init for init in graph.initializer if init.name in used]
-    del graph.node[:]
-    graph.node.extend(nodes)
-    del graph.initializer[:]
-    graph.initializer.extend(initializers)
+    _keep_needed(graph, list(SSD_HEAD_OUTPUTS))
     del graph.output[:]
     graph.output.extend(onnx.helper.make_tensor_value_info(n, onnx.TensorProto.FLOAT, None) for n in SSD_HEAD_OUTPUTS)
+    used = _names_read(graph)
     kept_info = [vi for vi in graph.value_info if vi.name in used or vi.name in SSD_HEAD_OUTPUTS]
     del graph.value_info[:]
     graph.value_info.extend(kept_info)
     return bytes(model.SerializeToString())
+
+
+def _names_read(graph: Any) -> set[str]:
+    """Every tensor name the nodes of `graph` read, including names read inside their subgraphs (a Loop body)."""
+    import onnx
+
+    used = {name for node in graph.node for name in node.input}
+    for node in graph.node:
+        for attr in node.attribute:
+            if attr.type == onnx.AttributeProto.GRAPH:
+                used.update(name for sub in attr.g.node for name in sub.input)
+    return used
 
 
 def _keep_needed(graph: Any, outputs: list[str]) -> None:
@@ -162,14 +157,10 @@ def _keep_needed(graph: Any, outputs: list[str]) -> None:
             if attr.type == onnx.AttributeProto.GRAPH:
                 stack.extend(name for sub in attr.g.node for name in sub.input if name)
     nodes = [node for node in graph.node if id(node) in needed]
-    used = {name for node in nodes for name in node.input}
-    for node in nodes:
-        for attr in node.attribute:
-            if attr.type == onnx.AttributeProto.GRAPH:
-                used.update(name for sub in attr.g.node for name in sub.input)
-    initializers = [init for init in graph.initializer if init.name in used]
     del graph.node[:]
     graph.node.extend(nodes)
+    used = _names_read(graph)
+    initializers = [init for init in graph.initializer if init.name in used]
     del graph.initializer[:]
     graph.initializer.extend(initializers)
 
