@@ -9,12 +9,13 @@ library is not changed for it), timed in thread CPU time (`time.thread_time_ns`,
 shared). Time is exclusive: a stage called inside another is counted in the innermost one only. Stages:
 
 - `create`: points from depth (`LocalMapper._create_points`); `triangulate`: from depth-less keypoints;
-- `fuse`: fusion with the covisible keyframes (`_fuse` without `refresh`); `refresh`: descriptors, normals and
+- `fuse`: fusion with the covisible keyframes (`_fuse` without the two below); `fuse_search`: its projection
+  searches (`matcher.search_by_projection` with the keyframe's k-d tree built); `refresh`: descriptors, normals and
   scale distances of the touched points (`map_fusion.refresh_points`, called by fusion and triangulation);
 - `connections`: covisibility updates; `cull_points`, `segmentation`, `cull_keyframes`;
 - `ba_build`: local BA outside the solver and the two helpers below (window, observations, values, write
   back, outlier erasure); `ba_factors`: building the gtsam factors; `ba_chi2`: the two reprojection-error
-  passes; `ba_solve`: gtsam's Levenberg-Marquardt;
+  passes; `ba_solve`: gtsam's Levenberg-Marquardt (construction, i.e. initial error and ordering, included);
 - `other`: the rest of `LocalMapper.process`; `mapping` = the sum of the above (what the local_mapping node's
   `LocalMapper` costs per keyframe); `objects`: the object layer per keyframe (`SlamSystem._after_objects`).
 
@@ -37,7 +38,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 REPO = Path(__file__).resolve().parents[1]
-STAGES = ("create", "triangulate", "fuse", "refresh", "connections", "cull_points", "segmentation", "ba_build",
+STAGES = ("create", "triangulate", "fuse", "fuse_search", "refresh", "connections", "cull_points", "segmentation", "ba_build",
           "ba_factors", "ba_chi2", "ba_solve", "cull_keyframes", "other")
 
 
@@ -104,6 +105,7 @@ def _instrument(clock: StageClock) -> None:
     wrap(lm, "segment_keyframe_window", "segmentation")
     wrap(lm, "refresh_points", "refresh")
     wrap(map_fusion, "refresh_points", "refresh")
+    wrap(map_fusion, "search_by_projection", "fuse_search")
     wrap(lm, "local_bundle_adjust", "ba_build")
     wrap(local_ba, "add_reprojection_factors", "ba_factors")
     wrap(local_ba, "reprojection_chi2", "ba_chi2")
@@ -113,7 +115,8 @@ def _instrument(clock: StageClock) -> None:
     proxy = types.ModuleType("gtsam_timed")
     proxy.__dict__.update(gt.__dict__)
     lmo = gt.LevenbergMarquardtOptimizer
-    proxy.LevenbergMarquardtOptimizer = lambda *a: _TimedOptimizer(lmo(*a), clock)  # type: ignore[attr-defined]
+    # Construction (initial error, COLAMD ordering) is solver work too.
+    proxy.LevenbergMarquardtOptimizer = clock.wrap(lambda *a: _TimedOptimizer(lmo(*a), clock), "ba_solve")  # type: ignore[attr-defined]
     local_ba.gtsam = proxy
 
 
