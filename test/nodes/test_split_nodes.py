@@ -155,6 +155,7 @@ def test_local_ba_gives_way_to_waiting_keyframes_in_real_time(ros_context, kitch
     assert [u.keyframe_id for u in updates] == [p.keyframe.id for p in packets]
     stats = node.stats()
     assert 1 <= stats["ba_stopped_early"] < len(packets) and stats["keyframes_mapped"] == len(packets)
+    assert node._drain_timer.is_canceled()  # nothing queued: no 10 Hz wake-ups
     m = node.owner.atlas.current
     assert sorted(m.keyframes) == sorted(owner.keyframes)
     moved = max(np.linalg.norm(m.keyframes[k].T_world_cam[:3, 3] - kf.T_world_cam[:3, 3]) for k, kf in owner.keyframes.items())
