@@ -2,6 +2,7 @@
 
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
         [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
+        [--load-map MAP@SECONDS]
         [--backend split|in_process] [--map-in PREVIOUS/map.npz]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
@@ -32,6 +33,9 @@ Multi-session (`--map-in PREVIOUS/map.npz`, as `changing-slam run --map-in`): tr
 loop_closing each load the map file at start (`nodes/split_backend.py`: replica + relocalisation index, the
 owned map + saved objects, the keyframe database), tracking relocalises in the loaded current map first and
 the poses stay in its frame; local_mapping publishes the loaded semantic map, so object_map starts from it.
+`--load-map MAP@S` does the same mid-run: S seconds after the player's first message it calls local_mapping's LoadMap
+(`nodes/map_service_call.py`); local_mapping replaces its map, tracking and loop_closing follow its load marker,
+and tracking relocalises in the loaded map. graph_summary.json `map_loads` holds each call's reply.
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ READY_MARKERS = {
 RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
+PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,6 +101,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "and detection take the cores first when they are short; a restart keeps it)")
     parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
                         help="fault injection: SIGKILL NODE S seconds after playback starts (repeatable)")
+    parser.add_argument("--load-map", action="append", default=[], metavar="MAP@S",
+                        help="multi-session mid-run: S seconds after the player's first message, call local_mapping's LoadMap "
+                             "with MAP (a map.npz); tracking and loop_closing follow (repeatable)")
 
 
 @dataclass
@@ -219,6 +227,22 @@ def parse_nice(specs: list[str], known: tuple[str, ...]) -> dict[str, int]:
     return out
 
 
+def _parse_loads(specs: list[str]) -> list[tuple[str, float]]:
+    """--load-map MAP@S -> (absolute map path, seconds); a missing or bad map fails here, before anything starts."""
+    from changing_slam_ros.io.map_file import load_map
+
+    out = []
+    for spec in specs:
+        path, _, seconds = spec.rpartition("@")
+        try:
+            at_s = float(seconds)
+        except ValueError as err:
+            raise ConfigError(f"--load-map {spec}: expected MAP@SECONDS, e.g. first/map.npz@4") from err
+        load_map(path)
+        out.append((str(Path(path).resolve()), at_s))
+    return out
+
+
 def _parse_kills(specs: list[str]) -> list[tuple[str, float]]:
     out = []
     for spec in specs:
@@ -243,6 +267,9 @@ class Graph:
         self.config = str(Path(args.config).resolve()) if args.config and Path(args.config).is_file() else args.config
         self.detection = _uses_detections(self.config) if args.detection is None else args.detection
         self.kills = _parse_kills(args.kill)
+        self.loads = _parse_loads(getattr(args, "load_map", []))
+        self.load_calls: list[dict[str, Any]] = []  # one per --load-map: path, at_s, process, log
+        self.map_loads: list[dict[str, Any]] = []  # their outcomes (graph_summary.json)
         self.map_in = ""
         if args.map_in:
             from changing_slam_ros.io.map_file import load_map
@@ -323,6 +350,8 @@ class Graph:
     def _supervise(self, started_s: float) -> None:
         """Restart nodes that died (bounded), carry out --kill, until the player ends or the timeout."""
         pending_kills = list(self.kills)
+        pending_loads = list(self.loads)
+        first_message_s: float | None = None  # --load-map counts from the player's first message
         deadline = started_s + self.args.timeout
         while self.player.running():
             now = time.monotonic()
@@ -333,6 +362,12 @@ class Graph:
                     print(f"graph: --kill: SIGKILL {name} at {now - started_s:.1f} s", flush=True)
                     self.nodes[name].stop(signal.SIGKILL, 5.0)
                     pending_kills.remove((name, at_s))
+            if pending_loads and first_message_s is None and PLAYER_FIRST_MESSAGE in self.player.log_text():
+                first_message_s = now
+            for path, at_s in list(pending_loads):
+                if first_message_s is not None and now - first_message_s >= at_s:
+                    self._call_load_map(path, now - first_message_s)
+                    pending_loads.remove((path, at_s))
             for node in self.nodes.values():
                 if node.running():
                     continue
@@ -346,6 +381,28 @@ class Graph:
                 self._start(node, 180.0)
             self.cpu.sample(self._pids())
             time.sleep(0.2)
+
+    def _call_load_map(self, path: str, at_s: float) -> None:
+        """Start one LoadMap call (`nodes.map_service_call`) without waiting for it; `_finish_load_calls` collects it."""
+        log = self.logs / f"load_map_{len(self.load_calls)}.log"
+        print(f"graph: --load-map: LoadMap {path} at {at_s:.1f} s", flush=True)
+        with open(log, "wb") as f:
+            proc = subprocess.Popen([sys.executable, "-m", "changing_slam_ros.nodes.map_service_call", "load", path,
+                                     "--timeout", "60"], stdout=f, stderr=subprocess.STDOUT, env=self.env)  # fmt: skip
+        self.load_calls.append({"path": path, "at_s": round(at_s, 2), "proc": proc, "log": log})
+
+    def _finish_load_calls(self, timeout_s: float) -> list[dict[str, Any]]:
+        """Wait for the LoadMap calls; their exit code (0 loaded, 1 refused, 2 no answer) and reply line."""
+        done = []
+        for c in self.load_calls:
+            try:
+                code: int | None = c["proc"].wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                c["proc"].kill()
+                code = None
+            lines = c["log"].read_text(errors="replace").strip().splitlines()
+            done.append({"path": c["path"], "at_s": c["at_s"], "exit_code": code, "reply": lines[-1] if lines else ""})
+        return done
 
     def _wait_resynced(self, timeout_s: float) -> None:
         """A map owner restarted near the end may not have its map back from tracking yet: wait for its resync
@@ -400,6 +457,7 @@ class Graph:
                 time.sleep(1.0 if self.args.backend == "in_process" else 3.0)  # frames, keyframes, map updates in flight
             self.cpu.sample(self._pids(with_player=False))  # the work on the last frames counts too
             self._wait_resynced(120.0)
+            self.map_loads = self._finish_load_calls(90.0)
         finally:
             codes = self.shutdown()
         return self._summary(play_s, up_s, codes)
@@ -431,7 +489,7 @@ class Graph:
             "frames_with_carried_detections": stats.get("frames_with_carried_detections"),
             "frames_dropped_stale": stats.get("frames_dropped_stale"),
             "frames_not_waited_for_late_detections": stats.get("frames_not_waited_for_late_detections"),
-            "restarts": dict(self.restarts), "exit_codes": codes,
+            "restarts": dict(self.restarts), "exit_codes": codes, "map_loads": self.map_loads,
             "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
             "detections_received": stats.get("detections_received"),
             "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
