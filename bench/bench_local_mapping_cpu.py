@@ -33,43 +33,15 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stage_clock import StageClock  # noqa: E402
+
 STAGES = ("create", "triangulate", "fuse", "fuse_search", "refresh", "connections", "cull_points", "segmentation", "ba_build",
           "ba_factors", "ba_chi2", "ba_solve", "cull_keyframes", "other")
-
-
-class StageClock:
-    """Exclusive thread-CPU time per label: a stack of open stages, time goes to the innermost."""
-
-    def __init__(self) -> None:
-        self.ns: dict[str, int] = {}
-        self.calls: dict[str, int] = {}
-        self._stack: list[str] = []
-        self._t = 0
-
-    def _switch(self) -> None:
-        now = time.thread_time_ns()
-        if self._stack:
-            top = self._stack[-1]
-            self.ns[top] = self.ns.get(top, 0) + now - self._t
-        self._t = now
-
-    def wrap(self, fn: Callable[..., Any], label: str) -> Callable[..., Any]:
-        def timed(*args: Any, **kwargs: Any) -> Any:
-            self._switch()
-            self._stack.append(label)
-            self.calls[label] = self.calls.get(label, 0) + 1
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                self._switch()
-                self._stack.pop()
-
-        return timed
 
 
 class _TimedOptimizer:

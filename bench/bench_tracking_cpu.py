@@ -37,45 +37,19 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stage_clock import StageClock  # noqa: E402
+
 DATA = {
     "redkitchen": (REPO.parent / "shared/data/7scenes_redkitchen", "7scenes", False),
     "walking": (Path("/tmp/sim_cache/walking_xyz_640x480_s0_f300_people3"), "sim", True),
 }
 STAGES = ("features", "dynamic", "matching", "pose_opt", "local_map", "keyframe", "reloc", "other")
 NON_TRACKING = ("local_mapping", "objects", "loop_closing")
-
-
-class StageClock:
-    """Exclusive thread-CPU time per label: a stack of open stages, time goes to the innermost."""
-
-    def __init__(self) -> None:
-        self.ns: dict[str, int] = {}
-        self._stack: list[str] = []
-        self._t = 0
-
-    def _switch(self) -> None:
-        now = time.thread_time_ns()
-        if self._stack:
-            top = self._stack[-1]
-            self.ns[top] = self.ns.get(top, 0) + now - self._t
-        self._t = now
-
-    def wrap(self, fn: Callable[..., Any], label: str) -> Callable[..., Any]:
-        def timed(*args: Any, **kwargs: Any) -> Any:
-            self._switch()
-            self._stack.append(label)
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                self._switch()
-                self._stack.pop()
-
-        return timed
 
 
 def _instrument(system: Any, clock: StageClock) -> None:
