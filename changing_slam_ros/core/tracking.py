@@ -57,6 +57,11 @@ class TrackingConfig:
     - `n_reloc_candidates`: keyframes tried per relocalisation; `lost_frames_new_map`: failures before a new map.
     - `loaded_map_grace_s`: a session started from a saved map (`Tracker.start_from_map`) tries relocalisation
       against it on every frame for this long (seconds from the first frame) before it starts a new map.
+    - `busy_mapping_weak_ratio`: ORB-SLAM's keyframe rule when local mapping is busy (`Tracker.mapping_idle`
+      False, set by a caller whose mapping runs elsewhere: the real-time graph): a keyframe then needs
+      `max_frames_between_keyframes` frames since the last one, or tracking weak (inliers under this fraction of
+      the reference keyframe's points) or short of close points, as ORB-SLAM's c1a / c1c; an idle mapper takes one
+      whenever the ratio rule holds (c1b). 0 = insert as if idle. Offline and lossless, mapping is always idle.
     """
 
     min_init_points: int = 300
@@ -77,6 +82,7 @@ class TrackingConfig:
     n_reloc_candidates: int = 6
     lost_frames_new_map: int = 30
     loaded_map_grace_s: float = 2.0
+    busy_mapping_weak_ratio: float = 0.25
 
 
 class KeyframeCandidates(Protocol):
@@ -132,6 +138,7 @@ class Tracker:
         self.last_reloc_index = -(10**9)
         self.n_lost = 0
         self.next_kf_id = 0
+        self.mapping_idle = True  # False while local mapping has keyframes to map (real-time graph: set per frame)
         self.last_good_pose: F64 = np.eye(4)
         self.awaiting_loaded_map = False  # a loaded map: relocalise against it before starting a new one
         self._grace_start_ns: int | None = None
@@ -398,6 +405,8 @@ class Tracker:
         need_close = (close & tracked).sum() < cfg.close_tracked_min and (close & ~tracked).sum() > cfg.close_untracked_min
         ratio = cfg.keyframe_ratio if n_kfs >= 2 else 0.4
         c1 = since >= cfg.max_frames_between_keyframes or since >= cfg.min_frames_between_keyframes
+        if not self.mapping_idle and cfg.busy_mapping_weak_ratio > 0.0:  # ORB-SLAM: c1b needs an idle mapper
+            c1 = since >= cfg.max_frames_between_keyframes or n_inliers < n_ref * cfg.busy_mapping_weak_ratio or need_close
         c2 = (n_inliers < n_ref * ratio or need_close) and n_inliers > 15
         return bool(c1 and c2) or since >= cfg.max_frames_between_keyframes
 

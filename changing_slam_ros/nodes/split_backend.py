@@ -167,6 +167,8 @@ class TrackingSide:
         if self.waiting_for_map >= 0:
             self.n_skipped += 1
             return None, None
+        if self.provisional is not None:  # real time: the map owner is busy while a keyframe of ours is not mapped
+            self.system.tracker.mapping_idle = not (self.unacked or self.outbox)
         out = self.system.process(rgbd, detections)
         if out.keyframe is None:
             return out, None

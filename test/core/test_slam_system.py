@@ -62,3 +62,30 @@ def test_redkitchen_1000_frames_all_tracked_and_ate_within_orbslam3() -> None:
     assert len(system.atlas.maps) == 1
     result = ate(source.groundtruth, system.final_trajectory())
     assert result.stats.rmse <= 0.047  # ORB-SLAM3 RGB-D measured 4.7 cm on these frames
+
+
+class _BusyMapper(SlamSystem):
+    """A system whose local mapping is always busy for tracking's keyframe decision (as the real-time graph's
+    tracking sees it while a keyframe of its own is not mapped yet)."""
+
+    def process(self, frame, detections=None):  # type: ignore[no-untyped-def]
+        self.tracker.mapping_idle = False
+        return super().process(frame, detections)
+
+
+def test_a_busy_mapper_gets_fewer_keyframes_and_tracking_holds() -> None:
+    """ORB-SLAM's keyframe rule: with local mapping busy a keyframe needs tracking weak, close points short, or
+    `max_frames_between_keyframes` frames; redkitchen's first 150 frames (7-Scenes: depth from a Kinect)."""
+    source, idle, idle_states = _run(REDKITCHEN, "7scenes", limit=150)
+    cfg = SystemConfig()
+    _, busy, busy_states = _run(REDKITCHEN, "7scenes", _BusyMapper(cfg), limit=150)
+    n_idle, n_busy = len(idle.atlas.current.keyframes), len(busy.atlas.current.keyframes)
+    assert all(s == TrackingState.OK for s in busy_states + idle_states)
+    assert n_busy < n_idle, (n_busy, n_idle)
+    e_idle = ate(source.groundtruth, idle.final_trajectory()).stats.rmse
+    e_busy = ate(source.groundtruth, busy.final_trajectory()).stats.rmse
+    print(f"\nkeyframes idle {n_idle} busy {n_busy}; ATE idle {e_idle * 100:.2f} cm busy {e_busy * 100:.2f} cm")
+    assert e_busy < 0.05
+    off = dataclasses.replace(cfg, tracking=dataclasses.replace(cfg.tracking, busy_mapping_weak_ratio=0.0))
+    _, same, _ = _run(REDKITCHEN, "7scenes", _BusyMapper(off), limit=150)  # the rule off: as if idle
+    assert len(same.atlas.current.keyframes) == n_idle
