@@ -227,31 +227,30 @@ def parse_nice(specs: list[str], known: tuple[str, ...]) -> dict[str, int]:
     return out
 
 
+def _parse_at(specs: list[str], option: str, example: str) -> list[tuple[str, float]]:
+    """WHAT@SECONDS arguments (--kill, --load-map) -> (what, seconds); the last @ splits (a path may hold one)."""
+    out = []
+    for spec in specs:
+        what, _, seconds = spec.rpartition("@")
+        try:
+            out.append((what, float(seconds)))
+        except ValueError as err:
+            raise ConfigError(f"{option} {spec}: expected {example}") from err
+    return out
+
+
 def _parse_loads(specs: list[str]) -> list[tuple[str, float]]:
     """--load-map MAP@S -> (absolute map path, seconds); a missing or bad map fails here, before anything starts."""
     from changing_slam_ros.io.map_file import load_map
 
-    out = []
-    for spec in specs:
-        path, _, seconds = spec.rpartition("@")
-        try:
-            at_s = float(seconds)
-        except ValueError as err:
-            raise ConfigError(f"--load-map {spec}: expected MAP@SECONDS, e.g. first/map.npz@4") from err
+    loads = _parse_at(specs, "--load-map", "MAP@SECONDS, e.g. first/map.npz@4")
+    for path, _ in loads:
         load_map(path)
-        out.append((str(Path(path).resolve()), at_s))
-    return out
+    return [(str(Path(path).resolve()), at_s) for path, at_s in loads]
 
 
 def _parse_kills(specs: list[str]) -> list[tuple[str, float]]:
-    out = []
-    for spec in specs:
-        name, _, seconds = spec.partition("@")
-        try:
-            out.append((name, float(seconds)))
-        except ValueError as err:
-            raise ConfigError(f"--kill {spec}: expected NODE@SECONDS, e.g. object_map@5") from err
-    return out
+    return _parse_at(specs, "--kill", "NODE@SECONDS, e.g. object_map@5")
 
 
 class Graph:
