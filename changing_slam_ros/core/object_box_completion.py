@@ -92,9 +92,9 @@ def room_limit(center_w: F64, direction: F64, planes: Sequence[Plane], min_facin
 
 
 def _depth_points(obj: MapObject, planes: Sequence[Plane], structure_dist_m: float) -> F64:
-    """The points whose spread is the depth seen: with the room's planes, every point of the object off them
-    (a book on a chair's seat takes the seat's points out of the chair's centroid, `shared_point_dist_m`, but
-    the chair still spans its depth); without, those of positive weight."""
+    """The points whose spread is the depth seen: with the room's planes, every point of the object off them (a
+    smaller object on top takes its neighbours out of the object's centroid, `shared_point_dist_m`, not out of
+    its depth); without, those of positive weight."""
     if not planes:
         return obj.points_w if obj.point_weights is None else obj.points_w[obj.point_weights > 0.0]
     off = np.ones(obj.n_points, bool)
@@ -106,9 +106,8 @@ def _depth_points(obj: MapObject, planes: Sequence[Plane], structure_dist_m: flo
 def completed_box(obj: MapObject, config: ObjectMapConfig, planes: Sequence[Plane] = ()) -> CompletedBox:
     """The object's box, grown away from the camera to its class's typical depth when it was seen from one side
     only (module doc), but not through a wall: `planes` are the room's large planes (`object_point_weights`,
-    map frame), and the grown box ends at the first one behind the object (a chair against a wall whose points
-    span only the middle of its depth keeps its place instead of moving into the wall); the MapObject's own box
-    otherwise."""
+    map frame), and the grown box ends at the first one behind the object (a plant against a wall is not pushed
+    into it); the MapObject's own box otherwise."""
     center = np.asarray(obj.box_center_w, np.float64).copy()
     size = np.asarray(obj.box_size_m, np.float64).copy()
     unchanged = CompletedBox(center, size, 0.0)
