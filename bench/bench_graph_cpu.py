@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 from changing_slam_ros.commands.process_cpu import process_cpu_s
+from git_tree import archive_tree
 
 REPO = Path(__file__).resolve().parents[1]
 NODE_PREFIX = b"changing_slam_ros.nodes."
@@ -126,9 +127,7 @@ def main() -> None:
     if a.baseline:
         base = work / "baseline_tree"
         if not base.is_dir():
-            base.mkdir()
-            archive = subprocess.run(["git", "-C", str(REPO), "archive", a.baseline], capture_output=True, check=True)
-            subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
+            archive_tree(a.baseline, base)
         trees = {f"baseline {a.baseline}": base, **trees}
     results: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
     bag = str(Path(a.bag).resolve())

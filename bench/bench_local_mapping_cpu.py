@@ -39,6 +39,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from stage_clock import StageClock  # noqa: E402
+from git_tree import archive_tree  # noqa: E402
 
 STAGES = ("create", "triangulate", "fuse", "fuse_search", "refresh", "connections", "cull_points", "segmentation", "ba_build",
           "ba_factors", "ba_chi2", "ba_solve", "cull_keyframes", "other")
@@ -171,9 +172,7 @@ def main() -> int:
     base_runs: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="bench_lm_base_") as tmp:
         if args.baseline:
-            archive = subprocess.run(["git", "-C", str(REPO), "archive", args.baseline], check=True,
-                                     capture_output=True).stdout
-            subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+            archive_tree(args.baseline, Path(tmp))
         for _ in range(args.runs):
             if args.baseline:
                 base_runs.append(run_tree(Path(tmp), bag, args.config))

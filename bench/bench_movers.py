@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,6 +36,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from changing_slam_ros.core.orb_features import Features  # noqa: E402
+from git_tree import archive_tree  # noqa: E402
 
 
 def record_inputs(sim_dir: Path, frames: int, out: Path) -> None:
@@ -91,8 +91,7 @@ def record_inputs(sim_dir: Path, frames: int, out: Path) -> None:
 
 def baseline_package(rev: str, tmp: Path) -> str:
     """`changing_slam_ros` at git revision `rev`, importable as `changing_slam_ros_base` from `tmp`."""
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "changing_slam_ros"], check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
+    archive_tree(rev, tmp, "changing_slam_ros")
     pkg = tmp / "changing_slam_ros_base"
     (tmp / "changing_slam_ros").rename(pkg)
     for path in pkg.rglob("*.py"):

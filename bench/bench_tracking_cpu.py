@@ -43,6 +43,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from stage_clock import StageClock  # noqa: E402
+from git_tree import archive_tree  # noqa: E402
 
 DATA = {
     "redkitchen": (REPO.parent / "shared/data/7scenes_redkitchen", "7scenes", False),
@@ -211,9 +212,7 @@ def main() -> int:
     cur_runs: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="bench_base_") as tmp:
         if args.baseline:
-            archive = subprocess.run(["git", "-C", str(REPO), "archive", args.baseline], check=True,
-                                     capture_output=True).stdout
-            subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+            archive_tree(args.baseline, Path(tmp))
         for _ in range(args.repeats):
             if args.baseline:
                 base_runs.append(run_tree(Path(tmp), args.data, args.frames))
