@@ -75,6 +75,21 @@ def test_packets_and_updates_round_trip_through_their_messages(kitchen_packets):
     assert again.keyframe_id == 7 and again.delta.empty
 
 
+def _map_all(executor: SingleThreadedExecutor, probe: Node, node: LocalMappingNode,
+             packets: list[KeyframePacket]) -> list[MapUpdate]:
+    """Publish every keyframe packet on /tracking/keyframes at once from `probe`; the node's MapUpdates, asserted
+    one per packet and in their order."""
+    pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
+    updates: list[MapUpdate] = []
+    probe.create_subscription(MapUpdate, "/local_mapping/map_updates", updates.append, Q)
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0 and node.update_pub.get_subscription_count() > 0)
+    for p in packets:
+        pub.publish(packet_to_msg(p, "map"))
+    assert spin_until(executor, lambda: len(updates) >= len(packets), 60.0)
+    assert [u.keyframe_id for u in updates] == [p.keyframe.id for p in packets]
+    return updates
+
+
 def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros_context, kitchen_packets, tmp_path):
     packets, owner, _ = kitchen_packets
     assert len(packets) >= 4
@@ -85,19 +100,12 @@ def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros
         Parameter("diagnostics_period_s", value=0.2), Parameter("resync_timeout_s", value=0.0),
         Parameter("ba_yields_to_keyframes", value=False)])  # fmt: skip
     probe = Node("probe", context=ros_context)
-    pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
-    updates: list[MapUpdate] = []
     diags: list[DiagnosticArray] = []
-    probe.create_subscription(MapUpdate, "/local_mapping/map_updates", updates.append, Q)
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     executor.add_node(probe)
-    assert spin_until(executor, lambda: pub.get_subscription_count() > 0 and node.update_pub.get_subscription_count() > 0)
-    for p in packets:
-        pub.publish(packet_to_msg(p, "map"))
-    assert spin_until(executor, lambda: len(updates) >= len(packets), 60.0)
-    assert [u.keyframe_id for u in updates] == [p.keyframe.id for p in packets]
+    updates = _map_all(executor, probe, node, packets)
     later = update_from_msg(updates[-1], "t")
     assert len(later.delta.points) > 0 and len(later.delta.keyframes) >= 2  # new points; BA moved neighbours
     assert len(updates[-1].keyframe_poses) == len(later.delta.keyframes)  # the summary fields are filled
@@ -142,17 +150,10 @@ def test_local_ba_gives_way_to_waiting_keyframes_in_real_time(ros_context, kitch
         Parameter("resync_timeout_s", value=0.0)])  # fmt: skip
     assert node.owner.mapper.ba_stop is not None
     probe = Node("probe", context=ros_context)
-    pub = probe.create_publisher(KeyframeMsg, "/tracking/keyframes", Q)
-    updates: list[MapUpdate] = []
-    probe.create_subscription(MapUpdate, "/local_mapping/map_updates", updates.append, Q)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     executor.add_node(probe)
-    assert spin_until(executor, lambda: pub.get_subscription_count() > 0 and node.update_pub.get_subscription_count() > 0)
-    for p in packets:
-        pub.publish(packet_to_msg(p, "map"))
-    assert spin_until(executor, lambda: len(updates) >= len(packets), 60.0)
-    assert [u.keyframe_id for u in updates] == [p.keyframe.id for p in packets]
+    _map_all(executor, probe, node, packets)
     stats = node.stats()
     assert 1 <= stats["ba_stopped_early"] < len(packets) and stats["keyframes_mapped"] == len(packets)
     assert node._drain_timer.is_canceled()  # nothing queued: no 10 Hz wake-ups
