@@ -88,6 +88,13 @@ def test_numpy_nms_needs_an_ssd_graph_and_auto_falls_back_to_the_graph(tmp_path)
 
 
 @pytest.mark.slow  # the graph-NMS session takes 20-45 s to create on the shared 2-core machine
+def _assert_same_detections(got, want) -> None:  # noqa: ANN001
+    """Same classes in the same order, scores within 1e-6, boxes within 1e-3 px."""
+    assert [d.class_id for d in got] == [d.class_id for d in want]
+    np.testing.assert_allclose([d.score for d in got], [d.score for d in want], atol=1e-6)
+    np.testing.assert_allclose([d.box_xyxy for d in got], [d.box_xyxy for d in want], atol=1e-3)
+
+
 def test_numpy_nms_gives_the_graphs_detections_and_a_second_start_loads_the_cached_graph(tmp_path) -> None:
     if not DEFAULT_MODEL_PATH.is_file():
         pytest.skip("shipped model missing")
@@ -105,10 +112,7 @@ def test_numpy_nms_gives_the_graphs_detections_and_a_second_start_loads_the_cach
         rgb = np.ascontiguousarray(cv2.imread(str(path), cv2.IMREAD_COLOR)[:, :, ::-1])
         want = graph.detect(rgb).detections
         for det in (first, second):
-            got = det.detect(rgb).detections
-            assert [d.class_id for d in got] == [d.class_id for d in want]
-            np.testing.assert_allclose([d.score for d in got], [d.score for d in want], atol=1e-6)
-            np.testing.assert_allclose([d.box_xyxy for d in got], [d.box_xyxy for d in want], atol=1e-3)
+            _assert_same_detections(det.detect(rgb).detections, want)
         assert len(want) >= 4  # two persons and chairs on the first frame, a person and a chair on the second
 
 
@@ -155,10 +159,7 @@ def test_the_slimmed_graph_gives_the_unslimmed_heads_detections_on_real_frames(t
         rgb = np.ascontiguousarray(cv2.imread(str(path), cv2.IMREAD_COLOR)[:, :, ::-1])
         want = head.detect(rgb).detections
         for det in (slim, again):
-            got = det.detect(rgb).detections
-            assert [d.class_id for d in got] == [d.class_id for d in want]
-            np.testing.assert_allclose([d.score for d in got], [d.score for d in want], atol=1e-6)
-            np.testing.assert_allclose([d.box_xyxy for d in got], [d.box_xyxy for d in want], atol=1e-3)
+            _assert_same_detections(det.detect(rgb).detections, want)
         found += len(want)
     assert found >= 6  # persons, chairs, a tv and keyboards on the first frame, a person and a chair on the second
 
