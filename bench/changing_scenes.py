@@ -151,7 +151,7 @@ def fair_objects(root: Path, name: str, mode: str, lever_m: float | None = None,
     from changing_slam_ros.core.semantic_map import build_semantic_map
     from changing_slam_ros.eval.object_metrics import evaluate_objects, load_ground_truth_objects
     from changing_slam_ros.io.dataset import open_dataset
-    from changing_slam_ros.io.semantic_map_file import read_object_map, read_structure_planes
+    from changing_slam_ros.io.semantic_map_file import read_object_map_file
     from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
     out = root / "runs" / f"{name}-{mode}{tag}"
@@ -164,8 +164,8 @@ def fair_objects(root: Path, name: str, mode: str, lever_m: float | None = None,
         return {}
     truth = load_ground_truth_objects(root / name / "objects.json")
     surf = {k: np.asarray(v) for k, v in surface_centroids(root, name).items()}
-    objs = aligned_objects(read_object_map(out / "object_map.json"), T)
-    planes = aligned_planes(read_structure_planes(out / "object_map.json"), T)
+    objects, planes = read_object_map_file(out / "object_map.json")
+    objs, planes = aligned_objects(objects, T), aligned_planes(planes, T)
     cfg = ObjectMapConfig()
     result: dict[str, Any] = {}
     for key, min_belief in (("semantic_map", None), ("confirmed", cfg.belief_threshold)):

@@ -207,21 +207,13 @@ def write_object_map(path: str | Path, objects: list[MapObject], planes: Sequenc
     atomic_write_text(Path(path), json.dumps(doc, separators=(",", ":")) + "\n")
 
 
-def read_structure_planes(path: str | Path) -> list[Plane]:
-    """The `structure_planes` of an object-map file (none in files written before session 7)."""
-    p = Path(path)
-    try:
-        doc = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise MapFileError(f"{p}: cannot read object map ({err})") from err
-    rows = doc.get("structure_planes", []) if isinstance(doc, dict) else None
-    if (not isinstance(rows, list) or any(not isinstance(r, list) or len(r) != 4 for r in rows)
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for r in rows for v in r)):
-        raise MapFileError(f"{p}: structure_planes: expected a list of [nx, ny, nz, offset] numbers")
-    return [Plane(np.asarray(r[:3], np.float64), float(r[3])) for r in rows]
-
-
 def read_object_map(path: str | Path) -> list[MapObject]:
+    """The MapObjects of an object-map file (`read_object_map_file` also gives its planes)."""
+    return read_object_map_file(path)[0]
+
+
+def read_object_map_file(path: str | Path) -> tuple[list[MapObject], list[Plane]]:
+    """The MapObjects of an object-map file and its `structure_planes` (none in files written before session 7)."""
     p = Path(path)
     try:
         doc = json.loads(p.read_text())
@@ -229,7 +221,12 @@ def read_object_map(path: str | Path) -> list[MapObject]:
         raise MapFileError(f"{p}: cannot read object map ({err.strerror})") from err
     except json.JSONDecodeError as err:
         raise MapFileError(f"{p}: not valid JSON ({err})") from err
-    return object_map_from_dict(doc, str(p))
+    objects = object_map_from_dict(doc, str(p))
+    rows = doc.get("structure_planes", [])
+    if (not isinstance(rows, list) or any(not isinstance(r, list) or len(r) != 4 for r in rows)
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for r in rows for v in r)):
+        raise MapFileError(f"{p}: structure_planes: expected a list of [nx, ny, nz, offset] numbers")
+    return objects, [Plane(np.asarray(r[:3], np.float64), float(r[3])) for r in rows]
 
 
 def _box(d: dict[str, Any], key: str, where: str) -> tuple[float, float, float, float]:

@@ -126,10 +126,10 @@ def test_completion_stops_at_the_wall_behind_the_object():
 
 def test_object_map_files_keep_the_room_planes(tmp_path):
     from changing_slam_ros.core.object_point_weights import Plane
-    from changing_slam_ros.io.semantic_map_file import read_object_map, read_structure_planes, write_object_map
+    from changing_slam_ros.io.semantic_map_file import read_object_map_file, write_object_map
 
     obj = _seen_from(_cameras([-90]), np.random.default_rng(7))
     write_object_map(tmp_path / "o.json", [obj], [Plane(np.array([0.0, 0.0, 1.0]), -0.5)])
-    planes = read_structure_planes(tmp_path / "o.json")
+    objects, planes = read_object_map_file(tmp_path / "o.json")
     assert len(planes) == 1 and np.allclose(planes[0].normal, [0, 0, 1]) and planes[0].offset == -0.5
-    assert read_object_map(tmp_path / "o.json")[0].n_views == 1
+    assert objects[0].n_views == 1
