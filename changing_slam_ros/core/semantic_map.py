@@ -32,8 +32,7 @@ class SemanticObject:
     """One object of the semantic map, world (map) frame, metres.
 
     centroid_w (3,) mean of the points; box_center_w (3,) and box_size_m (3,) the world-axis-aligned box, grown
-    to the class's typical depth for an object seen from one side only (`object_box_completion`; the box of the
-    points themselves without a config).
+    to the class's typical depth for an object seen from one side only (`object_box_completion`).
     """
 
     id: int
@@ -82,17 +81,12 @@ def _triple(a: F64) -> tuple[float, float, float]:
     return float(v[0]), float(v[1]), float(v[2])
 
 
-def semantic_object(obj: MapObject, config: ObjectMapConfig | None = None, planes: Sequence[Plane] = ()) -> SemanticObject:
-    """The semantic-map record of one MapObject (its box completed per `config`, when given, within the room's
-    `planes`)."""
-    if config is None:
-        center, size = obj.box_center_w, obj.box_size_m
-    else:
-        box = completed_box(obj, config, planes)
-        center, size = box.center_w, box.size_m
+def semantic_object(obj: MapObject, config: ObjectMapConfig, planes: Sequence[Plane] = ()) -> SemanticObject:
+    """The semantic-map record of one MapObject, its box completed per `config` within the room's `planes`."""
+    box = completed_box(obj, config, planes)
     return SemanticObject(
-        obj.id, obj.class_id, class_name(obj.class_id), _triple(obj.centroid_w), _triple(center),
-        _triple(size), float(obj.belief), bool(obj.active), obj.n_points, obj.first_keyframe,
+        obj.id, obj.class_id, class_name(obj.class_id), _triple(obj.centroid_w), _triple(box.center_w),
+        _triple(box.size_m), float(obj.belief), bool(obj.active), obj.n_points, obj.first_keyframe,
         obj.last_seen_keyframe,
     )
 
