@@ -139,20 +139,25 @@ def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path)
 
 
 def test_a_killed_local_mapping_is_restarted_and_maps_what_it_missed(tmp_path):
-    """local_mapping (the map owner) killed 1 s into a lossless replay: restarted, it asks tracking for the map
-    (none mapped yet here), gets the keyframe it missed sent again, maps it, and the run ends as without the kill."""
+    """local_mapping (the map owner) killed as the player starts a lossless replay: restarted, it asks tracking for
+    the map, gets the keyframe it missed sent again (or, had the kill come after it was mapped, the map holding it),
+    and the run ends as without the kill. The kill time is a race with the first keyframe on any machine (CI once
+    saw the map-restore order with a kill at 1 s); both orders are correct recovery, and both are accepted."""
     from helpers import REPO, require
 
     bag = require(REPO / "bags" / "tum_fr1_xyz_first10.mcap")
     out = tmp_path / "graph"
     proc = subprocess.run(
         [sys.executable, "-m", "changing_slam_ros", "graph", str(bag), "--out", str(out), "--config", "tum_fr1",
-         "--lossless", "--no-detection", "--no-object-map", "--kill", "local_mapping@1"],
+         "--lossless", "--no-detection", "--no-object-map", "--kill", "local_mapping@0"],
         cwd=REPO, capture_output=True, text=True, timeout=900,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
     s = json.loads((out / "graph_summary.json").read_text())
     assert s["restarts"] == {"local_mapping": 1} and s["exit_codes"]["local_mapping"] == 0
     assert (s["poses_published"], s["drops"]) == (9, 0) and s["ate_rmse_m"] < 0.01  # offline: 0.36 cm
-    assert s["local_mapping"]["keyframes_mapped"] >= 1 and s["local_mapping"]["map_points"] > 300
+    lm = s["local_mapping"]
+    # the first keyframe reached the restarted owner either re-sent (mapped by it) or inside tracking's map snapshot
+    assert lm["keyframes_mapped"] + lm["restored_keyframes"] >= 1, lm
+    assert lm["keyframes_in_map"] >= 1 and lm["map_points"] > 300, lm
     assert "going on" not in (out / "logs" / "tracking.log").read_text()  # no map update was waited for in vain
