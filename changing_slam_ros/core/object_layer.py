@@ -73,6 +73,9 @@ class ObjectLayerConfig:
     - `depth_samples`: depth pixels sampled per candidate box (on a regular grid); 0 = map points only.
     - `depth_band_m`: samples farther than this from the box's median depth are background and left out
       (smaller boxes use a narrower band, see `box_depth_samples`).
+    - `depth_band_near_quantile`: the band's near end reaches at least this quantile of the box's depths (0: the
+      band stays centred on the median): the nearest depths in a whole box are its object's, and a chair seen at
+      a slant, its frame seen through, has its median depth at its far part (`box_depth_band`).
     - `band_map_points`: apply the same band to the map points of the box's keypoints (camera-frame depth).
     - `cut_min_side_m`: a box cut by the image border gives depth samples (`cut_only_views_join`) only when its
       smaller side spans at least this many metres at its median depth: a sliver at the image edge is mostly
@@ -87,6 +90,7 @@ class ObjectLayerConfig:
     enabled: bool = True
     depth_samples: int = 100
     depth_band_m: float = 0.35
+    depth_band_near_quantile: float = 0.05
     band_map_points: bool = True
     session_belief_decay: float = 0.5
     cut_min_side_m: float = 0.1
@@ -97,13 +101,17 @@ class ObjectLayerConfig:
             raise ConfigError(f"objects.depth_samples: expected >= 0, got {self.depth_samples}")
         if self.depth_band_m <= 0.0:
             raise ConfigError(f"objects.depth_band_m: expected > 0, got {self.depth_band_m}")
+        if not 0.0 <= self.depth_band_near_quantile < 0.5:
+            raise ConfigError(f"objects.depth_band_near_quantile: expected within [0, 0.5), got "
+                              f"{self.depth_band_near_quantile}")
         if self.cut_min_side_m < 0.0:
             raise ConfigError(f"objects.cut_min_side_m: expected >= 0, got {self.cut_min_side_m}")
         if not 0.0 <= self.session_belief_decay <= 1.0:
             raise ConfigError(f"objects.session_belief_decay: expected within [0, 1], got {self.session_belief_decay}")
 
 
-_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "band_map_points": bool,
+_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "depth_band_near_quantile": float,
+             "band_map_points": bool,
              "session_belief_decay": float, "cut_min_side_m": float}
 
 
@@ -306,20 +314,21 @@ class ObjectLayer:
                 ids = ids[~slam_map.points.bad[ids]]
             pts_w = slam_map.points.positions[ids].reshape(-1, 3)
             pts_c = pts_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-            band = None if depth_m is None else box_depth_band(depth_m, o.box_xyxy, kf.camera, self.config.depth_band_m)
+            band = None if depth_m is None else box_depth_band(depth_m, o.box_xyxy, kf.camera, self.config.depth_band_m,
+                                                               near_quantile=self.config.depth_band_near_quantile)
             if self.config.band_map_points and band is not None:
-                near = np.abs(pts_c[:, 2] - band[0]) < band[1]
+                near = band.contains(pts_c[:, 2])
                 ids, pts_w, pts_c = ids[near], pts_w[near], pts_c[near]
             box = tuple(float(v) for v in o.box_xyxy)
             truncated = box_truncated(box, kf.camera)  # type: ignore[arg-type]
             assoc = self.config.association
             # a cut box's samples are for objects known only from cut views; a sliver at the edge gives none
             cut_samples = (assoc.truncated_views and assoc.cut_only_views_join and band is not None
-                           and min(box[2] - box[0], box[3] - box[1]) * band[0] / kf.camera.fx
+                           and min(box[2] - box[0], box[3] - box[1]) * band.median_m / kf.camera.fx
                            >= self.config.cut_min_side_m)
             if depth_m is not None and self.config.depth_samples > 0 and (cut_samples or not truncated):
                 sample_c = box_depth_samples(depth_m, o.box_xyxy, kf.camera, self.config.depth_samples,
-                                             self.config.depth_band_m)
+                                             self.config.depth_band_m, self.config.depth_band_near_quantile)
                 sample_ids = np.arange(mo.next_sample_id, mo.next_sample_id - len(sample_c), -1, dtype=np.int64)
                 mo.next_sample_id -= len(sample_c)
                 ids = np.concatenate([ids, sample_ids])
@@ -442,45 +451,86 @@ class ObjectLayer:
         }
 
 
-def box_depth_band(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
-                   depth_band_m: float, n_samples: int = 100) -> tuple[float, float] | None:
-    """(median depth, band half-width) in metres of a box, as `box_depth_samples` uses them; None without depth."""
+@dataclass(frozen=True)
+class DepthBand:
+    """The camera-frame depths (metres) taken as a box's object: within `half_m` of `median_m`, the box's median
+    depth, and from `near_m` (<= median_m - half_m) up to that."""
+
+    median_m: float
+    half_m: float
+    near_m: float
+
+    def contains(self, depth_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """Which depths (any shape) lie inside the band."""
+        d = np.asarray(depth_m, float)
+        centred = np.abs(d - self.median_m) < self.half_m
+        return centred | ((d > self.near_m) & (d <= self.median_m - self.half_m))  # type: ignore[no-any-return]
+
+
+def _box_grid(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy,
+              n_samples: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], F64, int] | None:
+    """Pixel columns, rows and depths (metres, 0 invalid) of a regular grid of about `n_samples` pixels of the
+    box, and its smaller side in pixels inside the image; None for a box under 2 pixels a side."""
     h, w = depth_m.shape[:2]
     x0, y0 = max(0, int(np.floor(box_xyxy[0]))), max(0, int(np.floor(box_xyxy[1])))
     x1, y1 = min(w, int(np.ceil(box_xyxy[2]))), min(h, int(np.ceil(box_xyxy[3])))
     if x1 - x0 < 2 or y1 - y0 < 2:
         return None
     step = max(1, int(np.ceil(np.sqrt((x1 - x0) * (y1 - y0) / max(n_samples, 1)))))
-    d = np.asarray(depth_m[y0 + step // 2:y1:step, x0 + step // 2:x1:step], float)
-    d = d[d > 0]
+    vv, uu = np.mgrid[y0 + step // 2:y1:step, x0 + step // 2:x1:step]
+    return uu, vv, np.asarray(depth_m[vv, uu], float), min(x1 - x0, y1 - y0)
+
+
+def _band(d_valid: F64, side_px: int, camera: CameraIntrinsics, depth_band_m: float,
+          near_quantile: float) -> DepthBand:
+    """The band of a box from its valid grid depths and its smaller side in pixels (see `box_depth_band`)."""
+    median_m = float(np.median(d_valid))
+    width_m = side_px * median_m / camera.fx
+    half_m = float(np.clip(0.5 * width_m, MIN_DEPTH_BAND_M, depth_band_m))
+    near_m = median_m - half_m
+    if near_quantile > 0.0:  # toward the nearest depths, but at most one band width (the box's side) in front
+        near_m = min(near_m, max(float(np.quantile(d_valid, near_quantile)) - 1e-6, median_m - 2.0 * half_m))
+    return DepthBand(median_m, half_m, near_m)
+
+
+def box_depth_band(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
+                   depth_band_m: float, n_samples: int = 100, near_quantile: float = 0.0) -> DepthBand | None:
+    """The depths of a box's object, as `box_depth_samples` keeps them; None without depth (under 3 valid grid
+    pixels).
+
+    The band is centred on the median depth of the box's pixels, half the box's smaller side in metres at that
+    depth wide on each side, within [MIN_DEPTH_BAND_M, depth_band_m]: a cup keeps 5 cm, not the table top behind
+    it; a monitor keeps its screen, not the wall 30 cm behind. With `near_quantile` > 0 its near end reaches at
+    least the box's `near_quantile` depth: a box holds its object and what is seen past and around it, seldom in
+    front of it (a whole view), so its nearest depths are the object's. An open object seen at a slant (a chair
+    from the side: 0.5 m of depth, its frame seen through) has a median depth at its far part or behind it, and
+    the centred band cut its near half off (vanishing's moved chair: 40 % of its pixels kept in three of its five
+    views, docs/changing_scenes.md, session 8). The near end moves at most one band width (2 `half_m`, the box's
+    smaller side in metres) in front of the median: an object's depth span is about its width, since a footprint
+    seen from any side spans in depth about what it spans across; what is nearer is something else in the box (a
+    table's front edge below a cup seen from the table's height). The far end stays: behind is the background."""
+    grid = _box_grid(depth_m, box_xyxy, n_samples)
+    if grid is None:
+        return None
+    d = grid[2][grid[2] > 0]
     if len(d) < 3:
         return None
-    median_m = float(np.median(d))
-    width_m = min(x1 - x0, y1 - y0) * median_m / camera.fx
-    return median_m, float(np.clip(0.5 * width_m, MIN_DEPTH_BAND_M, depth_band_m))
+    return _band(d, grid[3], camera, depth_band_m, near_quantile)
 
 
 def box_depth_samples(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
-                      n_samples: int, depth_band_m: float) -> F64:
+                      n_samples: int, depth_band_m: float, near_quantile: float = 0.0) -> F64:
     """Camera-frame points (M, 3), M <= about n_samples: the box's pixels on a regular grid with valid depth
-    near their median depth (the object, not the background seen past it). The band is half the box's smaller
-    side in metres at that depth, within [MIN_DEPTH_BAND_M, depth_band_m]: a cup keeps 5 cm, not the table
-    top behind it; a chair keeps about its own depth."""
-    h, w = depth_m.shape[:2]
-    x0, y0 = max(0, int(np.floor(box_xyxy[0]))), max(0, int(np.floor(box_xyxy[1])))
-    x1, y1 = min(w, int(np.ceil(box_xyxy[2]))), min(h, int(np.ceil(box_xyxy[3])))
-    if x1 - x0 < 2 or y1 - y0 < 2:
+    inside its depth band (`box_depth_band`: the object, not the background seen past it)."""
+    grid = _box_grid(depth_m, box_xyxy, n_samples)
+    if grid is None:
         return np.zeros((0, 3))
-    step = max(1, int(np.ceil(np.sqrt((x1 - x0) * (y1 - y0) / max(n_samples, 1)))))
-    vv, uu = np.mgrid[y0 + step // 2:y1:step, x0 + step // 2:x1:step]
-    d = np.asarray(depth_m[vv, uu], float)
+    uu, vv, d, side_px = grid
     ok = d > 0
     if ok.sum() < 3:
         return np.zeros((0, 3))
-    median_m = float(np.median(d[ok]))
-    width_m = min(x1 - x0, y1 - y0) * median_m / camera.fx  # the object's smaller visible side
-    band_m = float(np.clip(0.5 * width_m, MIN_DEPTH_BAND_M, depth_band_m))
-    ok &= np.abs(d - median_m) < band_m
+    band = _band(d[ok], side_px, camera, depth_band_m, near_quantile)
+    ok &= band.contains(d)
     px = np.c_[uu[ok], vv[ok]].astype(float)
     pts: F64 = camera.backproject(px, d[ok])
     return pts

@@ -9,7 +9,9 @@ from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.dynamic_objects import ObjectMotion, ObjectState
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.map_object import ObjectMapConfig
-from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerConfig, box_depth_samples, object_layer_config
+from changing_slam_ros.core.object_layer import (
+    ObjectLayer, ObjectLayerConfig, box_depth_band, box_depth_samples, object_layer_config,
+)
 from changing_slam_ros.core.se3 import make_pose
 from changing_slam_ros.core.slam_map import SlamMap
 from changing_slam_ros.errors import ConfigError
@@ -146,6 +148,59 @@ def test_small_box_uses_a_narrow_depth_band() -> None:
     d[100:112, 150:160] = 2.5  # the cup covers most of its box; the box's right part shows the wall
     pts = box_depth_samples(d, (150.0, 100.0, 164.0, 112.0), CAM, 100, 0.35)
     assert len(pts) == 30 and np.allclose(pts[:, 2], 2.5)  # a 7 x 6 grid, 5 x 6 on the cup
+
+
+def _slanted_chair_depth() -> np.ndarray:
+    """(240, 320) depth of a chair seen from the side in BOX (80 x 120 px): its backrest at 2.0 m fills the right
+    part (55 x 80 px), its seat front and near leg at 1.55 m the lower left (25 x 50 px), and the wall at 2.6 m is
+    seen through the frame everywhere else in the box (below the seat, above the near part): the median depth is
+    the backrest's, half a metre behind the chair's near part."""
+    d = np.full((240, 320), 2.6, np.float32)
+    d[60:140, 125:180] = 2.0
+    d[130:180, 100:125] = 1.55
+    return d
+
+
+def test_a_slanted_chair_keeps_its_near_part_with_the_near_quantile() -> None:
+    """The centred band (median 2.0 m, half 0.3 m) cuts the near part off; with near_quantile 0.05 the band
+    reaches the box's nearest depths (13 % of its pixels at 1.55 m) and the wall past the chair stays out."""
+    centred = box_depth_samples(_slanted_chair_depth(), BOX, CAM, 100, 0.35)
+    near = box_depth_samples(_slanted_chair_depth(), BOX, CAM, 100, 0.35, near_quantile=0.05)
+    np.testing.assert_allclose(centred[:, 2], 2.0)  # backrest only
+    is_near = np.abs(near[:, 2] - 1.55) < 1e-5
+    np.testing.assert_allclose(near[~is_near, 2], 2.0)  # the rest is backrest: no wall
+    n_near = int(is_near.sum())
+    assert 8 <= n_near <= 16 and len(near) == len(centred) + n_near
+    band = box_depth_band(_slanted_chair_depth(), BOX, CAM, 0.35, near_quantile=0.05)
+    assert band is not None and band.median_m == pytest.approx(2.0) and band.half_m == pytest.approx(0.5 * 80 * 2.0 / 262.5)
+    assert band.near_m == pytest.approx(1.55, abs=1e-5)
+    np.testing.assert_array_equal(band.contains(np.array([1.5, 1.56, 2.0, 2.3, 2.31, 2.6])),
+                                  [False, True, True, True, False, False])
+
+
+def test_the_near_end_moves_at_most_one_box_width_in_front_of_the_median() -> None:
+    """A cup (12 x 12 px at 2.5 m: 11 cm, band half-width 5.7 cm) whose box bottom shows a table's front edge
+    0.6 m nearer (2 rows, 17 % of the box): the near end stops at median - 2 half-widths, the edge stays out."""
+    d = np.full((240, 320), 3.0, np.float32)
+    d[100:110, 150:162] = 2.5
+    d[110:112, 150:162] = 1.9
+    box = (150.0, 100.0, 162.0, 112.0)
+    band = box_depth_band(d, box, CAM, 0.35, near_quantile=0.05)
+    assert band is not None and band.median_m == pytest.approx(2.5)
+    assert band.near_m == pytest.approx(2.5 - 2 * 0.5 * 12 * 2.5 / 262.5)
+    pts = box_depth_samples(d, box, CAM, 100, 0.35, near_quantile=0.05)
+    np.testing.assert_allclose(pts[:, 2], 2.5)
+    assert len(pts) == 30  # a 6 x 6 grid: 5 rows on the cup, 1 on the edge
+
+
+def test_the_near_quantile_changes_nothing_where_the_object_fills_its_box() -> None:
+    """The object at 2 m covers 7/8 of its box, so its 5 % depth is its median: the same samples as centred."""
+    np.testing.assert_array_equal(box_depth_samples(_depth(), BOX, CAM, 100, 0.35, near_quantile=0.05),
+                                  box_depth_samples(_depth(), BOX, CAM, 100, 0.35))
+    assert ObjectLayerConfig().depth_band_near_quantile == 0.05
+    assert object_layer_config({"depth_band_near_quantile": 0.0}).depth_band_near_quantile == 0.0
+    with pytest.raises(ConfigError, match="objects.depth_band_near_quantile"):
+        object_layer_config({"depth_band_near_quantile": 0.5})
 
 
 def test_map_points_of_the_wall_seen_past_the_object_stay_out_of_it() -> None:
