@@ -3,31 +3,53 @@
 In real time tracking does not wait for a frame's own detections (`detections_wait_s` 0): a frame is tracked
 with the detections already in for its stamp, and otherwise with the newest earlier ones, carried forward.
 The objects may have moved since, so each carried box is grown on every side by `grow_widths_per_s` of its
-own width (and height) per second of age: a person walking 1 m/s, 0.5 m wide, crosses two of its widths a
-second. Growing errs on the safe side: the §4.1 depth statistics keep the background behind a grown box
-static (repopulation), and the object EKFs see the same object by IoU. Older than `max_age_s`: not used.
+own width (and height) per second of age. The §4.1 depth statistics keep the background behind a grown box
+static (repopulation), and the object EKFs see the same object by IoU, but a grown box still takes keypoints
+from tracking: with the graph's 1x cadence replayed offline (`bench/late_detections.py`), half a width per
+second gave a lower ATE than one width (a person walking 1 m/s, 0.5 m wide, crosses two widths a second) in
+7 of 8 cadences on two bags, 1.52x / 1.31x the offline ATE against 1.73x / 1.49x (docs/architecture.md,
+"Session 8: late detections"). Older than `max_age_s`: not used.
 Only `class_ids` are carried (default: person, the a-priori dynamic class): a static object's box carried
 while the camera turns lands beside the object and only takes static keypoints away (measured on the sample
 bag at 1x: carrying every class lost tracking for ~28 frames of the pan in two of four runs).
+
+A grown box still lags: it stays centred where the person was. With the detections of an image before
+(`previous`), each carried box is first moved on at the velocity of its own edges between the two sets
+(`extrapolate`: the same-class box of `previous` it overlaps most, IoU >= `match_min_iou`, the two images at
+most `max_gap_s` apart; each edge's speed clamped to `max_speed_widths_per_s` of the box's width or height per
+second). The image motion of a box is the person's walk and the camera's own motion together, and both carry
+on over the ~0.1-0.2 s a detection is late; growing then covers what the extrapolation gets wrong. Off by
+default: in the same replay it helped most at the longest delay (4 frames between detections, 5 late: 2.01x ->
+1.52x the offline ATE) but not on average, and on the sample bag with a detection every frame 2 frames late it
+doubled the error (box velocities from images 67 ms apart are mostly detector jitter).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from changing_slam_ros.core.detector import Detection, DetectionSet
+import numpy as np
+
+from changing_slam_ros.core.detector import Detection, DetectionSet, iou_matrix
 
 
 @dataclass(frozen=True)
 class CarryConfig:
     max_age_s: float = 0.5
-    grow_widths_per_s: float = 1.0
+    grow_widths_per_s: float = 0.5
     class_ids: tuple[int, ...] = (0,)
+    extrapolate: bool = False
+    match_min_iou: float = 0.1
+    max_gap_s: float = 0.5
+    max_speed_widths_per_s: float = 4.0
 
 
-def carried_forward(earlier: DetectionSet, stamp_ns: int, cfg: CarryConfig) -> tuple[Detection, ...] | None:
-    """`earlier`'s detections for an image stamped `stamp_ns`, boxes grown with their age; None when `earlier`
-    is not older than the image or older than `cfg.max_age_s` (the caller then tracks without detections)."""
+def carried_forward(
+    earlier: DetectionSet, stamp_ns: int, cfg: CarryConfig, previous: DetectionSet | None = None
+) -> tuple[Detection, ...] | None:
+    """`earlier`'s detections for an image stamped `stamp_ns`, boxes moved on at their velocity since `previous`
+    (when given and `cfg.extrapolate`) and grown with their age; None when `earlier` is not older than the image
+    or older than `cfg.max_age_s` (the caller then tracks without detections)."""
     age_s = (stamp_ns - earlier.stamp_ns) * 1e-9
     if age_s <= 0.0 or age_s > cfg.max_age_s:
         return None
@@ -36,10 +58,33 @@ def carried_forward(earlier: DetectionSet, stamp_ns: int, cfg: CarryConfig) -> t
     for d in earlier.detections:
         if d.class_id not in cfg.class_ids:
             continue
-        x0, y0, x1, y1 = d.box_xyxy
+        x0, y0, x1, y1 = _moved_on(d, earlier.stamp_ns, age_s, previous, cfg) if cfg.extrapolate else d.box_xyxy
         gx, gy = grow * (x1 - x0), grow * (y1 - y0)
         box = (x0 - gx, y0 - gy, x1 + gx, y1 + gy)
         if earlier.width > 0 and earlier.height > 0:  # stay inside the image
             box = (max(box[0], 0.0), max(box[1], 0.0), min(box[2], earlier.width - 1.0), min(box[3], earlier.height - 1.0))
         out.append(Detection(box, d.class_id, d.score))
     return tuple(out)
+
+
+def _moved_on(
+    d: Detection, stamp_ns: int, age_s: float, previous: DetectionSet | None, cfg: CarryConfig
+) -> tuple[float, float, float, float]:
+    """`d`'s box moved on by `age_s` at the velocity of its edges since its match in `previous` (unmoved
+    without one)."""
+    if previous is None:
+        return d.box_xyxy
+    gap_s = (stamp_ns - previous.stamp_ns) * 1e-9
+    same = [p for p in previous.detections if p.class_id == d.class_id]
+    if gap_s <= 0.0 or gap_s > cfg.max_gap_s or not same:
+        return d.box_xyxy
+    box = np.asarray(d.box_xyxy, dtype=np.float64)
+    overlap = iou_matrix(box[None, :], np.array([p.box_xyxy for p in same], dtype=np.float64))[0]
+    best = int(np.argmax(overlap))
+    if overlap[best] < cfg.match_min_iou:
+        return d.box_xyxy
+    velocity = (box - np.asarray(same[best].box_xyxy, dtype=np.float64)) / gap_s
+    size = np.array([box[2] - box[0], box[3] - box[1]] * 2)
+    limit = cfg.max_speed_widths_per_s * np.maximum(size, 1.0)
+    moved = box + np.clip(velocity, -limit, limit) * age_s
+    return (float(moved[0]), float(moved[1]), float(max(moved[2], moved[0] + 1.0)), float(max(moved[3], moved[1] + 1.0)))

@@ -131,8 +131,10 @@ class TrackingNode(QuietQosEvents, Node):
                                           "time, track at once with what is in; lossless replay: long)"),
             ("detections_carry_max_age_s", 0.5, "a frame without its own detections uses the newest earlier ones "
                                                 "up to this old, boxes grown with their age (0 = never)"),
-            ("detections_carry_grow_widths_per_s", 1.0, "... each box grown per side by this many of its widths "
+            ("detections_carry_grow_widths_per_s", 0.5, "... each box grown per side by this many of its widths "
                                                         "(heights) per second of age"),
+            ("detections_carry_extrapolate", False, "... each box first moved on at the velocity of its edges "
+                                                   "between the two newest detection sets"),
             ("detections_carry_class_ids", [0], "... only boxes of these COCO classes (person: a static object's "
                                                 "box carried while the camera turns only hides static keypoints)"),
             ("detections_skip_late", False, "do not wait for a frame's detections while the last "
@@ -177,10 +179,12 @@ class TrackingNode(QuietQosEvents, Node):
         self.queue = FrameQueue(p["frame_policy"], self.detections.__contains__)  # frames waiting for detections
         self._detections_seen = False
         self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
+        self._previous_detections: Any | None = None  # the one before it (the carried boxes' velocities)
         from changing_slam_ros.core.late_detections import CarryConfig
 
         self._carry = CarryConfig(p["detections_carry_max_age_s"], p["detections_carry_grow_widths_per_s"],
-                                  tuple(int(c) for c in p["detections_carry_class_ids"]))
+                                  tuple(int(c) for c in p["detections_carry_class_ids"]),
+                                  extrapolate=p["detections_carry_extrapolate"])  # fmt: skip
         self.frames_with_carried_detections = 0
         self._finished = False
 
@@ -326,7 +330,7 @@ class TrackingNode(QuietQosEvents, Node):
             self._recent_delays_ms.append(delay_ms)
         self.detections[ds.stamp_ns] = ds
         if self._newest_detections is None or ds.stamp_ns > self._newest_detections.stamp_ns:
-            self._newest_detections = ds
+            self._previous_detections, self._newest_detections = self._newest_detections, ds
         while len(self.detections) > 30:
             del self.detections[next(iter(self.detections))]
         self._drain()
@@ -337,7 +341,7 @@ class TrackingNode(QuietQosEvents, Node):
 
         if self._newest_detections is None or self._carry.max_age_s <= 0:
             return None
-        carried = carried_forward(self._newest_detections, stamp_ns, self._carry)
+        carried = carried_forward(self._newest_detections, stamp_ns, self._carry, self._previous_detections)
         if carried is not None:
             self.frames_with_carried_detections += 1
         return carried

@@ -27,3 +27,34 @@ def test_only_the_configured_classes_are_carried():
     earlier = DetectionSet(0, (Detection((10.0, 10.0, 20.0, 20.0), 0, 0.9), Detection((30.0, 30.0, 40.0, 40.0), 56, 0.8)))
     carried = carried_forward(earlier, 50 * MS, CarryConfig())  # default: person only
     assert [d.class_id for d in carried] == [0]
+
+
+def test_a_carried_box_moves_on_at_the_velocity_of_its_edges_since_the_detections_before():
+    # A person walking right: 20 px in the 0.1 s between two detection sets; the frame is 0.15 s after the newer.
+    before = DetectionSet(1000 * MS, (Detection((100.0, 50.0, 150.0, 150.0), 0, 0.9),), 320, 240)
+    newer = DetectionSet(1100 * MS, (Detection((120.0, 50.0, 170.0, 150.0), 0, 0.8),
+                                     Detection((10.0, 10.0, 30.0, 40.0), 0, 0.7)), 320, 240)  # fmt: skip
+    cfg = CarryConfig(grow_widths_per_s=0.0, extrapolate=True)
+    walker, other = carried_forward(newer, 1250 * MS, cfg, before)
+    assert walker.box_xyxy == pytest.approx((150.0, 50.0, 200.0, 150.0))  # +200 px/s x 0.15 s
+    assert other.box_xyxy == pytest.approx((10.0, 10.0, 30.0, 40.0))  # no match before: left where it was
+    # Growing comes after the move: 0.15 s x 0.5 widths/s = 7.5 % of 50 px per side.
+    grown, _ = carried_forward(newer, 1250 * MS, CarryConfig(grow_widths_per_s=0.5, extrapolate=True), before)
+    assert grown.box_xyxy == pytest.approx((146.25, 42.5, 203.75, 157.5))
+    # Without extrapolation, or without an earlier set, the box stays put.
+    assert carried_forward(newer, 1250 * MS, CarryConfig(grow_widths_per_s=0.0, extrapolate=False), before)[0].box_xyxy \
+        == pytest.approx((120.0, 50.0, 170.0, 150.0))  # fmt: skip
+    assert carried_forward(newer, 1250 * MS, cfg)[0].box_xyxy == pytest.approx((120.0, 50.0, 170.0, 150.0))
+
+
+def test_extrapolation_needs_a_close_match_of_the_same_class_and_clamps_the_speed():
+    newer = DetectionSet(1100 * MS, (Detection((120.0, 50.0, 170.0, 150.0), 0, 0.8),), 320, 240)
+    cfg = CarryConfig(grow_widths_per_s=0.0, extrapolate=True)
+    chair = DetectionSet(1000 * MS, (Detection((100.0, 50.0, 150.0, 150.0), 56, 0.9),), 320, 240)
+    far = DetectionSet(1000 * MS, (Detection((250.0, 50.0, 300.0, 150.0), 0, 0.9),), 320, 240)  # IoU 0
+    stale = DetectionSet(400 * MS, (Detection((100.0, 50.0, 150.0, 150.0), 0, 0.9),), 320, 240)  # 0.7 s before
+    for previous in (chair, far, stale):
+        assert carried_forward(newer, 1250 * MS, cfg, previous)[0].box_xyxy == pytest.approx((120.0, 50.0, 170.0, 150.0))
+    # 30 px in 10 ms is 3000 px/s: clamped to 4 widths/s (200 px/s in x), so +30 px after 0.15 s, not +450.
+    jump = DetectionSet(1090 * MS, (Detection((90.0, 50.0, 140.0, 150.0), 0, 0.9),), 320, 240)
+    assert carried_forward(newer, 1250 * MS, cfg, jump)[0].box_xyxy == pytest.approx((150.0, 50.0, 200.0, 150.0))
