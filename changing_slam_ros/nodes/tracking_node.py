@@ -141,6 +141,8 @@ class TrackingNode(QuietQosEvents, Node):
                                             "detections_late_window ones all came later than detections_wait_s "
                                             "(the wait could not succeed; it only added latency)"),
             ("detections_late_window", 5, "detections_skip_late: how many recent detection delays decide"),
+            ("frames_held_for_camera_info", 60, "frame_policy all: frames before the first camera_info wait for "
+                                                "it, at most this many (then, and in real time, they are skipped)"),
             ("frame_policy", "all", "'all': every paired frame in order (lossless); 'latest' (real time): when "
                                     "frames pile up, the newest ready one is tracked and the older ones dropped"),
             ("detections_required", False, "wait for detections from the first frame (a detection node is started)"),
@@ -178,6 +180,7 @@ class TrackingNode(QuietQosEvents, Node):
         self._received_s: dict[int, float] = {}
         self.queue = FrameQueue(p["frame_policy"], self.detections.__contains__)  # frames waiting for detections
         self._detections_seen = False
+        self._acked_early: set[int] = set()  # frames acked while held for the first camera_info
         self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
         self._previous_detections: Any | None = None  # the one before it (the carried boxes' velocities)
         from changing_slam_ros.core.late_detections import CarryConfig
@@ -313,10 +316,14 @@ class TrackingNode(QuietQosEvents, Node):
         self._warn_if_unpaired()
 
     def on_camera_info(self, msg: CameraInfo) -> None:
+        first = self.camera is None
         try:
             self.camera = camera_info_to_intrinsics(msg, "/camera/rgb/camera_info")
         except SlamError as err:
             self.get_logger().warning(f"tracking: camera_info rejected: {err}", throttle_duration_sec=5.0)
+            return
+        if first and len(self.queue):
+            self._drain()  # frames held for it (lossless)
 
     def on_detections(self, msg: DetectionArray) -> None:
         ds = detections_from_msg(msg)
@@ -511,6 +518,8 @@ class TrackingNode(QuietQosEvents, Node):
 
     def _drain_pending(self) -> None:
         self._check_wait()
+        if self._holding_for_camera_info():
+            return
         if self._awaiting is None:
             for stale in self.queue.take_stale(time.monotonic()):
                 self.detections.pop(stale.stamp_ns, None)
@@ -518,6 +527,22 @@ class TrackingNode(QuietQosEvents, Node):
                 self._ack(stale.rgb_msg.header)
         while self._awaiting is None and (head := self.queue.pop_ready(time.monotonic())) is not None:
             self._process(head)
+
+    def _holding_for_camera_info(self) -> bool:
+        """Lossless (frame_policy all): frames that come before the first camera_info (a separate DDS writer, which
+        can be matched seconds after the images) wait for it instead of being skipped, up to
+        `frames_held_for_camera_info`; each is acked at once so that the player goes on to publish it."""
+        limit = self.params["frames_held_for_camera_info"]
+        if self.params["frame_policy"] != "all" or limit <= 0 or (self.config_camera or self.camera) is not None:
+            return False
+        for item in self.queue:
+            if item.stamp_ns not in self._acked_early:
+                self._acked_early.add(item.stamp_ns)
+                self._ack(item.rgb_msg.header)
+        if len(self.queue) > limit:
+            return False  # no camera_info for too long: the oldest frames go through _process and are skipped
+        self._warn_once("held_for_camera", f"tracking: no camera_info yet; holding frames for it (at most {limit})")
+        return True
 
     def _frame_camera(self, width: int, height: int) -> CameraIntrinsics | None:
         cam = self.config_camera if self.config_camera is not None else self.camera

@@ -325,3 +325,34 @@ def test_detections_for_a_frame_never_received_are_kept_and_a_waiting_frames_del
     node.on_detections(DetectionArray(header=cv.make_header(f.stamp_ns, "camera"), detections=[]))
     assert node.frames_in == 1 and node.frames_without_detections == 0 and len(node.detection_delay_ms) == 1
     node.destroy_node()
+
+
+@pytest.mark.parametrize("policy", ["all", "latest"])
+def test_lossless_frames_before_the_first_camera_info_wait_for_it_and_real_time_skips_them(ros_context, policy):
+    """camera_info is its own DDS writer and can be matched seconds after the images (seen in the graph's
+    --load-map run: 12 of 60 lossless frames skipped). Lossless (`all`), the frames wait for it, acked at once
+    so that the player goes on; real time (`latest`) skips them as before."""
+    import itertools
+
+    from helpers import FR1_XYZ_10, require
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(itertools.islice(iter(src), 3))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("intrinsics_from", value="camera_info"), Parameter("frame_policy", value=policy),
+        Parameter("debug_image", value=False),
+    ])  # fmt: skip
+    acked: list[int] = []
+    node._ack = lambda header: acked.append(cv.stamp_to_ns(header.stamp))  # what the player waits for
+    for f in frames:
+        node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
+        node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
+    assert sorted(set(acked)) == [f.stamp_ns for f in frames]  # the player is never held up
+    assert node.published_poses == 0
+    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
+    if policy == "all":
+        assert node.published_poses == 3 and [r.stamp_ns for r in node.backend.system.records] == [f.stamp_ns for f in frames]
+    else:
+        assert node.published_poses == 0 and len(node.queue) == 0
+    node.destroy_node()
