@@ -540,7 +540,7 @@ class TrackingNode(QuietQosEvents, Node):
                 self._acked_early.add(item.stamp_ns)
                 self._ack(item.rgb_msg.header)
         if len(self.queue) > limit:
-            return False  # no camera_info for too long: the oldest frames go through _process and are skipped
+            return False  # no camera_info for too long: the queued frames go on to _process, which skips them
         self._warn_once("held_for_camera", f"tracking: no camera_info yet; holding frames for it (at most {limit})")
         return True
 
