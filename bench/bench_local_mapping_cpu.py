@@ -65,10 +65,7 @@ def _instrument(clock: StageClock) -> None:
     from changing_slam_ros.core import map_fusion, slam_map, system
     from changing_slam_ros.core.backend import local_ba
 
-    def wrap(obj: Any, name: str, label: str) -> None:
-        if hasattr(obj, name):
-            setattr(obj, name, clock.wrap(getattr(obj, name), label))
-
+    wrap = clock.patch
     wrap(lm.LocalMapper, "process", "other")
     wrap(lm.LocalMapper, "_create_points", "create")
     wrap(lm.LocalMapper, "_triangulate", "triangulate")

@@ -55,10 +55,7 @@ NON_TRACKING = ("local_mapping", "objects", "loop_closing")
 
 def _instrument(system: Any, clock: StageClock) -> None:
     """Wrap the stages' methods on the instances (the library's classes stay untouched)."""
-    def wrap(obj: Any, name: str, label: str) -> None:
-        if obj is not None and hasattr(obj, name):
-            setattr(obj, name, clock.wrap(getattr(obj, name), label))
-
+    wrap = clock.patch
     tr = system.tracker
     wrap(tr, "_track_frame_to_frame", "matching")
     wrap(tr, "_optimise", "pose_opt")

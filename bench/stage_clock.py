@@ -1,6 +1,7 @@
 """Exclusive thread-CPU time per stage for the CPU benchmarks (`bench_tracking_cpu.py`, `bench_local_mapping_cpu.py`).
 
-Wrap functions from outside with `StageClock.wrap(fn, label)`; time goes to the innermost open stage, in thread CPU
+Wrap functions from outside with `StageClock.wrap(fn, label)` (or replace an attribute in place with
+`StageClock.patch(obj, name, label)`); time goes to the innermost open stage, in thread CPU
 time (`time.thread_time_ns`), so a shared machine changes it less than wall time.
 """
 
@@ -39,3 +40,9 @@ class StageClock:
                 self._stack.pop()
 
         return timed
+
+    def patch(self, obj: Any, name: str, label: str) -> None:
+        """Replace `obj.name` (a method, a class attribute or a module-level function) by its timed wrapper;
+        nothing when `obj` is None or has no such attribute (a stage this configuration does not run)."""
+        if obj is not None and hasattr(obj, name):
+            setattr(obj, name, self.wrap(getattr(obj, name), label))
