@@ -65,9 +65,7 @@ def parse_cadence(text: str) -> tuple[int, int]:
 def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], every: int, delay: int,
              carry: CarryConfig | None) -> tuple[float, int]:  # fmt: skip
     """ATE (m) and frames tracked with this cadence and carry (carry None: every frame its own detections)."""
-    path = run_command.find_config(args.config)
-    data = run_command.load_yaml(path)
-    where = str(path)
+    data, where = args.config_data, args.config_where
     ns = run_command_args(args.bag, "unused", args.config)  # the run's options; nothing is written
     dyn = dynamic_setup(ns, data, where)
     closing = run_command._loop_closing(data, where)
@@ -110,6 +108,7 @@ def main() -> int:
     settings = {s: parse_setting(s) for s in args.settings}
     path = run_command.find_config(args.config)
     data = run_command.load_yaml(path)
+    args.config_data, args.config_where = data, str(path)  # read once, used by every run
     source = open_dataset(args.bag, settings_from_mapping(data, str(path)))
     if source.groundtruth is None:
         raise SystemExit(f"{args.bag}: no ground truth")
