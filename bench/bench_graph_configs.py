@@ -5,7 +5,8 @@
 
 `bench/bench_graph_cpu.py` compares two trees on one config; this compares configs on one tree, e.g. the
 detector's thread count: copies of `config/sim.yaml` with a `detector:` section appended. Runs alternate
-between the configs so that other load on a shared machine hits them alike. Per config it prints the median
+between the configs so that other load on a shared machine hits them alike. The graph runs with
+`--detector-threads -1`, so the detector's thread count is each config's (`graph` alone gives it 1 in real time). Per config it prints the median
 over runs of the detection rate, CPU per detection, tracking CPU per tracked frame, total CPU per bag frame,
 poses, latency and ATE (`bench_graph_cpu.figures`). Table in docs/dynamic_integration.md, "Session 7: detector
 speed".
@@ -42,7 +43,7 @@ def main() -> None:
     results: dict[str, list[dict[str, float]]] = {c: [] for c in a.configs}
     for i in range(a.runs):
         for k, config in enumerate(a.configs):
-            s = run_graph(REPO, bag, work / f"run_{k}_{i}", config, a.lossless)
+            s = run_graph(REPO, bag, work / f"run_{k}_{i}", config, a.lossless, ("--detector-threads", "-1"))
             f = figures(s)
             f["detection Hz"] = float(s.get("detection_rate_hz") or float("nan"))
             results[config].append(f)

@@ -54,10 +54,11 @@ def _children(pid: int) -> dict[str, int]:
     return out
 
 
-def run_graph(tree: Path, bag: str, out: Path, config: str, lossless: bool) -> dict:
-    """One graph run from `tree`; returns its graph_summary.json plus `play_cpu_s` (node -> CPU s)."""
+def run_graph(tree: Path, bag: str, out: Path, config: str, lossless: bool, extra: tuple[str, ...] = ()) -> dict:
+    """One graph run from `tree` (`extra`: more `graph` options); returns its graph_summary.json plus
+    `play_cpu_s` (node -> CPU s)."""
     argv = [sys.executable, "-m", "changing_slam_ros", "graph", bag, "--out", str(out), "--config", config]
-    argv += ["--lossless"] if lossless else []
+    argv += (["--lossless"] if lossless else []) + list(extra)
     env = dict(os.environ, PYTHONPATH=str(tree))
     proc = subprocess.Popen(argv, cwd=tree, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     playing = threading.Event()

@@ -4,7 +4,9 @@
 
 Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_player waits for tracking's
 per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock), map_file (multi-session:
-start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz). Out of lossless mode tracking
+start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz), detector_threads (onnxruntime
+threads of the detection node; -1 = the config's; 1 costs ~10 % less CPU per detection where the nodes share few
+cores, as `changing-slam graph` does in real time). Out of lossless mode tracking
 runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest) and no waiting for
 detections that keep arriving late.
 Without ROS 2 launch, `changing-slam graph BAG` (issue 7) starts the same processes.
@@ -27,6 +29,7 @@ def generate_launch_description() -> LaunchDescription:
     use_sim_time = LaunchConfiguration("use_sim_time")
     map_file = LaunchConfiguration("map_file")
     map_out = LaunchConfiguration("map_out")
+    detector_threads = LaunchConfiguration("detector_threads")
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
@@ -43,13 +46,16 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("map_file", default_value="", description="start from this map.npz (multi-session)"),
         DeclareLaunchArgument("map_out", default_value="", description="local_mapping saves the map here at shutdown "
                               "(and on ~/save_map); start the next session from it with map_file"),
+        DeclareLaunchArgument("detector_threads", default_value="-1",
+                              description="onnxruntime threads of the detection node (-1: the config's)"),
         Node(
             package=PACKAGE, executable="bag_player", name="bag_player", output="screen", condition=IfCondition(has_bag),
             parameters=[{"bag": bag, "rate": rate, "lossless": lossless,
                          "ack_topics": ["/camera/rgb/image_color"]}],
         ),
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
-             parameters=[{"config": config}, sim_time], remappings=[("image", "/camera/rgb/image_color")]),
+             parameters=[{"config": config, "intra_op_threads": detector_threads}, sim_time],
+             remappings=[("image", "/camera/rgb/image_color")]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
                           "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
