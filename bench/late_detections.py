@@ -12,13 +12,17 @@ the offline run itself. Prints a table, never asserts.
     nice .venv/bin/python bench/late_detections.py /tmp/rt/wxyz30s.mcap --config sim \\
         --cadences 3:4 3:3 2:4 4:5 3:5 --settings grow1 grow0.5 grow0.5+extrapolate
 
-A setting is `grow<G>` (grow_widths_per_s G) with `+extrapolate` to move boxes on at their edges' velocity.
-Detections are computed once per bag (every frame) and reused by every row.
+A setting is `grow<G>` (grow_widths_per_s G) with `+extrapolate` to move boxes on at their edges' velocity and
+`+flow<F>` to move them by their image motion between the detections' image and the frame (`core.box_flow`)
+and grow a moved box by F widths/s instead (a box whose motion is not measured: as without +flow), e.g.
+`grow0.5+flow0.25`. Detections are computed once per bag (every frame) and reused by every row. With +flow the
+CPU time of `carried_forward` per carried frame (`time.process_time`) is printed too.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
 import time
@@ -30,6 +34,7 @@ sys.path.insert(0, str(REPO))
 from changing_slam_ros.commands import run as run_command  # noqa: E402
 from changing_slam_ros.commands.dynamic_options import dynamic_setup  # noqa: E402
 from changing_slam_ros.commands.objects_options import object_layer_setup  # noqa: E402
+from changing_slam_ros.core.box_flow import FlowImage  # noqa: E402
 from changing_slam_ros.core.detector import Detection, DetectionSet  # noqa: E402
 from changing_slam_ros.core.late_detections import CarryConfig, carried_forward  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
@@ -38,18 +43,27 @@ from changing_slam_ros.io.dataset_config import settings_from_mapping  # noqa: E
 
 
 def parse_setting(text: str) -> CarryConfig:
-    """'grow0.5+extrapolate' -> CarryConfig(grow_widths_per_s=0.5, extrapolate=True)."""
+    """'grow0.5+extrapolate' -> CarryConfig(grow_widths_per_s=0.5, extrapolate=True); '+flow0.25' adds
+    flow=True, flow_grow_widths_per_s=0.25."""
     parts = text.split("+")
     if not parts[0].startswith("grow"):
-        raise SystemExit(f"--settings {text}: expected grow<G>[+extrapolate], e.g. grow0.5+extrapolate")
+        raise SystemExit(f"--settings {text}: expected grow<G>[+extrapolate][+flow<F>], e.g. grow0.5+flow0.25")
+    cfg = CarryConfig(grow_widths_per_s=_number(text, parts[0][4:]))
+    for part in parts[1:]:
+        if part == "extrapolate":
+            cfg = dataclasses.replace(cfg, extrapolate=True)
+        elif part.startswith("flow"):
+            cfg = dataclasses.replace(cfg, flow=True, flow_grow_widths_per_s=_number(text, part[4:]))
+        else:
+            raise SystemExit(f"--settings {text}: unknown option {part!r}; only +extrapolate and +flow<F>")
+    return cfg
+
+
+def _number(text: str, value: str) -> float:
     try:
-        grow = float(parts[0][4:])
+        return float(value)
     except ValueError as err:
-        raise SystemExit(f"--settings {text}: {parts[0][4:]!r} is not a number") from err
-    unknown = set(parts[1:]) - {"extrapolate"}
-    if unknown:
-        raise SystemExit(f"--settings {text}: unknown option(s) {sorted(unknown)}; only +extrapolate")
-    return CarryConfig(grow_widths_per_s=grow, extrapolate="extrapolate" in parts[1:])
+        raise SystemExit(f"--settings {text}: {value!r} is not a number") from err
 
 
 def parse_cadence(text: str) -> tuple[int, int]:
@@ -63,8 +77,9 @@ def parse_cadence(text: str) -> tuple[int, int]:
 
 
 def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], every: int, delay: int,
-             carry: CarryConfig | None) -> tuple[float, int]:  # fmt: skip
-    """ATE (m) and frames tracked with this cadence and carry (carry None: every frame its own detections)."""
+             carry: CarryConfig | None, images: list[FlowImage]) -> tuple[float, int, list[float]]:  # fmt: skip
+    """ATE (m), frames tracked and the CPU ms of each carried frame's `carried_forward` with this cadence and carry
+    (carry None: every frame its own detections). `images`: each frame's grey and depth, for +flow."""
     data, where = args.config_data, args.config_where
     ns = run_command_args(args.bag, "unused", args.config)  # the run's options; nothing is written
     dyn = dynamic_setup(ns, data, where)
@@ -74,6 +89,8 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], e
                                     object_layer=object_layer_setup(ns, data, where))  # fmt: skip
     newest: DetectionSet | None = None
     previous: DetectionSet | None = None
+    newest_index = -1
+    cpu_ms: list[float] = []
     for i, frame in enumerate(frames):
         used: tuple[Detection, ...] | None
         if carry is None:
@@ -81,12 +98,18 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], e
         else:
             j = i - delay
             if j >= 0 and j % every == 0:
-                previous, newest = newest, dets[j]
-            used = carried_forward(newest, frame.stamp_ns, carry, previous) if newest is not None else None
+                previous, newest, newest_index = newest, dets[j], j
+            used = None
+            if newest is not None:
+                pair = (images[newest_index], images[i]) if carry.flow else None
+                c0 = time.process_time()
+                used = carried_forward(newest, frame.stamp_ns, carry, previous, pair)
+                if used is not None:
+                    cpu_ms.append(1e3 * (time.process_time() - c0))
             if delay == 0 and j >= 0 and j % every == 0:
                 used = dets[i].detections  # the frame's own detections, in time
         system.process(frame, used)
-    return float(ate(args.groundtruth, system.final_trajectory()).stats.rmse), system.n_tracked()
+    return float(ate(args.groundtruth, system.final_trajectory()).stats.rmse), system.n_tracked(), cpu_ms
 
 
 def run_command_args(bag: str, out: str, config: str) -> argparse.Namespace:
@@ -102,7 +125,7 @@ def main() -> int:
     parser.add_argument("--cadences", nargs="+", default=["3:4", "3:3", "2:4", "4:5", "3:5"], metavar="EVERY:DELAY",
                         help="detector on every EVERY-th frame, its boxes usable DELAY frames later")
     parser.add_argument("--settings", nargs="+", default=["grow1", "grow0.5", "grow0.5+extrapolate"],
-                        help="carry settings, grow<G>[+extrapolate]")
+                        help="carry settings, grow<G>[+extrapolate][+flow<F>]")
     args = parser.parse_args()
     cadences = [parse_cadence(c) for c in args.cadences]
     settings = {s: parse_setting(s) for s in args.settings}
@@ -114,21 +137,26 @@ def main() -> int:
         raise SystemExit(f"{args.bag}: no ground truth")
     args.groundtruth = source.groundtruth
     frames = list(source)
+    images = [FlowImage.from_rgb(f.stamp_ns, f.rgb, f.depth_m) for f in frames]
     dyn = dynamic_setup(run_command_args(args.bag, "unused", args.config), data, str(path))
     if dyn.detector is None:
         raise SystemExit(f"{args.config}: the config's dynamic filter uses no detector")
     t0 = time.perf_counter()
     dets = [dyn.detector.detect(f.rgb, f.stamp_ns) for f in frames]
     print(f"{args.bag}: {len(frames)} frames, detections in {time.perf_counter() - t0:.0f} s", flush=True)
-    base, tracked = run_once(args, frames, dets, 1, 0, None)
+    base, tracked, _ = run_once(args, frames, dets, 1, 0, None, images)
     print(f"every frame, no delay (offline): ATE {100 * base:.2f} cm, {tracked}/{len(frames)} tracked", flush=True)
     table: dict[str, list[float]] = {s: [] for s in settings}
     for every, delay in cadences:
         for name, carry in settings.items():
-            err, tracked = run_once(args, frames, dets, every, delay, carry)
+            err, tracked, cpu_ms = run_once(args, frames, dets, every, delay, carry, images)
             table[name].append(err)
             lost = f", {len(frames) - tracked} lost" if tracked < len(frames) else ""
-            print(f"  every {every} delay {delay}  {name:22s} ATE {100 * err:.2f} cm (x{err / base:.2f}){lost}", flush=True)
+            cpu = ""
+            if carry.flow and cpu_ms:
+                cpu = f", carry CPU {statistics.fmean(cpu_ms):.2f} ms/frame (max {max(cpu_ms):.1f})"
+            print(f"  every {every} delay {delay}  {name:22s} ATE {100 * err:.2f} cm (x{err / base:.2f}){lost}{cpu}",
+                  flush=True)  # fmt: skip
     print("\n| setting | " + " | ".join(f"{e}:{d}" for e, d in cadences) + " | mean cm (x offline) |")
     print("|---|" + "---|" * (len(cadences) + 1))
     for name, errs in table.items():

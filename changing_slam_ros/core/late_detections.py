@@ -22,6 +22,14 @@ on over the ~0.1-0.2 s a detection is late; growing then covers what the extrapo
 default: in the same replay it helped most at the longest delay (4 frames between detections, 5 late: 2.01x ->
 1.52x the offline ATE) but not on average, and on the sample bag with a detection every frame 2 frames late it
 doubled the error (box velocities from images 67 ms apart are mostly detector jitter).
+
+Better than guessing the motion is measuring it (`flow`): with the grey (and depth) images of the detections'
+stamp and of the frame, each carried box is moved by the image motion of its foreground between the two
+(`core.box_flow`, Median Flow) and then grown by the smaller `flow_grow_widths_per_s` (the moved box is located;
+growing covers the person's limbs and the measurement's error). A box whose motion cannot be measured (no
+texture, no points left after the forward-backward check, no image of the detections' stamp) is carried as
+without `flow`. `RecentImages` keeps the images a tracker needs for it (docs/architecture.md, "Session 9: late
+boxes moved by the image motion").
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from changing_slam_ros.core.box_flow import BoxFlowConfig, BoxMotion, FlowImage, box_motions
 from changing_slam_ros.core.detector import Detection, DetectionSet, iou_matrix
 
 
@@ -42,29 +51,73 @@ class CarryConfig:
     match_min_iou: float = 0.1
     max_gap_s: float = 0.5
     max_speed_widths_per_s: float = 4.0
+    flow: bool = False
+    flow_grow_widths_per_s: float = 0.25
+    box_flow: BoxFlowConfig = BoxFlowConfig()
 
 
 def carried_forward(
-    earlier: DetectionSet, stamp_ns: int, cfg: CarryConfig, previous: DetectionSet | None = None
+    earlier: DetectionSet,
+    stamp_ns: int,
+    cfg: CarryConfig,
+    previous: DetectionSet | None = None,
+    images: tuple[FlowImage, FlowImage] | None = None,
 ) -> tuple[Detection, ...] | None:
-    """`earlier`'s detections for an image stamped `stamp_ns`, boxes moved on at their velocity since `previous`
-    (when given and `cfg.extrapolate`) and grown with their age; None when `earlier` is not older than the image
-    or older than `cfg.max_age_s` (the caller then tracks without detections)."""
+    """`earlier`'s detections for an image stamped `stamp_ns`, boxes moved by their measured image motion
+    (`cfg.flow`, with `images` = the image of `earlier`'s detections and the frame's) or on at their velocity since
+    `previous` (when given and `cfg.extrapolate`), then grown with their age; None when `earlier` is not older
+    than the image or older than `cfg.max_age_s` (the caller then tracks without detections)."""
     age_s = (stamp_ns - earlier.stamp_ns) * 1e-9
     if age_s <= 0.0 or age_s > cfg.max_age_s:
         return None
-    grow = cfg.grow_widths_per_s * age_s
+    carried = [d for d in earlier.detections if d.class_id in cfg.class_ids]
+    motions: list[BoxMotion | None] = [None] * len(carried)
+    if cfg.flow and images is not None and carried:
+        motions = box_motions([d.box_xyxy for d in carried], images[0], images[1], cfg.box_flow)
     out = []
-    for d in earlier.detections:
-        if d.class_id not in cfg.class_ids:
-            continue
-        x0, y0, x1, y1 = _moved_on(d, earlier.stamp_ns, age_s, previous, cfg) if cfg.extrapolate else d.box_xyxy
+    for d, motion in zip(carried, motions):
+        if motion is not None:
+            x0, y0, x1, y1 = motion.apply(d.box_xyxy)
+            grow = cfg.flow_grow_widths_per_s * age_s
+        else:
+            x0, y0, x1, y1 = _moved_on(d, earlier.stamp_ns, age_s, previous, cfg) if cfg.extrapolate else d.box_xyxy
+            grow = cfg.grow_widths_per_s * age_s
         gx, gy = grow * (x1 - x0), grow * (y1 - y0)
         box = (x0 - gx, y0 - gy, x1 + gx, y1 + gy)
         if earlier.width > 0 and earlier.height > 0:  # stay inside the image
             box = (max(box[0], 0.0), max(box[1], 0.0), min(box[2], earlier.width - 1.0), min(box[3], earlier.height - 1.0))
         out.append(Detection(box, d.class_id, d.score))
     return tuple(out)
+
+
+class RecentImages:
+    """The grey (and depth) images of the last frames, by stamp, at most `max_age_s` behind the newest: the
+    images late detections were made on, for `carried_forward`'s flow."""
+
+    def __init__(self, max_age_s: float, max_stamp_gap_s: float = 0.05) -> None:
+        self.max_age_ns = round(max_age_s * 1e9)
+        self.max_gap_ns = round(max_stamp_gap_s * 1e9)
+        self._images: dict[int, FlowImage] = {}
+
+    def __len__(self) -> int:
+        return len(self._images)
+
+    def add(self, image: FlowImage) -> None:
+        """Keep `image`; images older than `max_age_s` before it are forgotten."""
+        self._images[image.stamp_ns] = image
+        oldest = image.stamp_ns - self.max_age_ns
+        for stamp in [s for s in self._images if s < oldest]:
+            del self._images[stamp]
+
+    def get(self, stamp_ns: int) -> FlowImage | None:
+        """The image of `stamp_ns`, else the nearest one within `max_stamp_gap_s` (a detector may have seen a
+        frame that tracking dropped), else None."""
+        if stamp_ns in self._images:
+            return self._images[stamp_ns]
+        if not self._images:
+            return None
+        nearest = min(self._images, key=lambda s: abs(s - stamp_ns))
+        return self._images[nearest] if abs(nearest - stamp_ns) <= self.max_gap_ns else None
 
 
 def _moved_on(

@@ -135,6 +135,14 @@ class TrackingNode(QuietQosEvents, Node):
                                                         "(heights) per second of age"),
             ("detections_carry_extrapolate", False, "... each box first moved on at the velocity of its edges "
                                                    "between the two newest detection sets"),
+            ("detections_carry_flow", False, "... each box first moved by the image motion of its foreground between "
+                                             "the detections' image and the frame (Median Flow, core.box_flow); "
+                                             "a box whose motion is not measured is carried as without"),
+            ("detections_carry_flow_grow_widths_per_s", 0.25, "detections_carry_flow: a moved box is grown by this "
+                                                              "many widths (heights) per second of age instead"),
+            ("detections_carry_flow_max_stamp_gap_s", 0.07, "detections_carry_flow: without an image of the "
+                                                            "detections' stamp (a frame tracking dropped), the "
+                                                            "nearest kept one this close is used"),
             ("detections_carry_class_ids", [0], "... only boxes of these COCO classes (person: a static object's "
                                                 "box carried while the camera turns only hides static keypoints)"),
             ("detections_skip_late", False, "do not wait for a frame's detections while the last "
@@ -183,11 +191,15 @@ class TrackingNode(QuietQosEvents, Node):
         self._acked_early: set[int] = set()  # frames acked while held for the first camera_info
         self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
         self._previous_detections: Any | None = None  # the one before it (the carried boxes' velocities)
-        from changing_slam_ros.core.late_detections import CarryConfig
+        from changing_slam_ros.core.late_detections import CarryConfig, RecentImages
 
         self._carry = CarryConfig(p["detections_carry_max_age_s"], p["detections_carry_grow_widths_per_s"],
                                   tuple(int(c) for c in p["detections_carry_class_ids"]),
-                                  extrapolate=p["detections_carry_extrapolate"])  # fmt: skip
+                                  extrapolate=p["detections_carry_extrapolate"], flow=p["detections_carry_flow"],
+                                  flow_grow_widths_per_s=p["detections_carry_flow_grow_widths_per_s"])  # fmt: skip
+        # detections_carry_flow: grey + depth of the recent frames, by stamp (the carried boxes' image motion)
+        self._recent_images = RecentImages(p["detections_carry_max_age_s"], p["detections_carry_flow_max_stamp_gap_s"])
+        self.carry_cpu_ms: list[float] = []  # CPU of carrying boxes forward (with flow: measuring their motion)
         self.frames_with_carried_detections = 0
         self._finished = False
 
@@ -348,9 +360,16 @@ class TrackingNode(QuietQosEvents, Node):
 
         if self._newest_detections is None or self._carry.max_age_s <= 0:
             return None
-        carried = carried_forward(self._newest_detections, stamp_ns, self._carry, self._previous_detections)
+        c0 = time.process_time()
+        images = None
+        if self._carry.flow:
+            before = self._recent_images.get(self._newest_detections.stamp_ns)
+            after = self._recent_images.get(stamp_ns)
+            images = (before, after) if before is not None and after is not None else None
+        carried = carried_forward(self._newest_detections, stamp_ns, self._carry, self._previous_detections, images)
         if carried is not None:
             self.frames_with_carried_detections += 1
+            self.carry_cpu_ms.append((time.process_time() - c0) * 1e3)
         return carried
 
     def on_map_update(self, msg: MapUpdate) -> None:
@@ -575,6 +594,10 @@ class TrackingNode(QuietQosEvents, Node):
             self._warn_once("no_backend", "tracking: in_process_backend:=false: frames pair and convert, no poses")
             self._ack(item.rgb_msg.header)
             return
+        if self._carry.flow and self._carry.max_age_s > 0 and self.backend.wants_detections:
+            from changing_slam_ros.core.box_flow import FlowImage  # boxes carried from or to this frame later
+
+            self._recent_images.add(FlowImage.from_rgb(frame.stamp_ns, frame.rgb, frame.depth_m))
         dets = self.detections.pop(item.stamp_ns, None)
         used = None if dets is None else dets.detections
         if dets is None and self.backend.wants_detections:
@@ -662,6 +685,7 @@ class TrackingNode(QuietQosEvents, Node):
             "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
             "frames_without_detections": self.frames_without_detections,
             "frames_with_carried_detections": self.frames_with_carried_detections,
+            "carry_cpu_ms_mean": float(np.mean(self.carry_cpu_ms)) if self.carry_cpu_ms else None,
             "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
             "frames_not_waited_for_late_detections": self.frames_not_waited,
             "latency_ms_median": float(np.median(lat)) if lat.size else None,

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
+import numpy as np
 import pytest
 
+from changing_slam_ros.core.box_flow import BoxFlowConfig, FlowImage, box_motion, grid_points
 from changing_slam_ros.core.detector import Detection, DetectionSet
-from changing_slam_ros.core.late_detections import CarryConfig, carried_forward
+from changing_slam_ros.core.late_detections import CarryConfig, RecentImages, carried_forward
 
 MS = 1_000_000
 
@@ -58,3 +61,77 @@ def test_extrapolation_needs_a_close_match_of_the_same_class_and_clamps_the_spee
     # 30 px in 10 ms is 3000 px/s: clamped to 4 widths/s (200 px/s in x), so +30 px after 0.15 s, not +450.
     jump = DetectionSet(1090 * MS, (Detection((90.0, 50.0, 140.0, 150.0), 0, 0.9),), 320, 240)
     assert carried_forward(newer, 1250 * MS, cfg, jump)[0].box_xyxy == pytest.approx((150.0, 50.0, 200.0, 150.0))
+
+
+# -- carried boxes moved by the image motion (core.box_flow) ------------------------------------------------------
+
+
+def _textured_person(shift_xy: tuple[int, int], scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A 320x240 grey image: a flat wall (depth 4 m) and a textured 50x80 px 'person' (depth 2 m) whose top-left
+    corner is at (100, 60) + shift, resized by `scale` about that corner; returns (grey, depth)."""
+    rng = np.random.default_rng(7)
+    patch = cv2.GaussianBlur(rng.integers(0, 256, (80, 50)).astype(np.uint8), (5, 5), 1.5)
+    if scale != 1.0:
+        patch = cv2.resize(patch, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+    grey = np.full((240, 320), 90, np.uint8)
+    depth = np.full((240, 320), 4.0, np.float32)
+    x, y = 100 + shift_xy[0], 60 + shift_xy[1]
+    grey[y : y + patch.shape[0], x : x + patch.shape[1]] = patch
+    depth[y : y + patch.shape[0], x : x + patch.shape[1]] = 2.0
+    return grey, depth
+
+
+def test_a_carried_box_moves_with_the_image_motion_of_the_person_inside_it():
+    before, depth = _textured_person((0, 0))
+    after, _ = _textured_person((9, -5))  # the person moved 9 px right and 5 px up in the 0.12 s since
+    earlier = DetectionSet(1000 * MS, (Detection((100.0, 60.0, 150.0, 140.0), 0, 0.9),), 320, 240)
+    images = (FlowImage(1000 * MS, before, depth), FlowImage(1120 * MS, after, None))
+    cfg = CarryConfig(flow=True, flow_grow_widths_per_s=0.0)
+    (moved,) = carried_forward(earlier, 1120 * MS, cfg, images=images)
+    assert moved.box_xyxy == pytest.approx((109.0, 55.0, 159.0, 135.0), abs=1.0)
+    # The moved box is grown by flow_grow_widths_per_s: 0.12 s x 0.25 = 3 % of the width / height per side.
+    (grown,) = carried_forward(earlier, 1120 * MS, CarryConfig(flow=True, flow_grow_widths_per_s=0.25), images=images)
+    assert grown.box_xyxy == pytest.approx((107.5, 52.6, 160.5, 137.4), abs=1.0)
+    # Without flow (or without images) the box stays where it was, grown by grow_widths_per_s.
+    (still,) = carried_forward(earlier, 1120 * MS, CarryConfig(grow_widths_per_s=0.0, flow=False), images=images)
+    assert still.box_xyxy == pytest.approx((100.0, 60.0, 150.0, 140.0))
+
+
+def test_the_box_motion_measures_a_shift_and_a_scale_change_on_the_foreground_only():
+    before, depth = _textured_person((0, 0))
+    after, _ = _textured_person((4, 3), scale=1.1)  # the person came closer: 10 % larger
+    motion = box_motion((100.0, 60.0, 150.0, 140.0), FlowImage(0, before, depth), FlowImage(1, after), BoxFlowConfig())
+    assert motion is not None and motion.n_points >= 30
+    assert motion.scale == pytest.approx(1.1, abs=0.02)
+    # the box's centre (125, 100) maps to (104 + 1.1 x 25, 63 + 1.1 x 40) = (131.5, 107)
+    x0, y0, x1, y1 = motion.apply((100.0, 60.0, 150.0, 140.0))
+    assert ((x0 + x1) / 2, (y0 + y1) / 2) == pytest.approx((131.5, 107.0), abs=1.0)
+    # A box twice the person's width: the wall beside the person (2 m behind it) is not tracked.
+    assert len(grid_points((75.0, 60.0, 175.0, 140.0), FlowImage(0, before, depth), BoxFlowConfig())) == 32
+
+
+def test_without_texture_the_box_falls_back_to_the_grown_box():
+    flat = np.full((240, 320), 90, np.uint8)
+    earlier = DetectionSet(1000 * MS, (Detection((100.0, 60.0, 150.0, 140.0), 0, 0.9),), 320, 240)
+    images = (FlowImage(1000 * MS, flat), FlowImage(1100 * MS, flat))
+    cfg = CarryConfig(grow_widths_per_s=1.0, flow=True, flow_grow_widths_per_s=0.0)
+    assert box_motion((100.0, 60.0, 150.0, 140.0), images[0], images[1], BoxFlowConfig()) is None
+    (carried,) = carried_forward(earlier, 1100 * MS, cfg, images=images)
+    assert carried.box_xyxy == pytest.approx((95.0, 52.0, 155.0, 148.0))  # grown by 1 width/s x 0.1 s
+    # No valid depth in the box: no foreground points, no motion either.
+    textured, _ = _textured_person((0, 0))
+    no_depth = np.zeros((240, 320), np.float32)
+    assert box_motion((100.0, 60.0, 150.0, 140.0), FlowImage(0, textured, no_depth), FlowImage(1, textured),
+                      BoxFlowConfig()) is None  # fmt: skip
+
+
+def test_the_recent_images_keep_max_age_and_find_the_nearest_stamp():
+    ring = RecentImages(max_age_s=0.1, max_stamp_gap_s=0.02)
+    grey = np.zeros((4, 4), np.uint8)
+    for ms in (0, 33, 67, 100, 133):
+        ring.add(FlowImage(ms * MS, grey))
+    assert len(ring) == 4  # 0 ms is more than 0.1 s before 133 ms
+    assert ring.get(0) is None
+    assert ring.get(67 * MS).stamp_ns == 67 * MS
+    assert ring.get(80 * MS).stamp_ns == 67 * MS  # a frame tracking dropped: the nearest within 20 ms
+    assert ring.get(200 * MS) is None  # 67 ms from the newest: no image of that frame
