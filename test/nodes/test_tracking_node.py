@@ -356,3 +356,53 @@ def test_lossless_frames_before_the_first_camera_info_wait_for_it_and_real_time_
     else:
         assert node.published_poses == 0 and len(node.queue) == 0
     node.destroy_node()
+
+
+def test_real_time_carried_boxes_move_with_the_image_motion_when_detections_carry_flow_is_on(ros_context):
+    """detections_carry_flow: the node keeps its frames' grey and depth by stamp, and a frame tracked before its
+    own detections get the boxes of frame 0 moved by the image motion between frame 0 and it (what
+    `carried_forward` gives on the dataset's own images, to 0.5 px), not the boxes left where they were."""
+    import itertools
+
+    from helpers import FR1_XYZ_10, require
+
+    from changing_slam_ros.core.box_flow import FlowImage
+    from changing_slam_ros.core.detector import Detection as CoreDetection
+    from changing_slam_ros.core.detector import DetectionSet
+    from changing_slam_ros.core.late_detections import CarryConfig, carried_forward
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(itertools.islice(iter(src), 8))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("dynamic", value="on"), Parameter("frame_policy", value="latest"),
+        Parameter("detections_carry_flow", value=True), Parameter("detections_carry_flow_grow_widths_per_s", value=0.0),
+        Parameter("detections_carry_grow_widths_per_s", value=0.0), Parameter("debug_image", value=False),
+    ])  # fmt: skip
+    used: list = []
+    process = node.backend.system.process
+    node.backend.system.process = lambda frame, dets: used.append(dets) or process(frame, dets)
+    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
+    box = (250.0, 150.0, 400.0, 400.0)
+    for k, f in enumerate(frames):
+        node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
+        node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
+        if k == 0:  # frame 0's detections come after it was tracked
+            x0, y0, x1, y1 = box
+            node.on_detections(DetectionArray(header=cv.make_header(f.stamp_ns, "camera"), width=640, height=480,
+                                              detections=[Detection(x=x0, y=y0, w=x1 - x0, h=y1 - y0, class_id=0,
+                                                                    score=0.9)]))  # fmt: skip
+    assert node.frames_in == 8 and node.frames_with_carried_detections == 7 and len(node.carry_cpu_ms) == 7
+    assert len(node._recent_images) == 8  # noqa: SLF001 - 0.27 s of frames, all within detections_carry_max_age_s
+    earlier = DetectionSet(frames[0].stamp_ns, (CoreDetection(box, 0, 0.9),), 640, 480)
+    first = FlowImage.from_rgb(frames[0].stamp_ns, frames[0].rgb, frames[0].depth_m)
+    cfg = CarryConfig(grow_widths_per_s=0.0, flow=True, flow_grow_widths_per_s=0.0)
+    moved = 0.0
+    for k in range(1, 8):
+        (carried,) = used[k]
+        later = FlowImage.from_rgb(frames[k].stamp_ns, frames[k].rgb, frames[k].depth_m)
+        (expected,) = carried_forward(earlier, frames[k].stamp_ns, cfg, images=(first, later))
+        assert carried.box_xyxy == pytest.approx(expected.box_xyxy, abs=0.5)
+        moved = max(moved, float(np.max(np.abs(np.subtract(carried.box_xyxy, box)))))
+    assert moved > 2.0, moved  # the hand-held camera moved the scene by pixels; the boxes followed (no growth)
+    node.destroy_node()
