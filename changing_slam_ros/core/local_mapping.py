@@ -45,7 +45,9 @@ class MappingConfig:
       `ba_disparity_sigma_ratio`: sigma of a keypoint's depth as disparity bf / depth, in units of its pixel sigma
       (`backend.local_ba.stereo_noise`): a property of the depth sensor. 1 (default) weighs a Kinect-class depth
       about as ORB-SLAM's virtual stereo does (0 = exactly ORB-SLAM's independent u_l, u_r, v); the simulator's
-      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5.
+      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5. `ba_solver`: "gtsam"
+      (its Levenberg-Marquardt) or "schur" (`backend.schur_lm`: the same cost and LM policy in numpy, points
+      eliminated first; docs/architecture.md, "Session 9: local mapping CPU").
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
     - `triangulation`: points from depth-less keypoints (nested section, see `TriangulationConfig`).
@@ -63,6 +65,7 @@ class MappingConfig:
     ba_iterations: int = 5
     ba_max_points: int = 3000
     ba_disparity_sigma_ratio: float = 1.0
+    ba_solver: str = "gtsam"
     keyframe_culling: bool = True
     redundancy: float = 0.9
     fuse_neighbours: int = 10
@@ -142,6 +145,7 @@ class LocalMapper:
         return LocalBAConfig(
             self.cfg.ba_window, self.cfg.ba_max_fixed, self.cfg.ba_iterations, self.cfg.ba_max_points,
             self.fcfg.bf_m_px, tuple(float(s) for s in self.scales), self.cfg.ba_disparity_sigma_ratio,
+            self.cfg.ba_solver,
         )
 
     def _fuse(self, kf: Keyframe) -> int:

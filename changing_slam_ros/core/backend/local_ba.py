@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 from gtsam.symbol_shorthand import L, X
 
+from changing_slam_ros.core.backend import schur_lm
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.pose_optimizer import CHI2_MONO, CHI2_STEREO
 from changing_slam_ros.core.slam_map import SlamMap
@@ -49,7 +50,9 @@ class LocalBAConfig:
     optimised at most, those with the most observations in the window first (the solver's cost grows
     with the number of variables: gtsam spends ~0.1 ms per variable per linear solve here); `level_scales`: pyramid
     scales, set by the caller from the feature config; `bf_m_px`: virtual stereo baseline * fx;
-    `disparity_sigma_ratio`: sigma of the depth as disparity, in units of the keypoint's sigma (`stereo_noise`)."""
+    `disparity_sigma_ratio`: sigma of the depth as disparity, in units of the keypoint's sigma (`stereo_noise`);
+    `solver`: "gtsam" (its Levenberg-Marquardt on the factor graph) or "schur" (`schur_lm`: the same cost and LM
+    policy in numpy, points eliminated by the Schur complement; not bit-identical to gtsam)."""
 
     n_window: int = 10
     max_fixed: int = 10
@@ -58,6 +61,14 @@ class LocalBAConfig:
     bf_m_px: float = 40.0
     level_scales: tuple[float, ...] = tuple(1.2**i for i in range(8))
     disparity_sigma_ratio: float = 1.0
+    solver: str = "gtsam"
+
+    def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise ValueError(f"local BA solver {self.solver!r}: expected one of {SOLVERS}")
+
+
+SOLVERS = ("gtsam", "schur")
 
 
 @dataclass(frozen=True)
@@ -328,6 +339,54 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig,
         return LocalBAResult(len(local), len(fixed), 0, 0, 0.0, 0.0, 0)
     poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
     e2_before, _ = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales)
+    if cfg.solver == "schur":
+        problem = schur_problem(slam_map, local, fixed, keep_pts, obs, cam, cfg)
+        res = schur_lm.solve(problem, schur_lm.LMSettings(iterations=cfg.iterations), stop)
+        before = {k: slam_map.keyframes[k].T_world_cam for k in local}
+        for i, k in enumerate(local):
+            slam_map.keyframes[k].T_world_cam = res.T_world_cam[i]
+        slam_map.points.positions[keep_pts] = res.points
+        iterations, stopped = res.iterations, res.stopped
+    else:
+        before, iterations, stopped = _solve_gtsam(slam_map, local, fixed, keep_pts, obs, cam, cfg, stop, factors)
+        if before is None:  # gtsam failed: the map is as it was
+            return LocalBAResult(len(local), len(fixed), len(keep_pts), len(obs.kf_ids), 0.0, 0.0, 0)
+    carry_lone_points(slam_map, before)
+    poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
+    e2_after, chi2 = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales,
+                                       cfg.disparity_sigma_ratio)
+    th = np.where(obs.u_right >= 0, CHI2_STEREO, CHI2_MONO)
+    bad = np.flatnonzero(chi2 > th)
+    for i in bad.tolist():
+        slam_map.erase_observation(int(obs.kf_ids[i]), int(obs.kp_index[i]))
+    return LocalBAResult(
+        len(local), len(fixed), len(keep_pts), len(obs.kf_ids),
+        float(np.sqrt(e2_before.mean())), float(np.sqrt(e2_after.mean())), len(bad), iterations, stopped,
+    )
+
+
+def schur_problem(slam_map: SlamMap, local: list[int], fixed: list[int], keep_pts: npt.NDArray[np.int64], obs: Observations,
+                  cam: CameraIntrinsics, cfg: LocalBAConfig) -> schur_lm.BAProblem:
+    """The window as `schur_lm`'s problem: the same variables, measurements and noise as the gtsam graph."""
+    all_kfs = np.asarray(local + fixed, np.int64)
+    order = np.argsort(all_kfs, kind="stable")
+    pose_idx = order[np.searchsorted(all_kfs[order], obs.kf_ids)]
+    return schur_lm.BAProblem(
+        np.stack([slam_map.keyframes[k].T_world_cam for k in all_kfs.tolist()]), len(local),
+        slam_map.points.positions[keep_pts].astype(np.float64), pose_idx, np.searchsorted(keep_pts, obs.point_ids),
+        obs.uv, obs.u_right, np.asarray(cfg.level_scales, np.float64)[obs.level], cam.fx, cam.fy, cam.cx, cam.cy,
+        cfg.bf_m_px, cfg.disparity_sigma_ratio, float(np.sqrt(CHI2_STEREO)), float(np.sqrt(CHI2_MONO)),
+    )
+
+
+def _solve_gtsam(slam_map: SlamMap, local: list[int], fixed: list[int], keep_pts: npt.NDArray[np.int64], obs: Observations,
+                 cam: CameraIntrinsics, cfg: LocalBAConfig, stop: Callable[[], bool] | None,
+                 factors: FactorCache | None) -> tuple[dict[int, F64] | None, int, bool]:
+    """gtsam's LM on the window's factor graph; writes the result into the map. Returns (poses of `local` before,
+    or None when gtsam failed and nothing was written, iterations, stopped)."""
+    scales = np.asarray(cfg.level_scales)
+    all_kfs = local + fixed
+    poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
 
     # 3. Graph: fixed poses (they fix the gauge), robust reprojection factors.
     graph = gtsam.NonlinearFactorGraph()
@@ -352,24 +411,13 @@ def local_bundle_adjust(slam_map: SlamMap, kf_id: int, cfg: LocalBAConfig,
         result, iterations, stopped = optimise(graph, values, params, stop)
     except RuntimeError:
         # Cheirality or an indeterminate system: keep the map as it was.
-        return LocalBAResult(len(local), len(fixed), len(keep_pts), len(obs.kf_ids), 0.0, 0.0, 0)
+        return None, -1, False
 
-    # 5. Write back, then erase outlier observations.
+    # 5. Write back (the caller erases outlier observations).
     before = {k: slam_map.keyframes[k].T_world_cam for k in local}
     for k in local:
         slam_map.keyframes[k].T_world_cam = result.atPose3(X(k)).matrix()
     at_point = result.atPoint3
     new_pos = np.array([at_point(key) for key in l_keys])
     slam_map.points.positions[keep_pts] = new_pos
-    carry_lone_points(slam_map, before)
-    poses = {k: slam_map.keyframes[k].T_world_cam for k in all_kfs}
-    e2_after, chi2 = reprojection_chi2(poses, slam_map.points.positions, obs, cam.fx, cam.fy, cam.cx, cam.cy, cfg.bf_m_px, scales,
-                                       cfg.disparity_sigma_ratio)
-    th = np.where(obs.u_right >= 0, CHI2_STEREO, CHI2_MONO)
-    bad = np.flatnonzero(chi2 > th)
-    for i in bad.tolist():
-        slam_map.erase_observation(int(obs.kf_ids[i]), int(obs.kp_index[i]))
-    return LocalBAResult(
-        len(local), len(fixed), len(keep_pts), len(obs.kf_ids),
-        float(np.sqrt(e2_before.mean())), float(np.sqrt(e2_after.mean())), len(bad), iterations, stopped,
-    )
+    return before, iterations, stopped
