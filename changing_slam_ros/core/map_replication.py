@@ -337,9 +337,14 @@ def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
     if len(pr):
         for name, _, _ in POINT_COLUMNS:
             getattr(pts, name)[pr.ids] = pr.columns[name]
-        for pid, kfs, kps in zip(pr.ids.tolist(), _split(pr.obs_counts, pr.obs_kf_ids),
-                                 _split(pr.obs_counts, pr.obs_kp_indices), strict=True):  # fmt: skip
-            pts.observations[pid] = dict(zip(kfs.tolist(), kps.tolist(), strict=True))
+        # Python lists sliced per point: one array per point (np.split) costs more than the dict it fills.
+        kf_ids, kp_indices = pr.obs_kf_ids.tolist(), pr.obs_kp_indices.tolist()
+        if len(kf_ids) != len(kp_indices) or sum(pr.obs_counts.tolist()) != len(kf_ids):
+            raise ReplicationError(f"map update for map {m.id}: observation arrays do not match their counts")
+        end = 0
+        for pid, count in zip(pr.ids.tolist(), pr.obs_counts.tolist(), strict=True):
+            start, end = end, end + count
+            pts.observations[pid] = dict(zip(kf_ids[start:end], kp_indices[start:end]))
     # 2. Keyframes: pose, per-keypoint ids and labels, links.
     kr = delta.keyframes
     offsets = np.concatenate([[0], np.cumsum(kr.n_keypoints)]).astype(np.int64)
