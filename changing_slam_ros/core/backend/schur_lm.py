@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+import scipy.sparse
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -109,6 +110,7 @@ class _Whitening:
             Ws = np.eye(3)
         Wm = np.diag([1.0, 0.0, 1.0])
         self.W = np.where(stereo[:, None, None], Ws, Wm) / p.sigma_px[:, None, None]
+        self.W_cm = np.ascontiguousarray(self.W.transpose(1, 2, 0))  # (3, 3, E)
         self.k = np.where(stereo, p.k_stereo, p.k_mono)
         self.stereo = stereo
 
@@ -126,38 +128,73 @@ def _residuals(p: BAProblem, wh: _Whitening, R_cw: F64, t_cw: F64, points: F64) 
 
 
 class _Sums:
-    """Per-observation blocks summed by point, by free pose, and H_lx scattered densely; the index arrays of
-    `np.bincount` built once per problem (the structure does not change between iterations)."""
+    """Per-observation blocks, stored component-major (..., E), summed by point and by free pose (sparse 0/1
+    matrix products: no BLAS, see `_reduce`), and H_lx scattered densely; all built once per problem (the
+    structure of the problem does not change between iterations)."""
 
     def __init__(self, point_idx: I64, pose_idx: I64, free: npt.NDArray[np.bool_], P: int, F: int) -> None:
+        E = len(point_idx)
         self.P, self.F = P, F
-        self.free = free
-        self._flat: dict[tuple[str, int], I64] = {}
-        self._idx = {"point": point_idx, "pose": np.where(free, pose_idx, F)}  # fixed poses' rows into a spare bin
-        rows = (3 * point_idx)[:, None, None] + np.arange(3)[None, :, None]
-        cols = (6 * pose_idx)[:, None, None] + np.arange(6)[None, None, :]
-        self._lx = (rows * (6 * F) + cols)[free].ravel()
-
-    def _sum(self, which: str, n: int, vals: F64) -> F64:
-        m = int(np.prod(vals.shape[1:]))
-        flat = self._flat.get((which, m))
-        if flat is None:
-            flat = (self._idx[which][:, None] * m + np.arange(m)).ravel()
-            self._flat[(which, m)] = flat
-        out = np.bincount(flat, vals.reshape(len(vals), m).ravel(), minlength=(n + 1) * m)
-        return out[: n * m].reshape(n, *vals.shape[1:])
+        self._by_point = scipy.sparse.csr_matrix((np.ones(E), (point_idx, np.arange(E))), shape=(P, E))
+        self._by_pose = scipy.sparse.csr_matrix(  # fixed poses' observations dropped
+            (np.ones(int(free.sum())), (pose_idx[free], np.flatnonzero(free))), shape=(F, E))
+        self._free = np.flatnonzero(free)
+        rows = (3 * point_idx[free])[None, None, :] + np.arange(3)[:, None, None]
+        cols = (6 * pose_idx[free])[None, None, :] + np.arange(6)[None, :, None]
+        self._lx = (rows * (6 * F) + cols).ravel()
+        pairs = point_idx[free] * max(F, 1) + pose_idx[free]
+        self._lx_unique = len(np.unique(pairs)) == len(pairs)  # no keyframe sees a point twice
 
     def by_point(self, vals: F64) -> F64:
-        return self._sum("point", self.P, vals)
+        """(..., E) -> (P, ...)."""
+        shape = vals.shape[:-1]
+        return np.asarray(self._by_point @ vals.reshape(-1, vals.shape[-1]).T).reshape(self.P, *shape)
 
     def by_pose(self, vals: F64) -> F64:
-        """Sums over the observations of each free pose (those of fixed poses dropped)."""
-        return self._sum("pose", self.F, vals)
+        """(..., E) -> (F, ...): sums over the observations of each free pose."""
+        shape = vals.shape[:-1]
+        return np.asarray(self._by_pose @ vals.reshape(-1, vals.shape[-1]).T).reshape(self.F, *shape)
 
     def lx_blocks(self, blocks: F64) -> F64:
-        """(E, 3, 6) blocks of free poses -> H_lx (P, 3, 6F)."""
-        out = np.bincount(self._lx, blocks[self.free].ravel(), minlength=3 * self.P * 6 * self.F)
+        """(3, 6, E) blocks (those of free poses used) -> H_lx (P, 3, 6F)."""
+        vals = blocks.reshape(18, -1)[:, self._free].ravel()
+        if self._lx_unique:
+            out = np.zeros(3 * self.P * 6 * self.F)
+            out[self._lx] = vals
+        else:
+            out = np.bincount(self._lx, vals, minlength=3 * self.P * 6 * self.F)
         return out.reshape(self.P, 3, 6 * self.F)
+
+
+def _mm(A: F64, B: F64) -> F64:
+    """Per-observation 3x3 @ 3xk products, component-major: (3, 3, E) @ (3, k, E) -> (3, k, E)."""
+    out = np.empty((3, B.shape[1], A.shape[2]))
+    for i in range(3):
+        out[i] = A[i, 0] * B[0] + A[i, 1] * B[1] + A[i, 2] * B[2]
+    return out
+
+
+# OpenBLAS runs a matrix product on one thread below M N K = 2**18; a second thread only spins on this 2-core
+# machine (the graph sets OPENBLAS_NUM_THREADS=1, `changing-slam run` does not): ~40x slower under load for the
+# (6F, 3P) @ (3P, 6F) product. So it is summed in blocks of points below that size.
+_BLAS_ONE_THREAD_MNK = 2**18
+
+
+def _reduce(H_lx: F64, Hinv_lx: F64, Hinv_g: F64) -> tuple[F64, F64]:
+    """sum_p H_lx_p^T H_ll_p^-1 H_lx_p (6F, 6F) and sum_p H_lx_p^T H_ll_p^-1 g_l_p (6F,), in blocks of points."""
+    P, _, n = H_lx.shape
+    right = np.concatenate([Hinv_lx, Hinv_g[:, :, None]], axis=2)
+    step = max(1, _BLAS_ONE_THREAD_MNK // (3 * n * (n + 1)))
+    out = np.zeros((n, n + 1))
+    for i in range(0, P, step):
+        out += H_lx[i : i + step].reshape(-1, n).T @ right[i : i + step].reshape(-1, n + 1)
+    return out[:, :n], out[:, n]
+
+
+def _skew_cm(v: F64) -> F64:
+    """(3, E) -> (3, 3, E) cross-product matrices, component-major."""
+    z = np.zeros(v.shape[1])
+    return np.array([[z, -v[2], v[1]], [v[2], z, -v[0]], [-v[1], v[0], z]])
 
 
 def _cost(r: F64, k: F64) -> float:
@@ -195,35 +232,36 @@ def solve(p: BAProblem, settings: LMSettings, stop: Callable[[], bool] | None = 
         R_cw, _ = camera(R_wc, t_wc)
         n = np.linalg.norm(r, axis=1)
         sw = np.sqrt(np.where(n <= wh.k, 1.0, wh.k / np.maximum(n, 1e-300)))
-        z = np.where(front, pc[:, 2], 1.0)
-        x, y = pc[:, 0], pc[:, 1]
-        J = np.zeros((len(z), 3, 3))  # d(u_l, u_r, v) / d pc
-        J[:, 0, 0] = J[:, 1, 0] = p.fx / z
-        J[:, 0, 2] = -p.fx * x / z**2
-        J[:, 1, 2] = -(p.fx * x - p.bf) / z**2
-        J[:, 2, 1] = p.fy / z
-        J[:, 2, 2] = -p.fy * y / z**2
-        J *= (front * sw)[:, None, None]
-        C = wh.W @ J  # d r / d pc, whitened and reweighted (E, 3, 3)
+        # Component-major (3, ..., E): numpy's batched 3x3 matmul costs ~2.5x the explicit sums (`_mm`).
+        pcs = np.ascontiguousarray(pc.T)
+        z = np.where(front, pcs[2], 1.0)
+        f = front * sw / z
+        zero = np.zeros(len(z))
+        J = np.array([[p.fx * f, zero, -p.fx * pcs[0] * f / z], [p.fx * f, zero, -(p.fx * pcs[0] - p.bf) * f / z],
+                      [zero, p.fy * f, -p.fy * pcs[1] * f / z]])  # d(u_l, u_r, v) / d pc  # fmt: skip
+        C = _mm(wh.W_cm, J)  # d r / d pc, whitened and reweighted (3, 3, E)
         b = -(sw[:, None] * r)  # the linear model: minimise |A dx - b|^2
         # A_l = C R_cw, A_x = C [S, -I] with S = [pc]x (pc' = pc + [pc]x omega - v): every block of A^T A from
         # Q = C^T C, every block of A^T b from c = C^T b.
-        Rg = R_cw[p.pose_idx]
-        RgT = np.transpose(Rg, (0, 2, 1))
-        Q = np.transpose(C, (0, 2, 1)) @ C
-        c = np.einsum("nki,nk->ni", C, b)
-        QS = Q @ _skew(pc)
-        H_ll = sums.by_point(RgT @ Q @ Rg)
-        g_l = sums.by_point(np.einsum("nij,nj->ni", RgT, c))
-        H_x_obs = np.empty((len(b), 6, 6))
-        H_x_obs[:, :3, :3] = -_skew(pc) @ QS  # S^T = -S
-        H_x_obs[:, :3, 3:] = -np.transpose(QS, (0, 2, 1))
-        H_x_obs[:, 3:, :3] = -QS
-        H_x_obs[:, 3:, 3:] = Q
+        Rg = np.ascontiguousarray(R_cw[p.pose_idx].transpose(1, 2, 0))  # (3, 3, E)
+        RgT = Rg.transpose(1, 0, 2)
+        Q = _mm(C.transpose(1, 0, 2), C)
+        c = np.einsum("kin,nk->in", C, b)
+        S = _skew_cm(pcs)
+        QS = _mm(Q, S)
+        H_ll = sums.by_point(_mm(RgT, _mm(Q, Rg)))
+        g_l = sums.by_point(np.einsum("ijn,jn->in", RgT, c))
+        H_x_obs = np.empty((6, 6, len(z)))
+        H_x_obs[:3, :3] = -_mm(S, QS)  # S^T = -S
+        H_x_obs[:3, 3:] = -QS.transpose(1, 0, 2)
+        H_x_obs[3:, :3] = -QS
+        H_x_obs[3:, 3:] = Q
         H_xx = sums.by_pose(H_x_obs)
-        g_x = sums.by_pose(np.concatenate([np.cross(c, pc), -c], axis=1))  # S^T c = -(pc x c)
+        g_x = sums.by_pose(np.concatenate([np.cross(c.T, pc).T, -c], axis=0))  # S^T c = -(pc x c)
         # H_lx as a dense (P, 3, 6F) matrix: one 3x6 block per observation of a free pose
-        H_lx_obs = np.concatenate([RgT @ QS, -(RgT @ Q)], axis=2)  # (E, 3, 6)
+        H_lx_obs = np.empty((3, 6, len(z)))
+        H_lx_obs[:, :3] = _mm(RgT, QS)
+        H_lx_obs[:, 3:] = -_mm(RgT, Q)
         H_lx = sums.lx_blocks(H_lx_obs)
         H_xx_dense = np.zeros((6 * F, 6 * F))
         for i in range(F):
@@ -237,9 +275,9 @@ def solve(p: BAProblem, settings: LMSettings, stop: Callable[[], bool] | None = 
                 H_ll_inv = np.linalg.inv(H_ll + lam * np.eye(3))
                 Hinv_lx = H_ll_inv @ H_lx  # (P, 3, 6F)
                 Hinv_g = (H_ll_inv @ g_l[:, :, None])[:, :, 0]  # (P, 3)
-                Hlx2 = H_lx.reshape(3 * P, 6 * F)
-                S = H_xx_dense + lam * np.eye(6 * F) - Hlx2.T @ Hinv_lx.reshape(3 * P, 6 * F)
-                rhs = g_x.ravel() - Hlx2.T @ Hinv_g.ravel()
+                reduced, reduced_g = _reduce(H_lx, Hinv_lx, Hinv_g)
+                S = H_xx_dense + lam * np.eye(6 * F) - reduced
+                rhs = g_x.ravel() - reduced_g
                 dx = np.linalg.solve(S, rhs).reshape(F, 6) if F else np.zeros((0, 6))
                 dl = Hinv_g - np.einsum("pij,j->pi", Hinv_lx, dx.ravel())
                 solved = bool(np.all(np.isfinite(dx)) and np.all(np.isfinite(dl)))
@@ -249,8 +287,8 @@ def solve(p: BAProblem, settings: LMSettings, stop: Callable[[], bool] | None = 
             if solved:
                 assert dx is not None and dl is not None
                 dxo = np.where(free_obs[:, None], dx[obs_pose], 0.0)
-                d_pc = np.einsum("nij,nj->ni", Rg, dl[p.point_idx]) + np.cross(pc, dxo[:, :3]) - dxo[:, 3:]
-                lin = np.einsum("nij,nj->ni", C, d_pc)
+                d_pc = np.einsum("ijn,nj->in", Rg, dl[p.point_idx]) + (np.cross(pc, dxo[:, :3]) - dxo[:, 3:]).T
+                lin = np.einsum("ijn,jn->ni", C, d_pc)
                 lin_change = old_lin - 0.5 * float(np.sum((lin - b) ** 2))
                 R_new, t_new = R_wc.copy(), t_wc.copy()
                 R_new[:F] = R_wc[:F] @ _so3_exp(dx[:, :3])
