@@ -5,8 +5,9 @@
 
 `bench/bench_graph_cpu.py` compares two trees on one config; this compares configs on one tree, e.g. the
 detector's thread count: copies of `config/sim.yaml` with a `detector:` section appended. Runs alternate
-between the configs so that other load on a shared machine hits them alike. The graph runs with
-`--detector-threads -1`, so the detector's thread count is each config's (`graph` alone gives it 1 in real time). Per config it prints the median
+between the configs so that other load on a shared machine hits them alike. `--graph-arg=OPTION` (repeatable) is
+passed to every `graph` run: for thread counts from the configs, `--graph-arg=--detector-threads --graph-arg=-1`
+(in real time `graph` gives the detector one thread whatever the config says). Per config it prints the median
 over runs of the detection rate, CPU per detection, tracking CPU per tracked frame, total CPU per bag frame,
 poses, latency and ATE (`bench_graph_cpu.figures`). Table in docs/dynamic_integration.md, "Session 7: detector
 speed".
@@ -35,6 +36,8 @@ def main() -> None:
     parser.add_argument("configs", nargs="+", help="config names or YAML paths")
     parser.add_argument("--runs", type=int, default=2, help="runs per config (alternating)")
     parser.add_argument("--lossless", action="store_true")
+    parser.add_argument("--graph-arg", action="append", default=[], metavar="OPTION",
+                        help="an option passed to every graph run (repeatable)")
     parser.add_argument("--work", default="", help="folder for the runs (default: a temp dir)")
     a = parser.parse_args()
     work = Path(a.work or tempfile.mkdtemp(prefix="bench_graph_configs_"))
@@ -43,7 +46,7 @@ def main() -> None:
     results: dict[str, list[dict[str, float]]] = {c: [] for c in a.configs}
     for i in range(a.runs):
         for k, config in enumerate(a.configs):
-            s = run_graph(REPO, bag, work / f"run_{k}_{i}", config, a.lossless, ("--detector-threads", "-1"))
+            s = run_graph(REPO, bag, work / f"run_{k}_{i}", config, a.lossless, tuple(a.graph_arg))
             f = figures(s)
             f["detection Hz"] = float(s.get("detection_rate_hz") or float("nan"))
             results[config].append(f)
