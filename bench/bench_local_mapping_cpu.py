@@ -1,12 +1,12 @@
 """CPU per keyframe of local mapping, per stage, in `changing-slam run`: prints figures, asserts nothing.
 
     .venv/bin/python bench/bench_local_mapping_cpu.py BAG [--config sim] [--baseline REF] [--runs 2]
-        [--cprofile N] [--current DIR]
+        [--cprofile N] [--current DIR] [--baseline-config NAME|FILE]
 
 Each run is `changing-slam run BAG --config NAME --out TMP` in a child process (this checkout, and with
 `--baseline` a `git archive REF` of it, alternating) with local mapping's stages wrapped from outside (the
 library is not changed for it), timed in thread CPU time (`time.thread_time_ns`, not wall time: the machine is
-shared). Time is exclusive: a stage called inside another is counted in the innermost one only. Stages:
+shared), with OPENBLAS_NUM_THREADS=1 as in the graph (`changing-slam graph` sets it for its nodes). Time is exclusive: a stage called inside another is counted in the innermost one only. Stages:
 
 - `create`: points from depth (`LocalMapper._create_points`); `triangulate`: from depth-less keypoints;
 - `fuse`: fusion with the covisible keyframes (`_fuse` without the two below); `fuse_search`: its projection
@@ -15,7 +15,8 @@ shared). Time is exclusive: a stage called inside another is counted in the inne
 - `connections`: covisibility updates; `cull_points`, `segmentation`, `cull_keyframes`;
 - `ba_build`: local BA outside the solver and the two helpers below (window, observations, values, write
   back, outlier erasure); `ba_factors`: building the gtsam factors; `ba_chi2`: the two reprojection-error
-  passes; `ba_solve`: gtsam's Levenberg-Marquardt (construction, i.e. initial error and ordering, included);
+  passes; `ba_solve`: gtsam's Levenberg-Marquardt (construction, i.e. initial error and ordering, included),
+  or with `mapping.ba_solver: schur` the numpy solver (`schur_lm.solve`);
 - `other`: the rest of `LocalMapper.process`; `mapping` = the sum of the above (what the local_mapping node's
   `LocalMapper` costs per keyframe); `objects`: the object layer per keyframe (`SlamSystem._after_objects`).
 
@@ -88,6 +89,11 @@ def _instrument(clock: StageClock) -> None:
     # Construction (initial error, COLAMD ordering) is solver work too.
     proxy.LevenbergMarquardtOptimizer = clock.wrap(lambda *a: _TimedOptimizer(lmo(*a), clock), "ba_solve")  # type: ignore[attr-defined]
     local_ba.gtsam = proxy
+    if hasattr(local_ba, "schur_lm"):  # the numpy solver (mapping.ba_solver: schur) is solver work too
+        schur = types.ModuleType("schur_lm_timed")
+        schur.__dict__.update(local_ba.schur_lm.__dict__)
+        schur.solve = clock.wrap(local_ba.schur_lm.solve, "ba_solve")  # type: ignore[attr-defined]
+        local_ba.schur_lm = schur
 
 
 def run_child(bag: str, config: str, out: Path, cprofile: int) -> dict[str, Any]:
@@ -129,7 +135,7 @@ def run_child(bag: str, config: str, out: Path, cprofile: int) -> dict[str, Any]
 
 def run_tree(tree: Path, bag: str, config: str, cprofile: int = 0) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="bench_lm_") as tmp:
-        env = {**os.environ, "PYTHONPATH": str(tree)}
+        env = {**os.environ, "PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1"}  # as the graph's nodes
         cmd = [sys.executable, __file__, bag, "--config", config, "--child", tmp, "--cprofile", str(cprofile)]
         subprocess.run(cmd, check=True, env=env, cwd=tree)
         return json.loads((Path(tmp) / "bench.json").read_text())
@@ -152,6 +158,7 @@ def main() -> int:
     parser.add_argument("bag")
     parser.add_argument("--config", default="sim")
     parser.add_argument("--baseline", metavar="REF", help="git ref to compare with (git archive into a temp folder)")
+    parser.add_argument("--baseline-config", metavar="NAME|FILE", help="config of the baseline runs (default: --config)")
     parser.add_argument("--runs", type=int, default=1)
     parser.add_argument("--cprofile", type=int, default=0, metavar="N", help="print cProfile's top N (own time) of "
                         "one extra run of this tree (overhead included)")  # fmt: skip
@@ -172,9 +179,10 @@ def main() -> int:
             archive_tree(args.baseline, Path(tmp))
         for _ in range(args.runs):
             if args.baseline:
-                base_runs.append(run_tree(Path(tmp), bag, args.config))
+                base_runs.append(run_tree(Path(tmp), bag, args.baseline_config or args.config))
             cur_runs.append(run_tree(Path(args.current), bag, args.config))
-    print(f"{bag}, config {args.config}, {args.runs} run(s) per tree; thread CPU ms per keyframe, median of runs")
+    print(f"{bag}, config {args.config} (baseline {args.baseline_config or args.config}), {args.runs} run(s) per tree; "
+          "thread CPU ms per keyframe, median of runs")
     cur = report("current", cur_runs)
     base = report(f"baseline {args.baseline}", base_runs) if base_runs else None
     if base is not None:

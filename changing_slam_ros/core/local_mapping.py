@@ -45,9 +45,10 @@ class MappingConfig:
       `ba_disparity_sigma_ratio`: sigma of a keypoint's depth as disparity bf / depth, in units of its pixel sigma
       (`backend.local_ba.stereo_noise`): a property of the depth sensor. 1 (default) weighs a Kinect-class depth
       about as ORB-SLAM's virtual stereo does (0 = exactly ORB-SLAM's independent u_l, u_r, v); the simulator's
-      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5. `ba_solver`: "gtsam"
-      (its Levenberg-Marquardt) or "schur" (`backend.schur_lm`: the same cost and LM policy in numpy, points
-      eliminated first; docs/architecture.md, "Session 9: local mapping CPU").
+      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5. `ba_solver`: "schur"
+      (default: `backend.schur_lm`, gtsam's cost and LM policy in numpy, points eliminated first; ~0.3x the CPU,
+      trajectories within 1e-7 m of gtsam's) or "gtsam" (its Levenberg-Marquardt on the factor graph);
+      docs/architecture.md, "Session 9: local mapping CPU".
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
     - `triangulation`: points from depth-less keypoints (nested section, see `TriangulationConfig`).
@@ -65,7 +66,7 @@ class MappingConfig:
     ba_iterations: int = 5
     ba_max_points: int = 3000
     ba_disparity_sigma_ratio: float = 1.0
-    ba_solver: str = "gtsam"
+    ba_solver: str = "schur"
     keyframe_culling: bool = True
     redundancy: float = 0.9
     fuse_neighbours: int = 10

@@ -193,8 +193,8 @@ def test_stop_that_never_fires_gives_gtsams_optimize_bit_for_bit() -> None:
     """`optimise` with a `stop` (asked through gtsam's iteration hook, real time) equals `optimize()` while stop says no."""
     maps = [_build_map(np.random.default_rng(5), pose_noise=0.02, point_noise_m=0.02)[0] for _ in range(2)]
     asked: list[int] = []
-    a = local_bundle_adjust(maps[0], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF))
-    b = local_bundle_adjust(maps[1], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF),
+    a = local_bundle_adjust(maps[0], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF, solver="gtsam"))
+    b = local_bundle_adjust(maps[1], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF, solver="gtsam"),
                             stop=lambda: asked.append(1) is not None)  # always False
     assert not b.stopped and b.iterations >= 2 and len(asked) == b.iterations + 1  # before, and after each
     assert a.rms_after_px == b.rms_after_px
@@ -208,15 +208,15 @@ def test_stop_cuts_the_ba_short_with_what_it_reached() -> None:
     less than by the full BA, never raised; stopped before the first iteration nothing moves."""
     rng_seed = 3
     full_map, poses_true, _ = _build_map(np.random.default_rng(rng_seed), pose_noise=0.02, point_noise_m=0.02)
-    full = local_bundle_adjust(full_map, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF))
+    full = local_bundle_adjust(full_map, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF, solver="gtsam"))
     calls = iter([False, True])  # one iteration, then a keyframe arrives
     m1, _, _ = _build_map(np.random.default_rng(rng_seed), pose_noise=0.02, point_noise_m=0.02)
-    one = local_bundle_adjust(m1, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF), stop=lambda: next(calls))
+    one = local_bundle_adjust(m1, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF, solver="gtsam"), stop=lambda: next(calls))
     assert one.stopped and one.iterations == 1 and full.iterations == -1
     assert full.rms_after_px < one.rms_after_px < one.rms_before_px
     m0, _, _ = _build_map(np.random.default_rng(rng_seed), pose_noise=0.02, point_noise_m=0.02)
     poses0 = [m0.keyframes[k].T_world_cam.copy() for k in range(5)]
-    none = local_bundle_adjust(m0, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF), stop=lambda: True)
+    none = local_bundle_adjust(m0, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF, solver="gtsam"), stop=lambda: True)
     assert none.stopped and none.iterations == 0
     assert all(np.array_equal(poses0[k], m0.keyframes[k].T_world_cam) for k in range(5))
 
@@ -228,7 +228,7 @@ def test_factor_cache_reuses_the_previous_bas_factors_with_the_same_result() -> 
 
     maps = [_build_map(np.random.default_rng(8), pose_noise=0.02, point_noise_m=0.02)[0] for _ in range(2)]
     cache = FactorCache()
-    cfg = LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF)
+    cfg = LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF, solver="gtsam")
     for kf_id in (4, 3, 4):
         local_bundle_adjust(maps[0], kf_id, cfg)
         local_bundle_adjust(maps[1], kf_id, cfg, factors=cache)
@@ -237,7 +237,7 @@ def test_factor_cache_reuses_the_previous_bas_factors_with_the_same_result() -> 
         assert maps[0].keyframes[k].T_world_cam.tobytes() == maps[1].keyframes[k].T_world_cam.tobytes()
     assert maps[0].points.positions.tobytes() == maps[1].points.positions.tobytes()
     reused = cache.reused
-    local_bundle_adjust(maps[1], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF * 2), factors=cache)
+    local_bundle_adjust(maps[1], 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF * 2, solver="gtsam"), factors=cache)
     assert cache.reused == reused
 
 
