@@ -217,7 +217,9 @@ def nearest_depth_around(depth_m: npt.NDArray[np.float32], keypoints_px: F64, ra
     offs = np.arange(-r, r + 1)
     uu = np.clip(u[:, None, None] + offs[None, None, :], 0, w - 1)
     vv = np.clip(v[:, None, None] + offs[None, :, None], 0, h - 1)
-    d = depth_m[vv, uu].reshape(n, -1).astype(np.float64)
+    d = depth_m[vv, uu].reshape(n, -1)  # in the image's float dtype: its minimum converts exactly
+    if not np.issubdtype(d.dtype, np.floating):
+        d = d.astype(np.float64)
     d[d <= 0.0] = np.inf
     out: F64 = np.asarray(d.min(axis=1), dtype=np.float64)
     out[~np.isfinite(out)] = 0.0
@@ -312,7 +314,11 @@ def classify_keypoints(
     full_stats: list[BoxDepthStats | None] = [None] * len(detections)
     for b, i in enumerate(index_of):
         full_usable[i], full_bg[i], full_stats[i] = usable[b], bg_depth[b], stats[b]
-    all_boxes = np.array([d.box_xyxy for d in detections], dtype=np.float64).reshape(-1, 4)
+    if m == len(detections):  # every detection passed the score test: the IoU matrix is the one above
+        all_iou = iou
+    else:
+        all_boxes = np.array([d.box_xyxy for d in detections], dtype=np.float64).reshape(-1, 4)
+        all_iou = iou_matrix(all_boxes, all_boxes)
     return KeypointClassification(
         kp_classes=kp_classes,
         kp_object_class_ids=kp_object,
@@ -320,7 +326,7 @@ def classify_keypoints(
         box_stats=tuple(full_stats),
         box_usable=full_usable,
         box_background_depth_m=full_bg,
-        iou=iou_matrix(all_boxes, all_boxes),
+        iou=all_iou,
     )
 
 

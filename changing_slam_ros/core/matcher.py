@@ -93,45 +93,59 @@ def search_by_projection(
         v = cam.fy * pc[:, 1] / z + cam.cy
     centre_w = -R.T @ t
     view = query.positions_w - centre_w
-    dist = np.linalg.norm(view, axis=1)
+    dist = np.sqrt(np.add.reduce(view * view, axis=1))  # np.linalg.norm(view, axis=1) without its wrapper
     cos_view = np.einsum("ij,ij->i", view, query.normals) / np.maximum(dist, 1e-9)
     ok = (
         (z > 0.05) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
         & (dist >= 0.8 * query.min_dist) & (dist <= 1.2 * query.max_dist) & (cos_view >= 0.5)
     )
     rows = np.flatnonzero(ok)
-    if len(rows) == 0:
+    m = len(rows)
+    if m == 0:
         return ProjectionResult(empty, empty, empty, empty)
     n_levels = len(level_scales)
     log_scale = np.log(level_scales[1]) if n_levels > 1 else 1.0
     level = np.ceil(np.log(query.max_dist[rows] / dist[rows]) / log_scale).astype(np.int64)
-    level = np.clip(level, 0, n_levels - 1)
+    level = np.minimum(np.maximum(level, 0), n_levels - 1)
     radius = radius_px * level_scales[level]
-    uv = np.stack([u[rows], v[rows]], axis=1)
+    u_rows = u[rows]
+    uv = np.stack([u_rows, v[rows]], axis=1)
     k = min(k_nearest, len(feats))
     dd, nn = frame.kd_tree().query(uv, k=k, distance_upper_bound=float(radius.max()))
-    dd = dd.reshape(len(rows), k)
-    nn = nn.reshape(len(rows), k)
-    valid = np.isfinite(dd) & (dd <= radius[:, None])
+    dd = dd.reshape(m, k)
+    nn = nn.reshape(m, k)
+    valid = dd <= radius[:, None]  # missing neighbours come back at distance inf
     nn_safe = np.where(valid, nn, 0)
-    kp_level = feats.octaves[nn_safe]
-    valid &= (kp_level >= level[:, None] - 1) & (kp_level <= level[:, None] + 1)
-    if skip_matched:
-        valid &= frame.point_ids[nn_safe] < 0
-    if bf_m_px > 0:
-        ur_kp = feats.u_right[nn_safe]
-        ur_proj = (u[rows] - bf_m_px / z[rows])[:, None]
-        valid &= (ur_kp < 0) | (np.abs(ur_proj - ur_kp) <= radius[:, None])
-    # Descriptor distances of the valid candidates only (most of the k are out of radius or level).
-    dist_h = np.full(valid.shape, 1 << 20, dtype=np.int64)
+    # 3.-4. The level, "already matched" and stereo tests on the in-radius candidates only (row vr, column vc).
     vr, vc = np.nonzero(valid)
-    dist_h[vr, vc] = hamming(query.descriptors[rows[vr]], feats.descriptors[nn_safe[vr, vc]])
-    order = np.argsort(dist_h, axis=1, kind="stable")
-    best_col = order[:, 0]
-    best = np.take_along_axis(dist_h, best_col[:, None], 1)[:, 0]
-    second = np.take_along_axis(dist_h, order[:, 1:2], 1)[:, 0] if k > 1 else np.full(len(rows), 1 << 20)
-    best_kp = nn_safe[np.arange(len(rows)), best_col]
-    second_kp = nn_safe[np.arange(len(rows)), order[:, 1]] if k > 1 else best_kp
+    kp = nn[vr, vc]
+    lv = level[vr]
+    kp_level = feats.octaves[kp]
+    good = (kp_level >= lv - 1) & (kp_level <= lv + 1)
+    if skip_matched:
+        good &= frame.point_ids[kp] < 0
+    if bf_m_px > 0:
+        ur_kp = feats.u_right[kp]
+        ur_proj = (u_rows - bf_m_px / z[rows])[vr]
+        good &= (ur_kp < 0) | (np.abs(ur_proj - ur_kp) <= radius[vr])
+    vr, vc, kp = vr[good], vc[good], kp[good]
+    # 5. Descriptor distances of the candidates left (most of the k are out of radius or level).
+    dist_h = np.full((m, k), 1 << 20, dtype=np.int64)
+    dist_h[vr, vc] = hamming(query.descriptors[rows[vr]], feats.descriptors[kp])
+    # Best and second best per row in the order of a stable sort: the first minimum, then the first minimum
+    # of the other columns.
+    ar = np.arange(m)
+    best_col = dist_h.argmin(axis=1)
+    best = dist_h[ar, best_col]
+    best_kp = nn_safe[ar, best_col]
+    if k > 1:
+        dist_h[ar, best_col] = 1 << 40
+        second_col = dist_h.argmin(axis=1)
+        second = dist_h[ar, second_col]
+        second_kp = nn_safe[ar, second_col]
+    else:
+        second = np.full(m, 1 << 20)
+        second_kp = best_kp
     same_level = feats.octaves[best_kp] == feats.octaves[second_kp]
     accept = (best <= max_distance) & ~(same_level & (best > ratio * second))
     sel = np.flatnonzero(accept)

@@ -238,11 +238,12 @@ class Tracker:
         ids = last.point_ids[last.tracked_mask()]
         ids = ids[pts.usable()[ids]] if len(ids) else ids
         radius = self.cfg.radius_motion_px * (1.0 if self.velocity is not None and not gap else 2.0)
-        n = self._search(frame, invert(T_wc_pred), ids, radius, ratio=0.9)
+        T_cw_pred = invert(T_wc_pred)
+        n = self._search(frame, T_cw_pred, ids, radius, ratio=0.9)
         if n < self.cfg.min_motion_inliers:
             frame.point_ids[:] = -1
-            n = self._search(frame, invert(T_wc_pred), ids, 2 * radius, ratio=0.9)
-        if n >= self.cfg.min_motion_inliers and self._optimise(frame, invert(T_wc_pred)) >= self.cfg.min_motion_inliers:
+            n = self._search(frame, T_cw_pred, ids, 2 * radius, ratio=0.9)
+        if n >= self.cfg.min_motion_inliers and self._optimise(frame, T_cw_pred) >= self.cfg.min_motion_inliers:
             return True
         # Fallback: brute-force match against the reference keyframe, from the last pose.
         frame.point_ids[:] = -1
@@ -328,10 +329,11 @@ class Tracker:
         local_ids = local_ids[~np.isin(local_ids, matched)]
         radius = self.cfg.radius_local_px * (2.0 if frame.index - self.last_reloc_index < 2 else 1.0)
         self._visible_rows = np.zeros(0, np.int64)
-        self._search(frame, invert(frame.T_world_cam), local_ids, radius, ratio=0.8)
+        T_cw = invert(frame.T_world_cam)
+        self._search(frame, T_cw, local_ids, radius, ratio=0.8)
         visible = np.concatenate([matched, self._visible_rows])
         m.points.n_visible[visible] += 1
-        n = self._optimise(frame, invert(frame.T_world_cam))
+        n = self._optimise(frame, T_cw)
         found = frame.point_ids[frame.point_ids >= 0]
         m.points.n_found[found] += 1
         m.points.last_seen_frame[found] = frame.index
