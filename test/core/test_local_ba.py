@@ -328,3 +328,22 @@ def test_unknown_solver_is_refused() -> None:
 
     with pytest.raises(ValueError, match="solver 'ceres'"):
         LocalBAConfig(solver="ceres")
+
+
+def test_schur_solver_sums_a_point_seen_twice_by_one_keyframe() -> None:
+    """Two keypoints of one keyframe holding the same point are two residuals in gtsam's graph; the Schur
+    solver sums both into the point-pose block too (its scatter path for repeated pairs) and ends where gtsam does."""
+    maps = [_outlier_map(14), _outlier_map(14)]
+    for m in maps:
+        kf = m.keyframes[3]
+        kf.point_ids[1] = kf.point_ids[4]  # keypoint 1 now holds point 4 as well (and loses point 1 in keyframe 3)
+        kf.keypoints_px[1] = kf.keypoints_px[4] + np.float32(0.7)
+        kf.depths_m[1] = kf.depths_m[4]
+    res = [local_bundle_adjust(m, 4, LocalBAConfig(n_window=10, iterations=15, bf_m_px=BF, solver=s), stop=lambda: False)
+           for m, s in zip(maps, ("gtsam", "schur"))]  # fmt: skip
+    assert res[0].iterations == res[1].iterations >= 2
+    np.testing.assert_allclose(res[1].rms_after_px, res[0].rms_after_px, rtol=1e-6)
+    for k in range(5):
+        d = invert(maps[0].keyframes[k].T_world_cam) @ maps[1].keyframes[k].T_world_cam
+        assert np.linalg.norm(d[:3, 3]) < 1e-7
+    assert np.abs(maps[0].points.positions - maps[1].points.positions).max() < 1e-5
