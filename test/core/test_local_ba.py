@@ -306,7 +306,8 @@ def test_schur_cost_is_the_factor_graphs_error() -> None:
 
 
 def test_schur_solver_stops_like_gtsams_loop() -> None:
-    """`stop` with the Schur solver: asked before the first iteration (yes: nothing moves) and after each."""
+    """`stop` with the Schur solver: asked before the first iteration (yes: nothing moves) and after each but
+    the last, as gtsam's iteration hook; while it says no the result is the one without `stop`."""
     def fresh() -> SlamMap:
         return _build_map(np.random.default_rng(13), pose_noise=0.02, point_noise_m=0.02)[0]
 
@@ -319,6 +320,10 @@ def test_schur_solver_stops_like_gtsams_loop() -> None:
     calls = iter([False, True])
     one = local_bundle_adjust(fresh(), 4, cfg, stop=lambda: next(calls))
     full = local_bundle_adjust(fresh(), 4, cfg)
+    asked: list[int] = []
+    never = local_bundle_adjust(fresh(), 4, cfg, stop=lambda: asked.append(1) is not None)  # always False
+    assert not never.stopped and len(asked) == never.iterations + 1  # before, and after each (as gtsam's hook)
+    assert never.rms_after_px == full.rms_after_px
     assert one.stopped and one.iterations == 1 and not full.stopped and full.iterations >= 2
     assert full.rms_after_px < one.rms_after_px < one.rms_before_px
 

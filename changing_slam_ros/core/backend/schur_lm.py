@@ -310,15 +310,14 @@ def solve(p: BAProblem, settings: LMSettings, stop: Callable[[], bool] | None = 
                 break
             lam *= settings.lambda_factor
         iterations += 1
-        if not accepted:
+        # gtsam's iteration hook (`local_ba.optimise`): asked after every iteration but the last, converged or not.
+        if iterations < settings.iterations and stop is not None and stop():
+            stopped = True
+            break
+        if not accepted or iterations >= settings.iterations:
             break
         decrease = prev_error - error
         if decrease <= settings.absolute_tol or decrease <= settings.relative_tol * prev_error:
-            break
-        if iterations >= settings.iterations:
-            break
-        if stop is not None and stop():
-            stopped = True
             break
     return LMResult(_poses_4x4(R_wc[:F], t_wc[:F]), points, error_before, error, iterations, stopped)
 
