@@ -15,8 +15,9 @@ the offline run itself. Prints a table, never asserts.
 A setting is `grow<G>` (grow_widths_per_s G) with `+extrapolate` to move boxes on at their edges' velocity and
 `+flow<F>` to move them by their image motion between the detections' image and the frame (`core.box_flow`)
 and grow a moved box by F widths/s instead (a box whose motion is not measured: as without +flow), e.g.
-`grow0.5+flow0.25`. Detections are computed once per bag (every frame) and reused by every row. With +flow the
-CPU time of `carried_forward` per carried frame (`time.process_time`) is printed too.
+`grow0.5+flow0.25`; `+hull` joins a moved box with where it was before growing. Detections are computed once per
+bag (every frame) and reused by every row. With +flow the CPU time of `carried_forward` per carried frame
+(`time.process_time`) is printed too.
 """
 
 from __future__ import annotations
@@ -52,10 +53,12 @@ def parse_setting(text: str) -> CarryConfig:
     for part in parts[1:]:
         if part == "extrapolate":
             cfg = dataclasses.replace(cfg, extrapolate=True)
+        elif part == "hull":
+            cfg = dataclasses.replace(cfg, flow_hull=True)
         elif part.startswith("flow"):
             cfg = dataclasses.replace(cfg, flow=True, flow_grow_widths_per_s=_number(text, part[4:]))
         else:
-            raise SystemExit(f"--settings {text}: unknown option {part!r}; only +extrapolate and +flow<F>")
+            raise SystemExit(f"--settings {text}: unknown option {part!r}; only +extrapolate, +flow<F>, +hull")
     return cfg
 
 
@@ -125,7 +128,7 @@ def main() -> int:
     parser.add_argument("--cadences", nargs="+", default=["3:4", "3:3", "2:4", "4:5", "3:5"], metavar="EVERY:DELAY",
                         help="detector on every EVERY-th frame, its boxes usable DELAY frames later")
     parser.add_argument("--settings", nargs="+", default=["grow1", "grow0.5", "grow0.5+extrapolate"],
-                        help="carry settings, grow<G>[+extrapolate][+flow<F>]")
+                        help="carry settings, grow<G>[+extrapolate][+flow<F>[+hull]]")
     args = parser.parse_args()
     cadences = [parse_cadence(c) for c in args.cadences]
     settings = {s: parse_setting(s) for s in args.settings}

@@ -47,7 +47,7 @@ class BoxFlowConfig:
 
     grid_side: int = 8
     window_px: int = 9
-    pyramid_levels: int = 2
+    pyramid_levels: int = 3
     max_fb_error_px: float = 1.0
     min_points: int = 6
     foreground_margin_m: float = 0.8

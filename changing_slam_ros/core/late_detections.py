@@ -28,8 +28,11 @@ stamp and of the frame, each carried box is moved by the image motion of its for
 (`core.box_flow`, Median Flow) and then grown by the smaller `flow_grow_widths_per_s` (the moved box is located;
 growing covers the person's limbs and the measurement's error). A box whose motion cannot be measured (no
 texture, no points left after the forward-backward check, no image of the detections' stamp) is carried as
-without `flow`. `RecentImages` keeps the images a tracker needs for it (docs/architecture.md, "Session 9: late
-boxes moved by the image motion").
+without `flow`. `flow_hull` joins the moved box with where it was first (the person's path). `RecentImages` keeps
+the images a tracker needs for it. Off by default: in the replay it lowered the mean ATE on the 30 Hz walking
+bags (wxyz30s 1.22 -> 1.08 cm, walking_halfsphere 3.15 -> 1.22 cm with `flow_grow_widths_per_s` 0.5) but not on
+the 15 Hz sample (0.92 -> 1.00 cm on its three cadences), and `flow_hull` helped on none consistently
+(docs/architecture.md, "Session 9: late boxes moved by the image motion").
 """
 
 from __future__ import annotations
@@ -52,7 +55,8 @@ class CarryConfig:
     max_gap_s: float = 0.5
     max_speed_widths_per_s: float = 4.0
     flow: bool = False
-    flow_grow_widths_per_s: float = 0.25
+    flow_grow_widths_per_s: float = 0.5
+    flow_hull: bool = False
     box_flow: BoxFlowConfig = BoxFlowConfig()
 
 
@@ -78,6 +82,9 @@ def carried_forward(
     for d, motion in zip(carried, motions):
         if motion is not None:
             x0, y0, x1, y1 = motion.apply(d.box_xyxy)
+            if cfg.flow_hull:  # the moved box joined with where it was: the person's path since
+                bx0, by0, bx1, by1 = d.box_xyxy
+                x0, y0, x1, y1 = min(x0, bx0), min(y0, by0), max(x1, bx1), max(y1, by1)
             grow = cfg.flow_grow_widths_per_s * age_s
         else:
             x0, y0, x1, y1 = _moved_on(d, earlier.stamp_ns, age_s, previous, cfg) if cfg.extrapolate else d.box_xyxy

@@ -25,6 +25,9 @@ newest ready one (its detections in, or its wait over) is tracked and the older 
 only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window` detections
 all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once instead of
 waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again.
+A frame tracked without its own detections takes the newest earlier person boxes carried forward
+(`core.late_detections`, `detections_carry_*`: grown with their age; with `detections_carry_flow` first moved by
+their image motion since the detections' image, from a ring of the recent frames' grey and depth images).
 Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto` follows the config's
 `dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults). `map_file`: multi-session
 (`SlamSystem.start_from_map`; see `nodes/split_backend.py`). LoadMap mid-run (local_mapping's ~/load_map, split
@@ -138,8 +141,10 @@ class TrackingNode(QuietQosEvents, Node):
             ("detections_carry_flow", False, "... each box first moved by the image motion of its foreground between "
                                              "the detections' image and the frame (Median Flow, core.box_flow); "
                                              "a box whose motion is not measured is carried as without"),
-            ("detections_carry_flow_grow_widths_per_s", 0.25, "detections_carry_flow: a moved box is grown by this "
-                                                              "many widths (heights) per second of age instead"),
+            ("detections_carry_flow_grow_widths_per_s", 0.5, "detections_carry_flow: a moved box is grown by this "
+                                                             "many widths (heights) per second of age instead"),
+            ("detections_carry_flow_hull", False, "detections_carry_flow: a moved box is first joined with where it "
+                                                  "was (the person's path since its image)"),
             ("detections_carry_flow_max_stamp_gap_s", 0.07, "detections_carry_flow: without an image of the "
                                                             "detections' stamp (a frame tracking dropped), the "
                                                             "nearest kept one this close is used"),
@@ -196,7 +201,8 @@ class TrackingNode(QuietQosEvents, Node):
         self._carry = CarryConfig(p["detections_carry_max_age_s"], p["detections_carry_grow_widths_per_s"],
                                   tuple(int(c) for c in p["detections_carry_class_ids"]),
                                   extrapolate=p["detections_carry_extrapolate"], flow=p["detections_carry_flow"],
-                                  flow_grow_widths_per_s=p["detections_carry_flow_grow_widths_per_s"])  # fmt: skip
+                                  flow_grow_widths_per_s=p["detections_carry_flow_grow_widths_per_s"],
+                                  flow_hull=p["detections_carry_flow_hull"])  # fmt: skip
         # detections_carry_flow: grey + depth of the recent frames, by stamp (the carried boxes' image motion)
         self._recent_images = RecentImages(p["detections_carry_max_age_s"], p["detections_carry_flow_max_stamp_gap_s"])
         self.carry_cpu_ms: list[float] = []  # CPU of carrying boxes forward (with flow: measuring their motion)

@@ -92,6 +92,10 @@ def test_a_carried_box_moves_with_the_image_motion_of_the_person_inside_it():
     # The moved box is grown by flow_grow_widths_per_s: 0.12 s x 0.25 = 3 % of the width / height per side.
     (grown,) = carried_forward(earlier, 1120 * MS, CarryConfig(flow=True, flow_grow_widths_per_s=0.25), images=images)
     assert grown.box_xyxy == pytest.approx((107.5, 52.6, 160.5, 137.4), abs=1.0)
+    # flow_hull: the moved box joined with where it was (the person's path), then grown.
+    (path,) = carried_forward(earlier, 1120 * MS, CarryConfig(flow=True, flow_grow_widths_per_s=0.0, flow_hull=True),
+                              images=images)  # fmt: skip
+    assert path.box_xyxy == pytest.approx((100.0, 55.0, 159.0, 140.0), abs=1.0)
     # Without flow (or without images) the box stays where it was, grown by grow_widths_per_s.
     (still,) = carried_forward(earlier, 1120 * MS, CarryConfig(grow_widths_per_s=0.0, flow=False), images=images)
     assert still.box_xyxy == pytest.approx((100.0, 60.0, 150.0, 140.0))
