@@ -69,17 +69,23 @@ def _number(text: str, value: str) -> float:
         raise SystemExit(f"--settings {text}: {value!r} is not a number") from err
 
 
-def parse_cadence(text: str) -> tuple[int, int]:
+def parse_cadence(text: str) -> tuple[int, int, int]:
+    """'3:4' -> (every 3, delay 4, phase 0); '3:4:1' -> the detector on frames 1, 4, 7, ... (another run of the same
+    cadence: the replays are chaotic, so more runs of one cadence say more than one)."""
     try:
-        every, delay = (int(v) for v in text.split(":"))
+        values = [int(v) for v in text.split(":")]
+        every, delay = values[:2]
+        phase = values[2] if len(values) == 3 else 0
+        if len(values) not in (2, 3):
+            raise ValueError(text)
     except ValueError as err:
-        raise SystemExit(f"--cadences {text}: expected EVERY:DELAY in frames, e.g. 3:4") from err
-    if every < 1 or delay < 0:
-        raise SystemExit(f"--cadences {text}: EVERY >= 1 and DELAY >= 0")
-    return every, delay
+        raise SystemExit(f"--cadences {text}: expected EVERY:DELAY[:PHASE] in frames, e.g. 3:4") from err
+    if every < 1 or delay < 0 or not 0 <= phase < every:
+        raise SystemExit(f"--cadences {text}: EVERY >= 1, DELAY >= 0 and 0 <= PHASE < EVERY")
+    return every, delay, phase
 
 
-def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], every: int, delay: int,
+def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], cadence: tuple[int, int, int],
              carry: CarryConfig | None, images: list[FlowImage]) -> tuple[float, int, list[float]]:  # fmt: skip
     """ATE (m), frames tracked and the CPU ms of each carried frame's `carried_forward` with this cadence and carry
     (carry None: every frame its own detections). `images`: each frame's grey and depth, for +flow."""
@@ -90,6 +96,7 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], e
     system = run_command.SlamSystem(run_command.system_config_from_mapping(data, where), loop_closer=closing,
                                     keyframe_index=closing, dynamic_filter=dyn.filter,
                                     object_layer=object_layer_setup(ns, data, where))  # fmt: skip
+    every, delay, phase = cadence
     newest: DetectionSet | None = None
     previous: DetectionSet | None = None
     newest_index = -1
@@ -100,7 +107,8 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], e
             used = dets[i].detections
         else:
             j = i - delay
-            if j >= 0 and j % every == 0:
+            detected = j >= phase and (j - phase) % every == 0
+            if detected:
                 previous, newest, newest_index = newest, dets[j], j
             used = None
             if newest is not None:
@@ -109,7 +117,7 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], e
                 used = carried_forward(newest, frame.stamp_ns, carry, previous, pair)
                 if used is not None:
                     cpu_ms.append(1e3 * (time.process_time() - c0))
-            if delay == 0 and j >= 0 and j % every == 0:
+            if delay == 0 and detected:
                 used = dets[i].detections  # the frame's own detections, in time
         system.process(frame, used)
     return float(ate(args.groundtruth, system.final_trajectory()).stats.rmse), system.n_tracked(), cpu_ms
@@ -125,7 +133,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bag", help="bag or dataset folder with ground truth")
     parser.add_argument("--config", default="sim", help="config name or file (default sim)")
-    parser.add_argument("--cadences", nargs="+", default=["3:4", "3:3", "2:4", "4:5", "3:5"], metavar="EVERY:DELAY",
+    parser.add_argument("--cadences", nargs="+", default=["3:4", "3:3", "2:4", "4:5", "3:5"], metavar="EVERY:DELAY[:PHASE]",
                         help="detector on every EVERY-th frame, its boxes usable DELAY frames later")
     parser.add_argument("--settings", nargs="+", default=["grow1", "grow0.5", "grow0.5+extrapolate"],
                         help="carry settings, grow<G>[+extrapolate][+flow<F>[+hull]]")
@@ -147,20 +155,20 @@ def main() -> int:
     t0 = time.perf_counter()
     dets = [dyn.detector.detect(f.rgb, f.stamp_ns) for f in frames]
     print(f"{args.bag}: {len(frames)} frames, detections in {time.perf_counter() - t0:.0f} s", flush=True)
-    base, tracked, _ = run_once(args, frames, dets, 1, 0, None, images)
+    base, tracked, _ = run_once(args, frames, dets, (1, 0, 0), None, images)
     print(f"every frame, no delay (offline): ATE {100 * base:.2f} cm, {tracked}/{len(frames)} tracked", flush=True)
     table: dict[str, list[float]] = {s: [] for s in settings}
-    for every, delay in cadences:
+    for every, delay, phase in cadences:
         for name, carry in settings.items():
-            err, tracked, cpu_ms = run_once(args, frames, dets, every, delay, carry, images)
+            err, tracked, cpu_ms = run_once(args, frames, dets, (every, delay, phase), carry, images)
             table[name].append(err)
             lost = f", {len(frames) - tracked} lost" if tracked < len(frames) else ""
             cpu = ""
             if carry.flow and cpu_ms:
                 cpu = f", carry CPU {statistics.fmean(cpu_ms):.2f} ms/frame (max {max(cpu_ms):.1f})"
-            print(f"  every {every} delay {delay}  {name:22s} ATE {100 * err:.2f} cm (x{err / base:.2f}){lost}{cpu}",
+            print(f"  every {every} delay {delay} phase {phase}  {name:22s} ATE {100 * err:.2f} cm (x{err / base:.2f}){lost}{cpu}",
                   flush=True)  # fmt: skip
-    print("\n| setting | " + " | ".join(f"{e}:{d}" for e, d in cadences) + " | mean cm (x offline) |")
+    print("\n| setting | " + " | ".join(":".join(str(v) for v in (c if c[2] else c[:2])) for c in cadences) + " | mean cm (x offline) |")
     print("|---|" + "---|" * (len(cadences) + 1))
     for name, errs in table.items():
         mean = statistics.fmean(errs)
