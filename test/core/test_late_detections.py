@@ -139,3 +139,16 @@ def test_the_recent_images_keep_max_age_and_find_the_nearest_stamp():
     assert ring.get(67 * MS).stamp_ns == 67 * MS
     assert ring.get(80 * MS).stamp_ns == 67 * MS  # a frame tracking dropped: the nearest within 20 ms
     assert ring.get(200 * MS) is None  # 67 ms from the newest: no image of that frame
+
+
+def test_bad_box_flow_settings_and_image_pairs_are_rejected_with_the_field_named():
+    from changing_slam_ros.core.box_flow import box_motions
+    from changing_slam_ros.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="box_flow.window_px"):
+        BoxFlowConfig(window_px=8)
+    with pytest.raises(ConfigError, match="box_flow.near_depth_percentile"):
+        BoxFlowConfig(near_depth_percentile=50.0)
+    small, large = FlowImage(0, np.zeros((240, 320), np.uint8)), FlowImage(1, np.zeros((480, 640), np.uint8))
+    with pytest.raises(ValueError, match="image sizes differ"):
+        box_motions([(0.0, 0.0, 10.0, 10.0)], small, large, BoxFlowConfig())
