@@ -39,7 +39,8 @@ class BoxFlowConfig:
     - `foreground_margin_m`: with depth, a grid point is used only where its depth is valid and at most this far
       behind the box's near depth (`near_depth_percentile` of the valid depths in the box); the §4.1 person
       margin is 0.8 m.
-    - `max_scale_change`: the scale ratio is clamped to [1 / (1 + this), 1 + this].
+    - `max_scale_change`: the scale ratio is clamped to [1 / (1 + this), 1 + this]; with fewer than
+      `min_scale_points` points left the scale is taken as 1 (a median of a few ratios is mostly noise).
     - `search_margin`: points are tracked within the box grown by this many of its widths (heights) per side
       (plus the LK window); a point that moves farther is lost. A person walking 1 m/s at 2 m crosses about a
       third of a box width in the ~0.15 s a detection is late.
@@ -53,6 +54,7 @@ class BoxFlowConfig:
     foreground_margin_m: float = 0.8
     near_depth_percentile: float = 5.0
     max_scale_change: float = 0.3
+    min_scale_points: int = 12
     search_margin: float = 0.5
 
     def __post_init__(self) -> None:
@@ -90,12 +92,30 @@ class BoxMotion:
     scale: float
     n_points: int
 
-    def apply(self, box_xyxy: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
-        """The box moved by (dx, dy) and scaled about its centre."""
-        x0, y0, x1, y1 = box_xyxy
-        cx, cy = 0.5 * (x0 + x1) + self.dx_px, 0.5 * (y0 + y1) + self.dy_px
-        hw, hh = 0.5 * (x1 - x0) * self.scale, 0.5 * (y1 - y0) * self.scale
-        return (cx - hw, cy - hh, cx + hw, cy + hh)
+    def apply(
+        self, box_xyxy: tuple[float, float, float, float], width: int = 0, height: int = 0, border_px: float = 2.0
+    ) -> tuple[float, float, float, float]:
+        """The box moved by (dx, dy) and scaled about its centre. With the image size given, a box cut by the image
+        border (an edge within `border_px` of it) keeps that edge on the border and moves only its other edge by
+        the displacement, unscaled (the person goes on beyond the border; the box is only what is in view)."""
+        x0, x1 = _moved_interval(box_xyxy[0], box_xyxy[2], self.dx_px, self.scale, width, border_px)
+        y0, y1 = _moved_interval(box_xyxy[1], box_xyxy[3], self.dy_px, self.scale, height, border_px)
+        return (x0, y0, x1, y1)
+
+
+def _moved_interval(lo: float, hi: float, shift: float, scale: float, size: int, border_px: float) -> tuple[float, float]:
+    """One axis of `BoxMotion.apply`: [lo, hi] shifted and scaled about its centre, or, cut by the image border
+    (size > 0), kept on the border on that side and shifted on the other (both sides cut: unchanged)."""
+    at_lo = size > 0 and lo <= border_px
+    at_hi = size > 0 and hi >= size - 1 - border_px
+    if at_lo and at_hi:
+        return lo, hi
+    if at_lo:
+        return lo, max(hi + shift, lo + 1.0)
+    if at_hi:
+        return min(lo + shift, hi - 1.0), hi
+    centre, half = 0.5 * (lo + hi) + shift, 0.5 * (hi - lo) * scale
+    return centre - half, centre + half
 
 
 def grid_points(box_xyxy: tuple[float, float, float, float], image: FlowImage, cfg: BoxFlowConfig) -> F32:
@@ -178,6 +198,6 @@ def _median_motion(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cfg: 
     rb = np.hypot(b[:, 0] - med[4], b[:, 1] - med[5])
     d = med[:2]
     use = ra > 1.0
-    scale = float(np.median(rb[use] / ra[use])) if use.any() else 1.0
+    scale = float(np.median(rb[use] / ra[use])) if int(use.sum()) >= cfg.min_scale_points else 1.0
     limit = 1.0 + cfg.max_scale_change
     return BoxMotion(float(d[0]), float(d[1]), float(np.clip(scale, 1.0 / limit, limit)), len(a))

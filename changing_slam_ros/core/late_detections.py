@@ -81,7 +81,7 @@ def carried_forward(
     out = []
     for d, motion in zip(carried, motions):
         if motion is not None:
-            x0, y0, x1, y1 = motion.apply(d.box_xyxy)
+            x0, y0, x1, y1 = motion.apply(d.box_xyxy, earlier.width, earlier.height)
             if cfg.flow_hull:  # the moved box joined with where it was: the person's path since
                 bx0, by0, bx1, by1 = d.box_xyxy
                 x0, y0, x1, y1 = min(x0, bx0), min(y0, by0), max(x1, bx1), max(y1, by1)

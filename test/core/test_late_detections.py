@@ -152,3 +152,26 @@ def test_bad_box_flow_settings_and_image_pairs_are_rejected_with_the_field_named
     small, large = FlowImage(0, np.zeros((240, 320), np.uint8)), FlowImage(1, np.zeros((480, 640), np.uint8))
     with pytest.raises(ValueError, match="image sizes differ"):
         box_motions([(0.0, 0.0, 10.0, 10.0)], small, large, BoxFlowConfig())
+
+
+def test_a_box_cut_by_the_image_border_keeps_that_edge_on_the_border_and_moves_the_other():
+    from changing_slam_ros.core.box_flow import BoxMotion
+
+    leaving = BoxMotion(dx_px=-10.0, dy_px=4.0, scale=0.8, n_points=30)  # a person walking out on the left
+    # Cut on the left: the left edge stays at 0, the right edge moves 10 px left, unscaled; y moves and scales.
+    assert leaving.apply((0.0, 60.0, 50.0, 140.0), 320, 240) == pytest.approx((0.0, 72.0, 40.0, 136.0))
+    # Cut on the right (x1 = 319): the right edge stays, the left moves.
+    assert leaving.apply((250.0, 60.0, 319.0, 140.0), 320, 240) == pytest.approx((240.0, 72.0, 319.0, 136.0))
+    # Cut top and bottom (a person filling the image height): y unchanged.
+    assert leaving.apply((100.0, 0.0, 150.0, 239.0), 320, 240) == pytest.approx((95.0, 0.0, 135.0, 239.0))
+    # Without the image size: moved and scaled about the centre.
+    assert leaving.apply((0.0, 60.0, 50.0, 140.0)) == pytest.approx((-5.0, 72.0, 35.0, 136.0))
+
+
+def test_the_scale_needs_enough_points():
+    a = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [5.0, 5.0], [2.0, 8.0]])
+    b = (a - 5.0) * 1.2 + 5.0  # 20 % larger about (5, 5)
+    from changing_slam_ros.core.box_flow import _median_motion
+
+    assert _median_motion(a, b, BoxFlowConfig(min_scale_points=5)).scale == pytest.approx(1.2)
+    assert _median_motion(a, b, BoxFlowConfig(min_scale_points=12)).scale == 1.0  # 6 points: not trusted
