@@ -28,6 +28,7 @@ from changing_slam_ros.core.orb_features import FeatureConfig
 from changing_slam_ros.core.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose, orthonormalised
 from changing_slam_ros.core.se3 import invert, scale_motion
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 
@@ -57,6 +58,12 @@ class TrackingConfig:
     - `n_reloc_candidates`: keyframes tried per relocalisation; `lost_frames_new_map`: failures before a new map.
     - `loaded_map_grace_s`: a session started from a saved map (`Tracker.start_from_map`) tries relocalisation
       against it on every frame for this long (seconds from the first frame) before it starts a new map.
+    - `pose_iterations_per_round`: Gauss-Newton iterations at most in each of the pose optimisation's four
+      rounds (each round also stops when the step is negligible). 2: from tracking's start errors the second
+      step leaves < 1e-7 m to gain; ATE unchanged on six sequences against 6 (docs/architecture.md, "Session 9").
+    - `motion_pose_rounds`: rounds of the frame-to-frame pose optimisation (the local-map one that follows always
+      runs four, ORB-SLAM's count); the first two use the Huber kernel. 2 was ATE-neutral on the same six
+      sequences but saved only ~0.25 ms per frame (within the benchmark's noise), so it stays 4.
     - `busy_mapping_weak_ratio`: ORB-SLAM's keyframe rule when local mapping is busy (`Tracker.mapping_idle`
       False, set by a caller whose mapping runs elsewhere: the real-time graph): a keyframe then needs
       `max_frames_between_keyframes` frames since the last one, or tracking weak (inliers under this fraction of
@@ -83,6 +90,14 @@ class TrackingConfig:
     lost_frames_new_map: int = 30
     loaded_map_grace_s: float = 2.0
     busy_mapping_weak_ratio: float = 0.25
+    pose_iterations_per_round: int = 2
+    motion_pose_rounds: int = 4
+
+    def __post_init__(self) -> None:
+        if self.pose_iterations_per_round < 1:
+            raise ConfigError(f"tracking.pose_iterations_per_round: expected >= 1, got {self.pose_iterations_per_round}")
+        if self.motion_pose_rounds < 1:
+            raise ConfigError(f"tracking.motion_pose_rounds: expected >= 1, got {self.motion_pose_rounds}")
 
 
 class KeyframeCandidates(Protocol):
@@ -243,7 +258,8 @@ class Tracker:
         if n < self.cfg.min_motion_inliers:
             frame.point_ids[:] = -1
             n = self._search(frame, T_cw_pred, ids, 2 * radius, ratio=0.9)
-        if n >= self.cfg.min_motion_inliers and self._optimise(frame, T_cw_pred) >= self.cfg.min_motion_inliers:
+        if (n >= self.cfg.min_motion_inliers
+                and self._optimise(frame, T_cw_pred, self.cfg.motion_pose_rounds) >= self.cfg.min_motion_inliers):
             return True
         # Fallback: brute-force match against the reference keyframe, from the last pose.
         frame.point_ids[:] = -1
@@ -283,8 +299,9 @@ class Tracker:
         frame.point_ids[ia] = kf.point_ids[with_pt[ib]]
         return len(ia)
 
-    def _optimise(self, frame: Frame, T_cw0: F64) -> int:
-        """Optimise the pose on the current matches; outliers lose their map point. Returns inliers."""
+    def _optimise(self, frame: Frame, T_cw0: F64, rounds: int = 4) -> int:
+        """Optimise the pose on the current matches (`rounds` outlier rounds); outliers lose their map point.
+        Returns inliers."""
         idx = np.flatnonzero(frame.point_ids >= 0)
         if len(idx) < 3:
             return 0
@@ -294,7 +311,8 @@ class Tracker:
             self.inv_sigma2[f.octaves[idx]],
         )
         cam = frame.camera
-        res = optimize_pose(T_cw0, obs, PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.fcfg.bf_m_px))
+        res = optimize_pose(T_cw0, obs, PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.fcfg.bf_m_px),
+                            rounds=rounds, iterations=self.cfg.pose_iterations_per_round)
         frame.T_world_cam = invert(res.T_cam_world)
         frame.point_ids[idx[~res.inliers]] = -1
         frame.outliers[:] = False

@@ -5,11 +5,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 from helpers import FR1_XYZ_10, REDKITCHEN, require
 
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.tracking import TrackingConfig, TrackingState
+from changing_slam_ros.errors import ConfigError
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 
@@ -102,3 +104,10 @@ def test_lost_for_long_in_another_place_starts_a_new_map() -> None:
     assert len(system.atlas.maps) == 2
     assert all(o.state == TrackingState.OK for o in outs[2:])
     assert system.atlas.current.id == 1 and len(system.atlas.maps[0].keyframes) >= 1
+
+
+def test_pose_optimisation_counts_below_one_are_config_errors() -> None:
+    with pytest.raises(ConfigError, match="tracking.pose_iterations_per_round"):
+        TrackingConfig(pose_iterations_per_round=0)
+    with pytest.raises(ConfigError, match="tracking.motion_pose_rounds"):
+        TrackingConfig(motion_pose_rounds=0)
