@@ -141,8 +141,8 @@ class TrackingNode(QuietQosEvents, Node):
             ("detections_carry_flow", False, "... each box first moved by the image motion of its foreground between "
                                              "the detections' image and the frame (Median Flow, core.box_flow); "
                                              "a box whose motion is not measured is carried as without"),
-            ("detections_carry_flow_grow_widths_per_s", 0.5, "detections_carry_flow: a moved box is grown by this "
-                                                             "many widths (heights) per second of age instead"),
+            ("detections_carry_flow_grow_widths_per_s", 0.25, "detections_carry_flow: a moved box is grown by this "
+                                                              "many widths (heights) per second of age instead"),
             ("detections_carry_flow_hull", False, "detections_carry_flow: a moved box is first joined with where it "
                                                   "was (the person's path since its image)"),
             ("detections_carry_flow_max_stamp_gap_s", 0.07, "detections_carry_flow: without an image of the "
