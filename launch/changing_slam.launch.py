@@ -6,7 +6,8 @@ Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_pla
 per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock), map_file (multi-session:
 start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz), detector_threads (onnxruntime
 threads of the detection node; -1 = the config's; 1 costs ~10 % less CPU per detection where the nodes share few
-cores, as `changing-slam graph` does in real time). Out of lossless mode tracking
+cores, as `changing-slam graph` does in real time), ba_solver (local BA: gtsam or schur, the numpy
+Schur-complement LM at ~0.35x the CPU that `changing-slam graph` uses in real time; empty = the config's). Out of lossless mode tracking
 runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest) and no waiting for
 detections that keep arriving late.
 Without ROS 2 launch, `changing-slam graph BAG` (issue 7) starts the same processes.
@@ -30,6 +31,7 @@ def generate_launch_description() -> LaunchDescription:
     map_file = LaunchConfiguration("map_file")
     map_out = LaunchConfiguration("map_out")
     detector_threads = LaunchConfiguration("detector_threads")
+    ba_solver = LaunchConfiguration("ba_solver")
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
@@ -48,6 +50,8 @@ def generate_launch_description() -> LaunchDescription:
                               "(and on ~/save_map); start the next session from it with map_file"),
         DeclareLaunchArgument("detector_threads", default_value="-1",
                               description="onnxruntime threads of the detection node (-1: the config's)"),
+        DeclareLaunchArgument("ba_solver", default_value="",
+                              description="local BA solver of local_mapping: gtsam or schur (empty: the config's)"),
         Node(
             package=PACKAGE, executable="bag_player", name="bag_player", output="screen", condition=IfCondition(has_bag),
             parameters=[{"bag": bag, "rate": rate, "lossless": lossless,
@@ -63,7 +67,7 @@ def generate_launch_description() -> LaunchDescription:
                           "detections_wait_s": detections_wait}, sim_time]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
              parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file,
-                         "map_out": map_out}, sim_time]),
+                         "map_out": map_out, "ba_solver": ba_solver}, sim_time]),
         Node(package=PACKAGE, executable="loop_closing", name="loop_closing", output="screen",
              parameters=[{"config": config, "map_file": map_file}, sim_time]),
         Node(package=PACKAGE, executable="object_map", name="object_map", output="screen",

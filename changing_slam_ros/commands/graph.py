@@ -1,7 +1,8 @@
 """`changing-slam graph BAG --out DIR`: the ROS 2 node graph over a bag, as separate processes, without ros2 launch.
 
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
-        [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--detector-threads N] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
+        [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--detector-threads N]
+        [--ba-solver gtsam|schur|config] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
         [--load-map MAP@SECONDS]
         [--backend split|in_process] [--map-in PREVIOUS/map.npz]
 
@@ -92,6 +93,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="onnxruntime threads of the detection node (default: 1 in real time, where the graph's "
                              "six processes share the cores and one thread costs ~10 %% less CPU per detection; "
                              "the config's in --lossless, where the detector's wall time per frame counts; -1: the config's)")
+    parser.add_argument("--ba-solver", choices=("gtsam", "schur", "config"), default=None,
+                        help="local_mapping's local BA solver (default: schur in real time, the numpy Schur-complement "
+                             "LM that solves gtsam's problem at ~0.35x the CPU; the config's, gtsam unless set, in "
+                             "--lossless, so that the graph repeats `changing-slam run`)")
     parser.add_argument("--max-restarts", type=int, default=2, metavar="N", help="restarts per node (default 2)")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
     parser.add_argument("--backend", choices=BACKENDS, default="split",
@@ -302,8 +307,10 @@ class Graph:
                 "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
         if split:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
+            solver = a.ba_solver or ("config" if a.lossless else "schur")
             mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
-                       "update_subscribers": 2, "map_out": str(self.out / "map.npz")}  # fmt: skip
+                       "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
+                       "ba_solver": "" if solver == "config" else solver}  # fmt: skip
             self.nodes["local_mapping"] = NodeProcess(
                 "local_mapping", _node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
                 restart_argv=_node_argv("local_mapping_node", {**mapping, "map_file": ""}))  # fmt: skip

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.backend.local_ba import FactorCache, LocalBAConfig, LocalBAResult, local_bundle_adjust
+from changing_slam_ros.core.backend.local_ba import SOLVERS, FactorCache, LocalBAConfig, LocalBAResult, local_bundle_adjust
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.keyframe_segmentation import (
     KeyframeSegmentationConfig, KeyframeSegmentationResult, segment_keyframe_window,
@@ -31,6 +31,7 @@ from changing_slam_ros.core.orb_features import FeatureConfig
 from changing_slam_ros.core.se3 import transform_points
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.triangulation import TriangulationConfig, TwoView, triangulate_pair
+from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 
@@ -45,9 +46,10 @@ class MappingConfig:
       `ba_disparity_sigma_ratio`: sigma of a keypoint's depth as disparity bf / depth, in units of its pixel sigma
       (`backend.local_ba.stereo_noise`): a property of the depth sensor. 1 (default) weighs a Kinect-class depth
       about as ORB-SLAM's virtual stereo does (0 = exactly ORB-SLAM's independent u_l, u_r, v); the simulator's
-      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5. `ba_solver`: "schur"
-      (default: `backend.schur_lm`, gtsam's cost and LM policy in numpy, points eliminated first; ~0.3x the CPU,
-      trajectories within 1e-7 m of gtsam's) or "gtsam" (its Levenberg-Marquardt on the factor graph);
+      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5. `ba_solver`: "gtsam"
+      (default: its Levenberg-Marquardt on the factor graph) or "schur" (`backend.schur_lm`: the same cost and
+      gtsam's LM policy in numpy, points eliminated first; ~0.35x the solver's CPU, trajectories within 1e-7 m of
+      gtsam's on the simulated bags; what `changing-slam graph` uses in real time, where CPU is short);
       docs/architecture.md, "Session 9: local mapping CPU".
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
@@ -66,7 +68,7 @@ class MappingConfig:
     ba_iterations: int = 5
     ba_max_points: int = 3000
     ba_disparity_sigma_ratio: float = 1.0
-    ba_solver: str = "schur"
+    ba_solver: str = "gtsam"
     keyframe_culling: bool = True
     redundancy: float = 0.9
     fuse_neighbours: int = 10
@@ -74,6 +76,10 @@ class MappingConfig:
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)
     segmentation: KeyframeSegmentationConfig = field(default_factory=KeyframeSegmentationConfig)
+
+    def __post_init__(self) -> None:
+        if self.ba_solver not in SOLVERS:
+            raise ConfigError(f"mapping.ba_solver: {self.ba_solver!r} unknown; expected one of {', '.join(SOLVERS)}")
 
 
 @dataclass

@@ -92,6 +92,8 @@ class LocalMappingNode(Node):
             ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
             ("update_subscribers_wait_s", 15.0, "... waiting at most this long after start"),
+            ("ba_solver", "", "local BA's solver: gtsam or schur (numpy Schur-complement LM, same cost, ~0.35x the "
+                              "solver's CPU); empty = the config's mapping.ba_solver (gtsam unless set)"),
             ("ba_yields_to_keyframes", True, "real time (wait_for_loop_results false): local BA ends early when a "
                                              "new keyframe arrives meanwhile (ORB-SLAM's abort; checked between "
                                              "solver iterations); never in the lossless graph"),
@@ -103,6 +105,8 @@ class LocalMappingNode(Node):
         from changing_slam_ros.nodes.split_backend import MapOwner
 
         self.cfg = load_backend_config(p["config"])
+        if p["ba_solver"]:
+            self.cfg = self.cfg.with_mapping(ba_solver=p["ba_solver"], why="parameter ba_solver")
         self.owner = MapOwner.build(self.cfg, objects=p["objects"])
         self._set_ba_stop()
         if p["map_file"]:

@@ -38,6 +38,11 @@ class BackendConfig:
     data: dict[str, Any]
     where: str
 
+    def with_mapping(self, why: str, **values: Any) -> BackendConfig:
+        """A copy with `values` set in the `mapping:` section (a node parameter over the file), `why` in `where`."""
+        mapping = {**(self.data.get("mapping") or {}), **values}
+        return BackendConfig({**self.data, "mapping": mapping}, f"{self.where} ({why})")
+
 
 @dataclass
 class Backend:

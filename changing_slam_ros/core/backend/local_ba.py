@@ -9,8 +9,8 @@ px on each, or with `disparity_sigma_ratio` > 0 the depth weighted by its own si
 on the whitened error (k = sqrt(7.815) stereo, sqrt(5.991) mono). Afterwards observations whose
 chi2 exceeds those thresholds are erased from the map (ORB-SLAM's outlier removal). Points seen by one
 keyframe only are left out of the graph and move rigidly with it (`carry_lone_points`).
-Solved by `schur_lm` (default: the same cost and gtsam's LM policy in numpy, ~0.3x gtsam's CPU) or by gtsam's
-Levenberg-Marquardt on the factor graph (`LocalBAConfig.solver`).
+Solved by gtsam's Levenberg-Marquardt on the factor graph (default) or by `schur_lm` (the same cost and gtsam's LM
+policy in numpy, ~0.35x gtsam's CPU; the real-time graph's choice) (`LocalBAConfig.solver`).
 """
 
 from __future__ import annotations
@@ -53,9 +53,9 @@ class LocalBAConfig:
     with the number of variables: gtsam spends ~0.1 ms per variable per linear solve here); `level_scales`: pyramid
     scales, set by the caller from the feature config; `bf_m_px`: virtual stereo baseline * fx;
     `disparity_sigma_ratio`: sigma of the depth as disparity, in units of the keypoint's sigma (`stereo_noise`);
-    `solver`: "schur" (`schur_lm`: gtsam's cost and LM policy in numpy, points eliminated by the Schur
-    complement; ~0.3x gtsam's CPU, not bit-identical: final errors within ~1e-8 of gtsam's) or "gtsam" (its
-    Levenberg-Marquardt on the factor graph)."""
+    `solver`: "gtsam" (default: its Levenberg-Marquardt on the factor graph) or "schur" (`schur_lm`: gtsam's cost
+    and LM policy in numpy, points eliminated by the Schur complement; ~0.35x gtsam's CPU, not bit-identical:
+    final errors within ~1e-8 of gtsam's)."""
 
     n_window: int = 10
     max_fixed: int = 10
@@ -64,7 +64,7 @@ class LocalBAConfig:
     bf_m_px: float = 40.0
     level_scales: tuple[float, ...] = tuple(1.2**i for i in range(8))
     disparity_sigma_ratio: float = 1.0
-    solver: str = "schur"
+    solver: str = "gtsam"
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:

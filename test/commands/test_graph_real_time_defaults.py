@@ -1,0 +1,39 @@
+"""What `changing-slam graph` starts its nodes with in real time and in lossless mode (no process is started).
+
+Real time, where the graph's six processes share the cores: the detector gets one onnxruntime thread (~10 % less
+CPU per detection) and local_mapping the numpy Schur-complement BA solver (~0.35x gtsam's solver CPU, same cost);
+lossless keeps the config's (gtsam), so that the graph repeats `changing-slam run` byte for byte
+(docs/architecture.md, "Session 9: the real-time graph's defaults")."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pytest
+
+from changing_slam_ros.commands.graph import Graph, add_arguments
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _param(tmp_path: Path, node: str, name: str, *extra: str) -> str:
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    bag = REPO / "bags" / "sim_walking_changing.mcap"
+    if not bag.is_file():
+        pytest.skip(f"{bag} missing")
+    graph = Graph(parser.parse_args([str(bag), "--out", str(tmp_path), "--config", "sim", *extra]))
+    return next(a.split(":=", 1)[1] for a in graph.nodes[node].argv if a.startswith(f"{name}:="))
+
+
+def test_real_time_gives_the_detector_one_thread_and_lossless_the_configs(tmp_path: Path) -> None:
+    assert _param(tmp_path / "rt", "detection", "intra_op_threads") == "1"
+    assert _param(tmp_path / "ll", "detection", "intra_op_threads", "--lossless") == "-1"
+    assert _param(tmp_path / "two", "detection", "intra_op_threads", "--detector-threads", "2") == "2"
+
+
+def test_real_time_maps_with_the_schur_solver_and_lossless_with_the_configs(tmp_path: Path) -> None:
+    assert _param(tmp_path / "rt", "local_mapping", "ba_solver") == "'schur'"
+    assert _param(tmp_path / "ll", "local_mapping", "ba_solver", "--lossless") == "''"
+    assert _param(tmp_path / "g", "local_mapping", "ba_solver", "--ba-solver", "gtsam") == "'gtsam'"
