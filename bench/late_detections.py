@@ -49,7 +49,7 @@ def parse_setting(text: str) -> CarryConfig:
     parts = text.split("+")
     if not parts[0].startswith("grow"):
         raise SystemExit(f"--settings {text}: expected grow<G>[+extrapolate][+flow<F>], e.g. grow0.5+flow0.25")
-    cfg = CarryConfig(grow_widths_per_s=_number(text, parts[0][4:]))
+    cfg = CarryConfig(grow_widths_per_s=_number(text, parts[0][4:]), flow=False)  # +flow<F> switches it on
     for part in parts[1:]:
         if part == "extrapolate":
             cfg = dataclasses.replace(cfg, extrapolate=True)

@@ -29,10 +29,11 @@ stamp and of the frame, each carried box is moved by the image motion of its for
 growing covers the person's limbs and the measurement's error). A box whose motion cannot be measured (no
 texture, no points left after the forward-backward check, no image of the detections' stamp) is carried as
 without `flow`. `flow_hull` joins the moved box with where it was first (the person's path). `RecentImages` keeps
-the images a tracker needs for it. Off by default: in the replay it lowered the mean ATE on all four 30 Hz
-walking bags (with `flow_grow_widths_per_s` 0.25: wxyz30s 1.22 -> 1.05 cm, walking_halfsphere 3.15 -> 1.35,
+the images a tracker needs for it. On by default (session 9, the lead's call on the helper's figures): in the
+replay it lowered the mean ATE on all four 30 Hz walking bags (with `flow_grow_widths_per_s` 0.25: wxyz30s 1.22 -> 1.05 cm, walking_halfsphere 3.15 -> 1.35,
 walking_static 0.58 -> 0.48, walking_rpy 0.80 -> 0.62) but not on the 15 Hz sample bag (0.86 -> 0.93 on five
-cadences), and `flow_hull` helped on none consistently (docs/architecture.md, "Session 9: late boxes moved by the
+cadences, within that bag's run-to-run spread: 6 wins, 7 losses over 13 runs), and `flow_hull` helped on none
+consistently (docs/architecture.md, "Session 9: late boxes moved by the
 image motion").
 """
 
@@ -55,7 +56,7 @@ class CarryConfig:
     match_min_iou: float = 0.1
     max_gap_s: float = 0.5
     max_speed_widths_per_s: float = 4.0
-    flow: bool = False
+    flow: bool = True
     flow_grow_widths_per_s: float = 0.25
     flow_hull: bool = False
     box_flow: BoxFlowConfig = BoxFlowConfig()

@@ -138,7 +138,7 @@ class TrackingNode(QuietQosEvents, Node):
                                                         "(heights) per second of age"),
             ("detections_carry_extrapolate", False, "... each box first moved on at the velocity of its edges "
                                                    "between the two newest detection sets"),
-            ("detections_carry_flow", False, "... each box first moved by the image motion of its foreground between "
+            ("detections_carry_flow", True, "... each box first moved by the image motion of its foreground between "
                                              "the detections' image and the frame (Median Flow, core.box_flow); "
                                              "a box whose motion is not measured is carried as without"),
             ("detections_carry_flow_grow_widths_per_s", 0.25, "detections_carry_flow: a moved box is grown by this "
