@@ -145,13 +145,16 @@ def test_installed_graph_nodes_start_and_exit_cleanly_on_sigterm(colcon_install,
 
 def _declared_parameters(node: str) -> set[str]:
     """The names a node module spells as parameter specs, `(name, default, description)` tuples (what
-    `node_runner.declare_parameters` takes; bag_player builds its list in a variable first)."""
+    `node_runner.declare_parameters` takes; bag_player builds its list in a variable first, tracking keeps its
+    table in `tracking_params.py`)."""
     import ast
 
-    tree = ast.parse((REPO / "changing_slam_ros" / "nodes" / f"{node}_node.py").read_text())
+    nodes = REPO / "changing_slam_ros" / "nodes"
+    sources = [nodes / f"{node}_node.py", nodes / f"{node}_params.py"]
     return {
         item.elts[0].value
-        for item in ast.walk(tree)
+        for path in sources if path.is_file()
+        for item in ast.walk(ast.parse(path.read_text()))
         if isinstance(item, ast.Tuple) and len(item.elts) == 3
         and isinstance(item.elts[0], ast.Constant) and isinstance(item.elts[0].value, str)
     }  # fmt: skip
