@@ -58,8 +58,17 @@ def _ragged(lists: list[list[int]]) -> tuple[I64, I64]:
     return counts, flat
 
 
-def _split(counts: I64, flat: npt.NDArray[Any]) -> list[npt.NDArray[Any]]:
-    return np.split(flat, np.cumsum(counts)[:-1]) if len(counts) else []
+def _split(counts: I64, flat: npt.NDArray[Any], what: str) -> list[list[Any]]:
+    """`flat` cut into Python lists of `counts` items each (a list slice per entry: one numpy array per entry, as
+    np.split makes, costs more than the dict or set it fills); `what` names the arrays when they do not add up."""
+    items, sizes = flat.tolist(), counts.tolist()
+    if sum(sizes) != len(items):
+        raise ReplicationError(f"map update: {what}: {len(items)} items, counts add up to {sum(sizes)}")
+    out, end = [], 0
+    for n in sizes:
+        start, end = end, end + n
+        out.append(items[start:end])
+    return out
 
 
 # -- packets -------------------------------------------------------------------------------------------
@@ -337,20 +346,17 @@ def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
     if len(pr):
         for name, _, _ in POINT_COLUMNS:
             getattr(pts, name)[pr.ids] = pr.columns[name]
-        # Python lists sliced per point: one array per point (np.split) costs more than the dict it fills.
-        kf_ids, kp_indices = pr.obs_kf_ids.tolist(), pr.obs_kp_indices.tolist()
-        if len(kf_ids) != len(kp_indices) or sum(pr.obs_counts.tolist()) != len(kf_ids):
-            raise ReplicationError(f"map update for map {m.id}: observation arrays do not match their counts")
-        end = 0
-        for pid, count in zip(pr.ids.tolist(), pr.obs_counts.tolist(), strict=True):
-            start, end = end, end + count
-            pts.observations[pid] = dict(zip(kf_ids[start:end], kp_indices[start:end]))
+        kfs = _split(pr.obs_counts, pr.obs_kf_ids, f"map {m.id}: observation keyframe ids")
+        kps = _split(pr.obs_counts, pr.obs_kp_indices, f"map {m.id}: observation keypoint indices")
+        for pid, kf_ids, kp_indices in zip(pr.ids.tolist(), kfs, kps, strict=True):
+            pts.observations[pid] = dict(zip(kf_ids, kp_indices))
     # 2. Keyframes: pose, per-keypoint ids and labels, links.
     kr = delta.keyframes
     offsets = np.concatenate([[0], np.cumsum(kr.n_keypoints)]).astype(np.int64)
-    cov = zip(_split(kr.cov_counts, kr.cov_ids), _split(kr.cov_counts, kr.cov_weights), strict=True)
-    children = _split(kr.child_counts, kr.child_ids)
-    loops = _split(kr.loop_counts, kr.loop_ids)
+    cov = zip(_split(kr.cov_counts, kr.cov_ids, "covisibility ids"), _split(kr.cov_counts, kr.cov_weights,
+              "covisibility weights"), strict=True)  # fmt: skip
+    children = _split(kr.child_counts, kr.child_ids, "spanning-tree children")
+    loops = _split(kr.loop_counts, kr.loop_ids, "loop edges")
     for j, (k, (cid, cw)) in enumerate(zip(kr.ids.tolist(), cov, strict=True)):
         kf = m.keyframes.get(k)
         if kf is None:
@@ -363,14 +369,14 @@ def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
         kf.point_ids = kr.point_ids[s].copy()
         kf.kp_classes = kr.kp_classes[s].copy()
         kf.object_ids = kr.object_ids[s].copy()
-        m.covisibility[k] = dict(zip(cid.tolist(), cw.tolist(), strict=True))
+        m.covisibility[k] = dict(zip(cid, cw, strict=True))
         if kr.parents[j] >= 0:
             m.parent[k] = int(kr.parents[j])
         else:
             m.parent.pop(k, None)
-        m.children[k] = set(children[j].tolist())
+        m.children[k] = set(children[j])
         if len(loops[j]):
-            m.loop_edges[k] = set(loops[j].tolist())
+            m.loop_edges[k] = set(loops[j])
         else:
             m.loop_edges.pop(k, None)
     # 3. Culled keyframes.
