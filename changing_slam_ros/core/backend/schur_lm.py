@@ -81,13 +81,6 @@ class LMResult:
     stopped: bool
 
 
-def _skew(v: F64) -> F64:
-    """(N, 3) -> (N, 3, 3) cross-product matrices."""
-    z = np.zeros(len(v))
-    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], -1), np.stack([v[:, 2], z, -v[:, 0]], -1),
-                     np.stack([-v[:, 1], v[:, 0], z], -1)], 1)  # fmt: skip
-
-
 def _so3_exp(w: F64) -> F64:
     """Rodrigues, (N, 3) -> (N, 3, 3)."""
     th = np.linalg.norm(w, axis=1)
@@ -95,7 +88,7 @@ def _so3_exp(w: F64) -> F64:
     ths = np.where(small, 1.0, th)
     a = np.where(small, 1.0, np.sin(ths) / ths)
     b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths**2)
-    K = _skew(w)
+    K = _skew_cm(w.T).transpose(2, 0, 1)  # (N, 3, 3) cross-product matrices
     return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
 
 
