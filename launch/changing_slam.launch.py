@@ -55,7 +55,7 @@ def generate_launch_description() -> LaunchDescription:
         Node(
             package=PACKAGE, executable="bag_player", name="bag_player", output="screen", condition=IfCondition(has_bag),
             parameters=[{"bag": bag, "rate": rate, "lossless": lossless,
-                         "ack_topics": ["/camera/rgb/image_color"]}],
+                         "ack_topics": ["/camera/rgb/image_color"], "confirm_topics": ["/camera/rgb/camera_info"]}],
         ),
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
              parameters=[{"config": config, "intra_op_threads": detector_threads}, sim_time],

@@ -68,6 +68,7 @@ READY_MARKERS = {
 RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
+CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
 PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
 
 
@@ -202,7 +203,7 @@ def inspect_bag(path: str) -> BagInfo:
         topics = bag.topics
         duration_s = (bag.end_ns - bag.start_ns) / 1e9
     sensors = ("/camera/depth/image", "/camera/depth/image/compressed", "/camera/depth/image/compressedDepth",
-               "/camera/rgb/camera_info")
+               CAMERA_INFO_TOPIC)
     for name, compressed in (("/camera/rgb/image_color", False), ("/camera/rgb/image_color/compressed", True)):
         if name in topics:
             return BagInfo(name, compressed, topics[name].msgcount, duration_s,
@@ -335,6 +336,10 @@ class Graph:
                   "wait_for_topics": list(info.sensor_topics or (info.colour_topic,)),
                   "min_subscribers": 2 if self.detection else 1, "wait_subscribers": True,
                   "dds_ack_wait": False}  # fmt: skip
+        if a.lossless and CAMERA_INFO_TOPIC in info.sensor_topics:
+            # camera_info's own writer can be matched after the images' (volatile: lost intrinsics); tracking
+            # confirms each camera_info on the ack topic, and the player re-sends it until one is confirmed
+            player["confirm_topics"] = [CAMERA_INFO_TOPIC]
         self.player = NodeProcess("bag_player", _node_argv("bag_player_node", player), self.logs)
         for name, increment in parse_nice(getattr(a, "nice", []), (*self.nodes, "bag_player")).items():
             (self.player if name == "bag_player" else self.nodes[name]).nice = increment

@@ -22,6 +22,12 @@ Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
    a throttled warning, counted). Messages in between (depth, camera_info) still go out, so a node that pairs
    a colour frame with the depth frame recorded just after it can finish the frame; at the end of the bag the
    last frame's ack is awaited too.
+4. confirmed delivery: a topic in `confirm_topics` (e.g. camera_info, published by its own DDS writer that a
+   reader can match seconds after the image writers, losing what was sent before: a volatile reader gets no
+   history) must be confirmed by a subscriber, which publishes a `std_msgs/Header` on `ack_topic` whose
+   `frame_id` is that topic's name. Until it is, the topic's latest message is re-sent every `confirm_resend_s`
+   before the next `ack_topics` message goes out (at most `ack_timeout_s`, then a warning, counted). Once
+   confirmed, nothing more is waited for.
 Time spent waiting does not count against the schedule: playback resumes at the recorded spacing.
 The timing logic is ROS-free, in `changing_slam_ros.io.playback`.
 """
@@ -69,6 +75,8 @@ class PlaybackResult:
     passes: int = 0
     ack_timeouts: int = 0
     dds_ack_timeouts: int = 0
+    confirm_resends: int = 0  # lossless: messages of confirm_topics sent again until a subscriber confirmed one
+    confirm_timeouts: int = 0
     wall_s: float = 0.0
     cpu_s: float = 0.0  # this process's CPU time during play() (all threads)
     completed: bool = False
@@ -99,6 +107,8 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._ack_topics = set(p["ack_topics"])
         self._ack_count: int = p["ack_count"]
         self._ack_timeout_s: float = p["ack_timeout_s"]
+        self._confirm_topics: list[str] = p["confirm_topics"]
+        self._confirm_resend_s: float = p["confirm_resend_s"]
         if not p["bag"]:
             raise ConfigError("bag_player: no bag given (bag_player BAG, or -p bag:=PATH)")
 
@@ -110,6 +120,10 @@ class BagPlayerNode(QuietQosEvents, Node):
             raise
         self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(depth=10))
         self._acks: dict[int, set[str]] = {}
+        self._check_confirm_topics()
+        # lossless: output topic name -> bag topic, for the confirm topics the bag has; confirmed ones drop out
+        self._unconfirmed: dict[str, str] = {self.options.output_topic(t): t for t in self._confirm_topics}
+        self._confirm_latest: dict[str, Any] = {}  # bag topic -> its latest published message
         self.result = PlaybackResult()  # the current (or last) play() call's counts
         from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
 
@@ -117,7 +131,7 @@ class BagPlayerNode(QuietQosEvents, Node):
         self.diagnostics.set_source(lambda: {"published": self.result.published, "ack_timeouts": self.result.ack_timeouts,
                                              "dds_ack_timeouts": self.result.dds_ack_timeouts,
                                              "completed": self.result.completed})  # fmt: skip
-        if self.lossless and self._ack_count > 0 and self._ack_topics:
+        if self.lossless and ((self._ack_count > 0 and self._ack_topics) or self._unconfirmed):
             self.create_subscription(Header, p["ack_topic"], self._on_ack, QoSProfile(depth=1000))
         self.get_logger().info(
             f"bag_player: {self.bag.path} ({self.bag.kind.value}), {len(self.bag_publishers)} topics, "
@@ -152,13 +166,24 @@ class BagPlayerNode(QuietQosEvents, Node):
             ("ack_topic", "/bag_player/ack", "lossless: std_msgs/Header acks (stamp = acknowledged stamp)"),
             ("ack_count", 1, "lossless: distinct acknowledging nodes awaited per message on ack_topics"),
             ("ack_timeout_s", 2.0, "lossless: longest wait per message for acks (DDS and processing)"),
+            ("confirm_topics", STRING_ARRAY, "lossless: bag topics a subscriber must confirm (a Header on ack_topic "
+                                             "with frame_id = the topic) before the next ack_topics message"),
+            ("confirm_resend_s", 0.5, "lossless: re-send an unconfirmed confirm_topics message this often"),
             ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports while playing (0 = off)"),
         ]
         values = declare_parameters(self, specs)
-        for name in ("clock_hz", "progress_period_s"):
+        for name in ("clock_hz", "progress_period_s", "confirm_resend_s"):
             if not values[name] > 0:
                 raise ConfigError(f"bag_player: {name} must be > 0, got {values[name]}")
         return values
+
+    def _check_confirm_topics(self) -> None:
+        """A confirm topic the bag does not play (a bag without camera_info, say) has nothing to confirm."""
+        unknown = [t for t in self._confirm_topics if t not in self.bag_publishers]
+        if unknown:
+            self.get_logger().warning(f"bag_player: confirm_topics {', '.join(unknown)} are not played topics "
+                                      f"(played: {', '.join(sorted(self.bag_publishers))}); nothing to confirm there")
+            self._confirm_topics = [t for t in self._confirm_topics if t in self.bag_publishers]
 
     def _make_publishers(self, depth: int) -> dict[str, Any]:
         """One publisher per bag topic with a known Python type; unknown types are skipped with a warning."""
@@ -226,6 +251,10 @@ class BagPlayerNode(QuietQosEvents, Node):
                 progress = PlaybackProgress(progress.total_messages, span_ns, self._progress_period_ns)
             if not self._sleep_until(clock, item.msg.log_stamp_ns, executor):
                 break
+            if self.lossless and self._confirm_latest and item.msg.topic in self._ack_topics:
+                waited_from = _now_ns()
+                self._wait_confirmed(executor, result)
+                clock.pause(_now_ns() - waited_from)
             if pending is not None and item.msg.topic in self._ack_topics:
                 # One frame in flight: the previous frame must be processed before the next one goes out.
                 # (Waiting right after publishing would deadlock a node that pairs a colour frame with the
@@ -241,6 +270,8 @@ class BagPlayerNode(QuietQosEvents, Node):
             result.per_topic[item.topic] = result.per_topic.get(item.topic, 0) + 1
             progress.record(item.topic)
             if self.lossless:
+                if item.msg.topic in self._confirm_topics and self.options.output_topic(item.msg.topic) in self._unconfirmed:
+                    self._confirm_latest[item.msg.topic] = item.msg
                 waited_from = _now_ns()
                 if self._dds_ack_wait and not pub.wait_for_all_acked(
                     Duration(nanoseconds=round(self._ack_timeout_s * NS_PER_S))
@@ -264,6 +295,7 @@ class BagPlayerNode(QuietQosEvents, Node):
             f"bag_player: {'finished' if result.completed else 'stopped'}: {result.published} messages "
             f"in {result.wall_s:.2f} s (CPU {result.cpu_s:.2f} s)"
             + (f", {result.ack_timeouts} ack timeouts" if self.lossless else "")
+            + (f", {result.confirm_resends} re-sends until confirmed" if result.confirm_resends else "")
         )
         return result
 
@@ -343,7 +375,36 @@ class BagPlayerNode(QuietQosEvents, Node):
             executor.spin_once(timeout_sec=min(left_s, 1.0))  # an ack wakes it at once: no need to poll
         self._acks.pop(stamp, None)
 
+    def _wait_confirmed(self, executor: Executor, result: PlaybackResult) -> None:
+        """Spin until every published confirm topic is confirmed, re-sending each one's latest message every
+        `confirm_resend_s`; at most `ack_timeout_s` (then a warning, counted, and nothing more is waited for)."""
+        deadline = time.monotonic() + self._ack_timeout_s
+        next_resend = time.monotonic() + self._confirm_resend_s
+        while self.context.ok():
+            waiting = [t for t in self._confirm_latest if self.options.output_topic(t) in self._unconfirmed]
+            if not waiting:
+                break
+            now = time.monotonic()
+            if now > deadline:
+                result.confirm_timeouts += 1
+                self.get_logger().warning(
+                    f"bag_player: lossless: no subscriber confirmed {', '.join(map(self.options.output_topic, waiting))} "
+                    f"after {self._ack_timeout_s} s ({result.confirm_resends} re-sends); going on without"
+                )
+                self._unconfirmed.clear()
+                break
+            if now >= next_resend:
+                for topic in waiting:
+                    self.bag_publishers[topic].publish(self._confirm_latest[topic].cdr)
+                    result.confirm_resends += 1
+                next_resend = now + self._confirm_resend_s
+            executor.spin_once(timeout_sec=max(0.001, min(next_resend, deadline) - now))
+        self._confirm_latest.clear()
+
     def _on_ack(self, msg: Header) -> None:
+        if msg.frame_id in self._unconfirmed:  # a subscriber confirms a confirm topic's delivery
+            del self._unconfirmed[msg.frame_id]
+            return
         stamp = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec
         self._acks.setdefault(stamp, set()).add(msg.frame_id)
         while len(self._acks) > 1000:  # acks for stamps never waited for (another publisher, a late ack)

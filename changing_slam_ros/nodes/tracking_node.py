@@ -192,8 +192,8 @@ class TrackingNode(QuietQosEvents, Node):
         # The sensor inputs keep rclpy's QoS-event warnings (a driver offering incompatible QoS); the other
         # publishers and subscriptions have none (nodes/qos_events.py: cheaper spins).
         warn = SubscriptionEventCallbacks
-        self.create_subscription(CameraInfo, "/camera/rgb/camera_info", self.on_camera_info, image_qos,
-                                 event_callbacks=warn())  # fmt: skip
+        self._camera_info_sub = self.create_subscription(CameraInfo, "/camera/rgb/camera_info", self.on_camera_info,
+                                                         image_qos, event_callbacks=warn())  # fmt: skip
         if p["compressed"]:
             self.colour_topic, self.depth_topic = "/camera/rgb/image_color/compressed", "/camera/depth/image/compressed"
             image_type: Any = CompressedImage
@@ -277,6 +277,8 @@ class TrackingNode(QuietQosEvents, Node):
         except SlamError as err:
             self.get_logger().warning(f"tracking: camera_info rejected: {err}", throttle_duration_sec=5.0)
             return
+        if self.ack_pub is not None:  # lossless: confirms delivery to a player that re-sends until confirmed
+            self.ack_pub.publish(Header(stamp=msg.header.stamp, frame_id=self._camera_info_sub.topic_name))
         if first and len(self.queue):
             self._drain()  # frames held for it (lossless)
 

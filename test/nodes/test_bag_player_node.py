@@ -212,6 +212,72 @@ def test_lossless_mode_waits_for_depth_too_not_only_for_the_acknowledged_colour(
         node.destroy_node()
 
 
+class LateCameraInfoReader(Node):
+    """Reads colour and camera_info, but loses every camera_info that comes within `deaf_s` of its first colour
+    frame, as a reader that matched camera_info's writer late does (volatile: what was sent before is gone); each
+    camera_info it keeps is confirmed on the ack topic (frame_id = the topic), as tracking does, and each colour
+    frame is acknowledged."""
+
+    def __init__(self, context, deaf_s: float):  # noqa: ANN001
+        from sensor_msgs.msg import CameraInfo
+
+        super().__init__("late_reader", context=context)
+        self.deaf_s = deaf_s
+        self.first_colour_s: float | None = None
+        self.events: list[str] = []  # "colour" / "info" in the order they were kept
+        self.images: dict[str, list] = {"/camera/rgb/image_color": []}  # play() waits for this topic's match
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(Image, "/camera/rgb/image_color", self._on_colour, qos)
+        self.info_sub = self.create_subscription(CameraInfo, "/camera/rgb/camera_info", self._on_info, qos)
+        self.ack_pub = self.create_publisher(Header, "/bag_player/ack", 100)
+
+    def _on_colour(self, msg: Image) -> None:
+        self.first_colour_s = self.first_colour_s or time.monotonic()
+        self.events.append("colour")
+        self.ack_pub.publish(Header(stamp=msg.header.stamp, frame_id=self.get_name()))
+
+    def _on_info(self, msg) -> None:  # noqa: ANN001
+        if self.first_colour_s is None or time.monotonic() - self.first_colour_s < self.deaf_s:
+            return  # not matched yet: lost
+        self.events.append("info")
+        self.ack_pub.publish(Header(stamp=msg.header.stamp, frame_id=self.info_sub.topic_name))
+
+
+def test_lossless_mode_re_sends_camera_info_until_a_late_matched_reader_confirms_it(ros_context, fr1_bag):
+    """Session 9's flaky graph test: camera_info's writer was matched by tracking's reader only after the frames
+    had gone out, so tracking never had intrinsics. With `confirm_topics` the player holds the next colour frame
+    and re-sends camera_info until the reader confirms one; without, the reader sees frames before intrinsics."""
+    colour, info = "/camera/rgb/image_color", "/camera/rgb/camera_info"
+    params = dict(lossless=True, rate=5.0, ack_topics=[colour], ack_topic="/bag_player/ack", ack_timeout_s=10.0,
+                  wait_for_topics=[colour, info], wait_subscribers_timeout_s=10.0, dds_ack_wait=False,
+                  topics=[colour, info])  # fmt: skip
+
+    reader = LateCameraInfoReader(ros_context, deaf_s=1.0)
+    result = play(ros_context, make_player(ros_context, fr1_bag.path, **params), reader)
+    assert result.completed and result.confirm_resends == 0
+    assert reader.events[:2] == ["colour", "colour"]  # the second frame before any intrinsics: the old failure
+    reader.destroy_node()
+
+    reader = LateCameraInfoReader(ros_context, deaf_s=1.0)
+    player = make_player(ros_context, fr1_bag.path, **params, confirm_topics=[info], confirm_resend_s=0.1)
+    result = play(ros_context, player, reader)
+    assert result.completed and result.confirm_timeouts == 0 and result.ack_timeouts == 0
+    assert result.confirm_resends >= 5  # ~1 s deaf, re-sent every 0.1 s
+    assert reader.events[:2] == ["colour", "info"]  # intrinsics before the second frame
+    assert reader.events.count("colour") == len(fr1_bag.rgb_stamps_ns)
+    reader.destroy_node()
+    player.destroy_node()
+    # A topic the bag does not play (a bag without camera_info) has nothing to confirm: the bag plays as without.
+    reader = LateCameraInfoReader(ros_context, deaf_s=0.0)
+    player = make_player(ros_context, fr1_bag.path, **{**params, "topics": [colour], "wait_for_topics": [colour]},
+                         confirm_topics=[info])  # fmt: skip
+    result = play(ros_context, player, reader)
+    assert result.completed and result.confirm_resends == result.confirm_timeouts == 0
+    assert reader.events == ["colour"] * len(fr1_bag.rgb_stamps_ns)
+    reader.destroy_node()
+    player.destroy_node()
+
+
 def test_bad_bags_and_topics_raise_errors_naming_them(ros_context, tmp_path, fr1_bag):
     with pytest.raises(BagError, match="nope.mcap: no such file"):
         make_player(ros_context, tmp_path / "nope.mcap")

@@ -341,16 +341,23 @@ def test_lossless_frames_before_the_first_camera_info_wait_for_it_and_real_time_
     node = TrackingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
         Parameter("intrinsics_from", value="camera_info"), Parameter("frame_policy", value=policy),
-        Parameter("debug_image", value=False),
+        Parameter("debug_image", value=False), Parameter("ack_topic", value="/bag_player/ack"),
     ])  # fmt: skip
     acked: list[int] = []
     node._ack = lambda header: acked.append(cv.stamp_to_ns(header.stamp))  # what the player waits for
+    confirmed: list[str] = []  # camera_info confirmations (the player re-sends camera_info until one comes)
+    node.ack_pub.publish = lambda header: confirmed.append(header.frame_id)
     for f in frames:
         node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
         node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
     assert sorted(set(acked)) == [f.stamp_ns for f in frames]  # the player is never held up
     assert node.published_poses == 0
+    bad = cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera")
+    bad.k[0] = 0.0  # fx 0: rejected, and not confirmed
+    node.on_camera_info(bad)
+    assert confirmed == [] and node.published_poses == 0
     node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
+    assert confirmed == ["/camera/rgb/camera_info"]
     if policy == "all":
         assert node.published_poses == 3 and [r.stamp_ns for r in node.backend.system.records] == [f.stamp_ns for f in frames]
     else:
