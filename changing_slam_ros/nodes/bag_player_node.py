@@ -123,6 +123,7 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._check_confirm_topics()
         # lossless: output topic name -> bag topic, for the confirm topics the bag has; confirmed ones drop out
         self._unconfirmed: dict[str, str] = {self.options.output_topic(t): t for t in self._confirm_topics}
+        self._confirm_names = frozenset(self._unconfirmed)
         self._confirm_latest: dict[str, Any] = {}  # bag topic -> its latest published message
         self.result = PlaybackResult()  # the current (or last) play() call's counts
         from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
@@ -402,8 +403,8 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._confirm_latest.clear()
 
     def _on_ack(self, msg: Header) -> None:
-        if msg.frame_id in self._unconfirmed:  # a subscriber confirms a confirm topic's delivery
-            del self._unconfirmed[msg.frame_id]
+        if msg.frame_id in self._confirm_names:  # a subscriber confirms a confirm topic's delivery, not a frame
+            self._unconfirmed.pop(msg.frame_id, None)
             return
         stamp = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec
         self._acks.setdefault(stamp, set()).add(msg.frame_id)

@@ -218,11 +218,11 @@ class LateCameraInfoReader(Node):
     camera_info it keeps is confirmed on the ack topic (frame_id = the topic), as tracking does, and each colour
     frame is acknowledged."""
 
-    def __init__(self, context, deaf_s: float):  # noqa: ANN001
+    def __init__(self, context, deaf_s: float, ack_frames: bool = True):  # noqa: ANN001
         from sensor_msgs.msg import CameraInfo
 
         super().__init__("late_reader", context=context)
-        self.deaf_s = deaf_s
+        self.deaf_s, self.ack_frames = deaf_s, ack_frames
         self.first_colour_s: float | None = None
         self.events: list[str] = []  # "colour" / "info" in the order they were kept
         self.images: dict[str, list] = {"/camera/rgb/image_color": []}  # play() waits for this topic's match
@@ -234,7 +234,8 @@ class LateCameraInfoReader(Node):
     def _on_colour(self, msg: Image) -> None:
         self.first_colour_s = self.first_colour_s or time.monotonic()
         self.events.append("colour")
-        self.ack_pub.publish(Header(stamp=msg.header.stamp, frame_id=self.get_name()))
+        if self.ack_frames:
+            self.ack_pub.publish(Header(stamp=msg.header.stamp, frame_id=self.get_name()))
 
     def _on_info(self, msg) -> None:  # noqa: ANN001
         if self.first_colour_s is None or time.monotonic() - self.first_colour_s < self.deaf_s:
@@ -265,6 +266,14 @@ def test_lossless_mode_re_sends_camera_info_until_a_late_matched_reader_confirms
     assert result.confirm_resends >= 5  # ~1 s deaf, re-sent every 0.1 s
     assert reader.events[:2] == ["colour", "info"]  # intrinsics before the second frame
     assert reader.events.count("colour") == len(fr1_bag.rgb_stamps_ns)
+    reader.destroy_node()
+    player.destroy_node()
+    # A confirmation (same stamp as its frame) is not a frame's processing ack: a reader that confirms camera_info
+    # but never acknowledges a frame leaves every frame's wait to time out.
+    reader = LateCameraInfoReader(ros_context, deaf_s=0.0, ack_frames=False)
+    player = make_player(ros_context, fr1_bag.path, **{**params, "ack_timeout_s": 0.2}, confirm_topics=[info])
+    result = play(ros_context, player, reader)
+    assert result.completed and result.ack_timeouts == len(fr1_bag.rgb_stamps_ns)
     reader.destroy_node()
     player.destroy_node()
     # A topic the bag does not play (a bag without camera_info) has nothing to confirm: the bag plays as without.
