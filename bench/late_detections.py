@@ -15,9 +15,14 @@ the offline run itself. Prints a table, never asserts.
 A setting is `grow<G>` (grow_widths_per_s G) with `+extrapolate` to move boxes on at their edges' velocity and
 `+flow<F>` to move them by their image motion between the detections' image and the frame (`core.box_flow`)
 and grow a moved box by F widths/s instead (a box whose motion is not measured: as without +flow), e.g.
-`grow0.5+flow0.25`; `+hull` joins a moved box with where it was before growing. Detections are computed once per
-bag (every frame) and reused by every row. With +flow the CPU time of `carried_forward` per carried frame
-(`time.process_time`) is printed too.
+`grow0.5+flow0.25`; `+hull` joins a moved box with where it was before growing; `+refine` (or `+refine<G>`, G the
+interpolated boxes' growth in widths/s, default 0.25) turns `tracking.deferred_refinement` on: each detection set
+is handed to `SlamSystem.refine_with_detections` when it becomes usable, so the frames it brackets with the set
+before get their final pose optimised again without the keypoints in the interpolated person boxes
+(`core.deferred_refinement`). Every row prints the final ATE (trajectory.txt's, what the tables compare) and the
+online one. Detections are computed once per bag (every frame) and reused by every row. With +flow the CPU time of
+`carried_forward` per carried frame (`time.process_time`) is printed too; with +refine that of the refinement per
+detection set and its counters.
 """
 
 from __future__ import annotations
@@ -37,19 +42,21 @@ from changing_slam_ros.commands.dynamic_options import dynamic_setup  # noqa: E4
 from changing_slam_ros.commands.objects_options import object_layer_setup  # noqa: E402
 from changing_slam_ros.core.box_flow import FlowImage  # noqa: E402
 from changing_slam_ros.core.detector import Detection, DetectionSet  # noqa: E402
+from changing_slam_ros.core.deferred_refinement import RefinementConfig  # noqa: E402
 from changing_slam_ros.core.late_detections import CarryConfig, carried_forward  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 from changing_slam_ros.io.dataset_config import settings_from_mapping  # noqa: E402
 
 
-def parse_setting(text: str) -> CarryConfig:
+def parse_setting(text: str) -> tuple[CarryConfig, RefinementConfig | None]:
     """'grow0.5+extrapolate' -> CarryConfig(grow_widths_per_s=0.5, extrapolate=True); '+flow0.25' adds
-    flow=True, flow_grow_widths_per_s=0.25."""
+    flow=True, flow_grow_widths_per_s=0.25; '+refine[G]' the deferred refinement (None without it)."""
     parts = text.split("+")
     if not parts[0].startswith("grow"):
-        raise SystemExit(f"--settings {text}: expected grow<G>[+extrapolate][+flow<F>], e.g. grow0.5+flow0.25")
+        raise SystemExit(f"--settings {text}: expected grow<G>[+extrapolate][+flow<F>][+refine[G]], e.g. grow0.5+flow0.25")
     cfg = CarryConfig(grow_widths_per_s=_number(text, parts[0][4:]), flow=False)  # +flow<F> switches it on
+    refine = None
     for part in parts[1:]:
         if part == "extrapolate":
             cfg = dataclasses.replace(cfg, extrapolate=True)
@@ -57,9 +64,13 @@ def parse_setting(text: str) -> CarryConfig:
             cfg = dataclasses.replace(cfg, flow_hull=True)
         elif part.startswith("flow"):
             cfg = dataclasses.replace(cfg, flow=True, flow_grow_widths_per_s=_number(text, part[4:]))
+        elif part.startswith("refine"):
+            refine = RefinementConfig(enabled=True, class_ids=cfg.class_ids)
+            if part[6:]:
+                refine = dataclasses.replace(refine, interpolated_grow_widths_per_s=_number(text, part[6:]))
         else:
-            raise SystemExit(f"--settings {text}: unknown option {part!r}; only +extrapolate, +flow<F>, +hull")
-    return cfg
+            raise SystemExit(f"--settings {text}: unknown option {part!r}; only +extrapolate, +flow<F>, +hull, +refine[G]")
+    return cfg, refine
 
 
 def _number(text: str, value: str) -> float:
@@ -85,15 +96,31 @@ def parse_cadence(text: str) -> tuple[int, int, int]:
     return every, delay, phase
 
 
+@dataclasses.dataclass
+class RunResult:
+    """One replay: final and online ATE (m), frames tracked, CPU ms per carried frame (`carried_forward`) and per
+    detection set handed to the refinement, and the refinement's counters (None without it)."""
+
+    ate_m: float
+    online_ate_m: float
+    tracked: int
+    carry_cpu_ms: list[float]
+    refine_cpu_ms: list[float]
+    refine_stats: object | None
+
+
 def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], cadence: tuple[int, int, int],
-             carry: CarryConfig | None, images: list[FlowImage]) -> tuple[float, int, list[float]]:  # fmt: skip
-    """ATE (m), frames tracked and the CPU ms of each carried frame's `carried_forward` with this cadence and carry
-    (carry None: every frame its own detections). `images`: each frame's grey and depth, for +flow."""
+             carry: CarryConfig | None, images: list[FlowImage], refine: RefinementConfig | None = None) -> RunResult:  # fmt: skip
+    """One replay with this cadence and carry (carry None: every frame its own detections); `refine`: the deferred
+    refinement's settings (None: off). `images`: each frame's grey and depth, for +flow."""
     data, where = args.config_data, args.config_where
     ns = run_command_args(args.bag, "unused", args.config)  # the run's options; nothing is written
     dyn = dynamic_setup(ns, data, where)
     closing = run_command._loop_closing(data, where)
-    system = run_command.SlamSystem(run_command.system_config_from_mapping(data, where), loop_closer=closing,
+    config = run_command.system_config_from_mapping(data, where)
+    if refine is not None:
+        config = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, deferred_refinement=refine))
+    system = run_command.SlamSystem(config, loop_closer=closing,
                                     keyframe_index=closing, dynamic_filter=dyn.filter,
                                     object_layer=object_layer_setup(ns, data, where))  # fmt: skip
     every, delay, phase = cadence
@@ -101,6 +128,7 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], c
     previous: DetectionSet | None = None
     newest_index = -1
     cpu_ms: list[float] = []
+    refine_ms: list[float] = []
     for i, frame in enumerate(frames):
         used: tuple[Detection, ...] | None
         if carry is None:
@@ -110,6 +138,10 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], c
             detected = j >= phase and (j - phase) % every == 0
             if detected:
                 previous, newest, newest_index = newest, dets[j], j
+                if refine is not None:  # the set arrives: the tracked frames it brackets are refined
+                    c0 = time.process_time()
+                    system.refine_with_detections(dets[j])
+                    refine_ms.append(1e3 * (time.process_time() - c0))
             used = None
             if newest is not None:
                 pair = (images[newest_index], images[i]) if carry.flow else None
@@ -120,7 +152,10 @@ def run_once(args: argparse.Namespace, frames: list, dets: list[DetectionSet], c
             if delay == 0 and detected:
                 used = dets[i].detections  # the frame's own detections, in time
         system.process(frame, used)
-    return float(ate(args.groundtruth, system.final_trajectory()).stats.rmse), system.n_tracked(), cpu_ms
+    final = float(ate(args.groundtruth, system.final_trajectory()).stats.rmse)
+    online = float(ate(args.groundtruth, system.online_trajectory()).stats.rmse)
+    stats = None if system.refinement is None else system.refinement.stats
+    return RunResult(final, online, system.n_tracked(), cpu_ms, refine_ms, stats)
 
 
 def run_command_args(bag: str, out: str, config: str) -> argparse.Namespace:
@@ -136,7 +171,7 @@ def main() -> int:
     parser.add_argument("--cadences", nargs="+", default=["3:4", "3:3", "2:4", "4:5", "3:5"], metavar="EVERY:DELAY[:PHASE]",
                         help="detector on every EVERY-th frame, its boxes usable DELAY frames later")
     parser.add_argument("--settings", nargs="+", default=["grow1", "grow0.5", "grow0.5+extrapolate"],
-                        help="carry settings, grow<G>[+extrapolate][+flow<F>[+hull]]")
+                        help="carry settings, grow<G>[+extrapolate][+flow<F>[+hull]][+refine[G]]")
     args = parser.parse_args()
     cadences = [parse_cadence(c) for c in args.cadences]
     settings = {s: parse_setting(s) for s in args.settings}
@@ -155,24 +190,34 @@ def main() -> int:
     t0 = time.perf_counter()
     dets = [dyn.detector.detect(f.rgb, f.stamp_ns) for f in frames]
     print(f"{args.bag}: {len(frames)} frames, detections in {time.perf_counter() - t0:.0f} s", flush=True)
-    base, tracked, _ = run_once(args, frames, dets, (1, 0, 0), None, images)
-    print(f"every frame, no delay (offline): ATE {100 * base:.2f} cm, {tracked}/{len(frames)} tracked", flush=True)
-    table: dict[str, list[float]] = {s: [] for s in settings}
+    offline = run_once(args, frames, dets, (1, 0, 0), None, images)
+    base = offline.ate_m
+    print(f"every frame, no delay (offline): ATE {100 * base:.2f} cm (online {100 * offline.online_ate_m:.2f}), "
+          f"{offline.tracked}/{len(frames)} tracked", flush=True)  # fmt: skip
+    table: dict[str, list[RunResult]] = {s: [] for s in settings}
     for every, delay, phase in cadences:
-        for name, carry in settings.items():
-            err, tracked, cpu_ms = run_once(args, frames, dets, (every, delay, phase), carry, images)
-            table[name].append(err)
-            lost = f", {len(frames) - tracked} lost" if tracked < len(frames) else ""
+        for name, (carry, refine) in settings.items():
+            res = run_once(args, frames, dets, (every, delay, phase), carry, images, refine)
+            table[name].append(res)
+            lost = f", {len(frames) - res.tracked} lost" if res.tracked < len(frames) else ""
             cpu = ""
-            if carry.flow and cpu_ms:
-                cpu = f", carry CPU {statistics.fmean(cpu_ms):.2f} ms/frame (max {max(cpu_ms):.1f})"
-            print(f"  every {every} delay {delay} phase {phase}  {name:22s} ATE {100 * err:.2f} cm (x{err / base:.2f}){lost}{cpu}",
-                  flush=True)  # fmt: skip
-    print("\n| setting | " + " | ".join(":".join(str(v) for v in (c if c[2] else c[:2])) for c in cadences) + " | mean cm (x offline) |")
-    print("|---|" + "---|" * (len(cadences) + 1))
-    for name, errs in table.items():
-        mean = statistics.fmean(errs)
-        print(f"| {name} | " + " | ".join(f"{100 * e:.2f}" for e in errs) + f" | {100 * mean:.2f} (x{mean / base:.2f}) |")
+            if carry.flow and res.carry_cpu_ms:
+                cpu = f", carry CPU {statistics.fmean(res.carry_cpu_ms):.2f} ms/frame (max {max(res.carry_cpu_ms):.1f})"
+            if res.refine_stats is not None:
+                st = res.refine_stats
+                cpu += (f", refine: {st.frames_refined}/{st.frames_optimised}/{st.frames_bracketed} frames refined/optimised/"
+                        f"bracketed, {st.matches_dropped} matches dropped, CPU {statistics.fmean(res.refine_cpu_ms or [0.0]):.2f} "
+                        f"ms/set")  # fmt: skip
+            print(f"  every {every} delay {delay} phase {phase}  {name:22s} ATE {100 * res.ate_m:.2f} cm (x{res.ate_m / base:.2f}), "
+                  f"online {100 * res.online_ate_m:.2f}{lost}{cpu}", flush=True)  # fmt: skip
+    heads = " | ".join(":".join(str(v) for v in (c if c[2] else c[:2])) for c in cadences)
+    print(f"\nfinal ATE cm (online in brackets)\n| setting | {heads} | mean cm (x offline) | online mean |")
+    print("|---|" + "---|" * (len(cadences) + 2))
+    for name, runs in table.items():
+        mean = statistics.fmean(r.ate_m for r in runs)
+        online = statistics.fmean(r.online_ate_m for r in runs)
+        cells = " | ".join(f"{100 * r.ate_m:.2f} ({100 * r.online_ate_m:.2f})" for r in runs)
+        print(f"| {name} | {cells} | {100 * mean:.2f} (x{mean / base:.2f}) | {100 * online:.2f} |")
     return 0
 
 

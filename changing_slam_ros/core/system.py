@@ -6,7 +6,9 @@ before tracking sees the next frame), so a run is reproducible for a given confi
 
 Trajectories: the *online* pose is what tracking estimated for the frame at the time; the *final*
 pose is re-expressed from the frame's reference keyframe after all optimisation
-(T_world_cam = T_world_ref(final) @ T_ref_cam), as ORB-SLAM saves its trajectory.
+(T_world_cam = T_world_ref(final) @ T_ref_cam), as ORB-SLAM saves its trajectory. With late detections (real
+time) and `tracking.deferred_refinement` on, a frame's T_ref_cam is replaced by its refined pose once the detection
+sets around it are in (`refine_with_detections`, `core.deferred_refinement`); the online pose stays.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.detector import Detection
+from changing_slam_ros.core.deferred_refinement import DeferredRefinement, RefinedPose, TrackedFrameMatches
+from changing_slam_ros.core.detector import Detection, DetectionSet
 from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
 from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.keyframe import Keyframe
@@ -30,6 +33,7 @@ from changing_slam_ros.core.loop_closing import MapMerge
 from changing_slam_ros.core.map_merging import MergeResult, merge_maps, move_frame
 from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
 from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.pose_optimizer import PinholeStereo
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
@@ -121,6 +125,10 @@ class SlamSystem:
         self.timings_ms: dict[str, list[float]] = defaultdict(list)
         self.n_loops = 0
         self.merges: list[MergeResult] = []
+        refine = self.config.tracking.deferred_refinement
+        self.refinement: DeferredRefinement | None = None  # real time with late detections: final poses refined
+        if refine.enabled and dynamic_filter is not None:
+            self.refinement = DeferredRefinement(refine, dynamic_filter.config.tracker_config().classification)
 
     def start_from_map(self, atlas: Atlas, next_keyframe_id: int,
                        objects: dict[int, SavedObjectMap] | None = None) -> None:
@@ -163,6 +171,8 @@ class SlamSystem:
         if dyn is not None:
             self._after_dynamic(dyn, res)
         self._record(frame, res)  # relative to the reference keyframe, before mapping moves it
+        if self.refinement is not None:
+            self._keep_for_refinement(frame, rgbd, res)
         t2 = time.perf_counter()
         stats = None
         corrected = False
@@ -262,6 +272,42 @@ class SlamSystem:
         self.records.append(
             FrameRecord(frame.stamp_ns, frame.index, res.state, m.id, frame.ref_kf_id, T_ref_cam, online)
         )
+
+    def refine_with_detections(self, detections: DetectionSet) -> list[RefinedPose]:
+        """A frame's detections have arrived after tracking went past it (real time): the tracked frames they
+        bracket with the set before get their final pose refined (`core.deferred_refinement`; nothing when
+        `tracking.deferred_refinement` is off). The online poses, the map and tracking's state stay as they were."""
+        if self.refinement is None:
+            return []
+        refined = self.refinement.on_detections(detections)
+        self._apply_refined(refined)
+        return refined
+
+    def _keep_for_refinement(self, frame: Frame, rgbd: RgbdFrame, res: TrackResult) -> None:
+        """A tracked frame's matches go into the refinement ring (keyframes not: their pose is the keyframe's, which
+        local BA refines)."""
+        assert self.refinement is not None
+        rec = self.records[-1]
+        if res.state != TrackingState.OK or res.new_keyframe is not None or rec.T_ref_cam is None or frame.T_world_cam is None:
+            return
+        idx = np.flatnonzero(frame.point_ids >= 0)
+        f, cam = frame.features, frame.camera
+        ids = frame.point_ids[idx]
+        kept = TrackedFrameMatches(
+            frame.stamp_ns, len(self.records) - 1, frame.T_world_cam.copy(), rec.T_ref_cam.copy(), f.raw_px[idx],
+            f.keypoints_px[idx], f.u_right[idx], self.tracker.inv_sigma2[f.octaves[idx]], ids,
+            self.atlas.current.points.positions[ids].copy(), rgbd.depth_m,
+            PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.config.features.bf_m_px),
+        )
+        refined = self.refinement.add(kept)
+        if refined is not None:
+            self._apply_refined([refined])
+
+    def _apply_refined(self, refined: list[RefinedPose]) -> None:
+        for r in refined:
+            rec = self.records[r.record_index]
+            if rec.stamp_ns == r.stamp_ns and rec.T_ref_cam is not None:
+                rec.T_ref_cam = r.T_ref_cam
 
     def _reanchor_last_frame(self) -> None:
         """After BA or a loop correction moved keyframes, move the last frame with its reference

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import enum
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import chain
 from typing import Protocol
 
@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from changing_slam_ros.core.deferred_refinement import RefinementConfig
 from changing_slam_ros.core.frame import Frame
 from changing_slam_ros.core.keyframe import Keyframe
 from changing_slam_ros.core.matcher import ProjectionQuery, match_brute_force, search_by_projection
@@ -70,6 +71,8 @@ class TrackingConfig:
       `max_frames_between_keyframes` frames since the last one, or tracking weak (inliers under this fraction of
       the reference keyframe's points) or short of close points, as ORB-SLAM's c1a / c1c; an idle mapper takes one
       whenever the ratio rule holds (c1b). 0 = insert as if idle. Offline and lossless, mapping is always idle.
+    - `deferred_refinement`: real time with late detections, a tracked frame's pose in the final trajectory is
+      optimised again once the detection sets before and after it are in (`core.deferred_refinement`).
     """
 
     min_init_points: int = 300
@@ -93,6 +96,7 @@ class TrackingConfig:
     busy_mapping_weak_ratio: float = 0.25
     pose_iterations_per_round: int = 6
     motion_pose_rounds: int = 4
+    deferred_refinement: RefinementConfig = field(default_factory=RefinementConfig)
 
     def __post_init__(self) -> None:
         if self.pose_iterations_per_round < 1:

@@ -1,0 +1,343 @@
+"""Deferred pose refinement: a frame's pose estimated again once the detections that bracket it are in.
+
+In real time the detector is slower than tracking, so a frame is tracked with the newest earlier detections carried
+forward (`core.late_detections`); a person's keypoints outside a carried box reach the pose optimisation and spoil
+that frame's pose (docs/architecture.md, "Session 8: late detections": the map is not what the late boxes spoil).
+A few frames later the detections of an image *after* the frame arrive. Every recently tracked frame whose stamp
+lies between the stamps of two consecutive detection sets (the newer one's own frame included) is then bracketed:
+its person boxes are interpolated between the two sets (`interpolated_boxes`), its matched keypoints classified
+again with them (`keypoint_classification.classify_keypoints`, §4.1 with repopulation, on the frame's depth
+image), and its pose optimised again (`pose_optimizer.optimize_pose`, as tracking's last step) on the frame's
+matches as tracked, less the keypoints now on a person. The refined pose replaces the frame's pose relative to its
+reference keyframe, so the final trajectory changes and the live one does not: tracking, the map and the
+published poses stay as they were (the refined pose comes too late for them).
+
+The ring (`DeferredRefinement`) keeps, per tracked frame, what that takes (`TrackedFrameMatches`): M matches
+(M ~ 150-400) with the keypoint's raw and undistorted pixel, virtual right coordinate, pyramid weight, map point id
+and the map point's position when the frame was tracked (the pose is optimised against the map as tracking saw
+it, so the relative pose stays consistent with the reference keyframe's pose at that time: 80 bytes a match,
+~12-32 kB a frame), the online pose and pose relative to the reference keyframe, and a reference to the frame's
+depth image (float32, 0.3 MB at 320x240, 1.2 MB at 640x480; shared with the frame, not copied). It holds the
+frames of the last `max_age_s` (0.6 s: 18 frames at 30 Hz, ~6 MB of depth images at 320x240, ~22 MB at 640x480)
+and at most `max_frames`. A frame's detections arrive ~4 frames late and the sets ~3 frames apart at the graph's
+1x cadence, so a frame waits ~7 frames (0.23 s) for the set after it.
+
+Box interpolation: the two sets' boxes of `class_ids` are paired greedily by IoU (same class, IoU >=
+`match_min_iou`, as the carry code's extrapolation pairs them); a paired box is interpolated linearly in its
+corners by the frame's time between the two stamps and grown by `interpolated_grow_widths_per_s` of its size per
+side per second to the nearer set; a box of only one set is carried to the frame unmoved and grown by
+`carried_grow_widths_per_s` per second of the time between them (a person entering or leaving, or a missed
+detection). A frame with no set before it within `max_bracket_gap_s` is not bracketed and keeps its pose, unless it
+is the new set's own frame (its boxes are then exact).
+
+A frame is only optimised again when at least one of its matches moves onto a person, and its refined pose is
+kept when at least `min_inliers` matches stay inliers and it is within `max_correction_m` / `max_correction_deg` of
+the tracked pose (a refinement that jumps further is a failed optimisation, not a correction).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.detector import Detection, DetectionSet, iou_matrix
+from changing_slam_ros.core.keyframe import KeypointClass
+from changing_slam_ros.core.keypoint_classification import KeypointClassificationConfig, classify_keypoints
+from changing_slam_ros.core.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose
+from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.errors import ConfigError
+
+F64 = npt.NDArray[np.float64]
+F32 = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class RefinementConfig:
+    """YAML `tracking: deferred_refinement:` (see the module doc).
+
+    - `enabled`: keep tracked frames and refine them when the detections after them arrive (real time only:
+      a caller that tracks every frame with its own detections never hands a detection set over).
+    - `max_age_s`, `max_frames`: the ring of tracked frames (seconds behind the newest frame, count).
+    - `max_bracket_gap_s`: two detection sets further apart do not bracket the frames between them.
+    - `class_ids`: the classes whose boxes are interpolated (person: the a-priori dynamic class; the carried
+      boxes are of these classes too, `CarryConfig.class_ids`).
+    - `match_min_iou`: least IoU of a box of the earlier set and one of the later set to pair them.
+    - `interpolated_grow_widths_per_s`: a paired box grows by this much of its size per side per second of the
+      time to the nearer set; `carried_grow_widths_per_s`: a box of one set only, per second from that set.
+    - `min_inliers`: fewer inliers after the new optimisation keep the tracked pose.
+    - `max_correction_m`, `max_correction_deg`: a refined pose further from the tracked one is not used.
+    - `pose_rounds`, `pose_iterations`: the optimisation's outlier rounds and iterations per round (tracking's).
+    """
+
+    enabled: bool = False
+    max_age_s: float = 0.6
+    max_frames: int = 32
+    max_bracket_gap_s: float = 0.5
+    class_ids: tuple[int, ...] = (0,)
+    match_min_iou: float = 0.1
+    interpolated_grow_widths_per_s: float = 0.25
+    carried_grow_widths_per_s: float = 0.5
+    min_inliers: int = 30
+    max_correction_m: float = 0.05
+    max_correction_deg: float = 3.0
+    pose_rounds: int = 4
+    pose_iterations: int = 6
+
+    def __post_init__(self) -> None:
+        where = "tracking.deferred_refinement"
+        if self.max_age_s <= 0.0 or self.max_frames < 1:
+            raise ConfigError(f"{where}: max_age_s must be > 0 and max_frames >= 1, got {self.max_age_s}, {self.max_frames}")
+        if self.max_bracket_gap_s <= 0.0:
+            raise ConfigError(f"{where}.max_bracket_gap_s: expected > 0, got {self.max_bracket_gap_s}")
+        if self.interpolated_grow_widths_per_s < 0.0 or self.carried_grow_widths_per_s < 0.0:
+            raise ConfigError(f"{where}: grow rates must be >= 0")
+        if self.pose_rounds < 1 or self.pose_iterations < 1:
+            raise ConfigError(f"{where}: pose_rounds and pose_iterations must be >= 1")
+
+
+@dataclass(frozen=True)
+class TrackedFrameMatches:
+    """One tracked frame as refinement needs it, M matches (the inliers of tracking's last optimisation).
+
+    - `record_index`: the frame's index in the caller's trajectory records (`SlamSystem.records`);
+    - `T_world_cam` (4, 4): the pose as tracked (online); `T_ref_cam` (4, 4): the same relative to the reference
+      keyframe as tracked (what the final trajectory composes with the keyframe's final pose);
+    - `raw_px` (M, 2) keypoints as detected (the detector's image coordinates), `uv_px` (M, 2) undistorted,
+      `u_right_px` (M,) virtual right coordinate (< 0: no depth), `inv_sigma2` (M,) pyramid-level weights;
+    - `point_ids` (M,) map point ids, `points_w` (M, 3) their positions (m) when the frame was tracked;
+    - `depth_m` (H, W) float32 the frame's depth image (0 = no reading), for the boxes' depth statistics;
+    - `camera`: intrinsics and virtual baseline of the projection.
+    """
+
+    stamp_ns: int
+    record_index: int
+    T_world_cam: F64
+    T_ref_cam: F64
+    raw_px: F64
+    uv_px: F64
+    u_right_px: F64
+    inv_sigma2: F64
+    point_ids: npt.NDArray[np.int64]
+    points_w: F64
+    depth_m: F32
+    camera: PinholeStereo
+
+    def __len__(self) -> int:
+        return len(self.point_ids)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the match arrays (the depth image is shared with the frame: not counted)."""
+        arrays = (self.raw_px, self.uv_px, self.u_right_px, self.inv_sigma2, self.point_ids, self.points_w)
+        return int(sum(a.nbytes for a in arrays))
+
+
+@dataclass(frozen=True)
+class RefinedPose:
+    """A frame's pose after refinement: `T_world_cam` and `T_ref_cam` (4, 4) replace the tracked ones in the final
+    trajectory; `n_person` matches left out (now on a person), `n_inliers` of the rest; `translation_m`,
+    `rotation_deg` how far it moved from the tracked pose."""
+
+    stamp_ns: int
+    record_index: int
+    T_world_cam: F64
+    T_ref_cam: F64
+    n_person: int
+    n_inliers: int
+    translation_m: float
+    rotation_deg: float
+
+
+@dataclass
+class RefinementStats:
+    """Counters over a run: frames bracketed, optimised again (some match on a person), refined (kept)."""
+
+    frames_added: int = 0
+    frames_bracketed: int = 0
+    frames_optimised: int = 0
+    frames_refined: int = 0
+    frames_rejected: int = 0
+    matches_dropped: int = 0
+
+
+def interpolated_boxes(
+    before: DetectionSet | None, after: DetectionSet, stamp_ns: int, cfg: RefinementConfig, width: int = 0, height: int = 0
+) -> tuple[Detection, ...]:
+    """The boxes of `cfg.class_ids` for an image stamped `stamp_ns` between `before` and `after` (stamps
+    before.stamp_ns < stamp_ns <= after.stamp_ns; `before` None: `after`'s boxes carried back): paired boxes
+    interpolated, unpaired ones carried, each grown as the module doc says and kept inside a `width` x `height`
+    image (0: not clipped)."""
+    b_dets = [d for d in after.detections if d.class_id in cfg.class_ids]
+    if stamp_ns == after.stamp_ns:
+        return tuple(b_dets)
+    a_dets = [] if before is None else [d for d in before.detections if d.class_id in cfg.class_ids]
+    t_a = stamp_ns if before is None else before.stamp_ns
+    span_ns = max(after.stamp_ns - t_a, 1)
+    since_a_s = (stamp_ns - t_a) * 1e-9
+    until_b_s = (after.stamp_ns - stamp_ns) * 1e-9
+    pairs = _pairs(a_dets, b_dets, cfg.match_min_iou)
+    out: list[Detection] = []
+    paired_a = {i for i, _ in pairs}
+    paired_b = {j for _, j in pairs}
+    w = (stamp_ns - t_a) / span_ns
+    for i, j in pairs:
+        a = np.asarray(a_dets[i].box_xyxy, dtype=np.float64)
+        b = np.asarray(b_dets[j].box_xyxy, dtype=np.float64)
+        box = (1.0 - w) * a + w * b
+        grow = cfg.interpolated_grow_widths_per_s * min(since_a_s, until_b_s)
+        out.append(Detection(_grown(box, grow, width, height), b_dets[j].class_id, max(a_dets[i].score, b_dets[j].score)))
+    for i, d in enumerate(a_dets):
+        if i not in paired_a:
+            box = np.asarray(d.box_xyxy, dtype=np.float64)
+            out.append(Detection(_grown(box, cfg.carried_grow_widths_per_s * since_a_s, width, height), d.class_id, d.score))
+    for j, d in enumerate(b_dets):
+        if j not in paired_b:
+            box = np.asarray(d.box_xyxy, dtype=np.float64)
+            out.append(Detection(_grown(box, cfg.carried_grow_widths_per_s * until_b_s, width, height), d.class_id, d.score))
+    return tuple(out)
+
+
+def refine_frame(
+    frame: TrackedFrameMatches,
+    boxes: tuple[Detection, ...],
+    cfg: RefinementConfig,
+    classification: KeypointClassificationConfig,
+) -> tuple[RefinedPose | None, int]:
+    """`frame`'s pose optimised again without its matches on a person in `boxes`; returns the refined pose
+    (None: nothing on a person, or the optimisation not trusted) and the number of matches on a person."""
+    if len(frame) == 0 or not boxes:
+        return None, 0
+    cls = classify_keypoints(frame.raw_px, frame.depth_m, boxes, classification)
+    person = (cls.kp_classes == KeypointClass.DYNAMIC) | (cls.kp_classes == KeypointClass.UNUSED)
+    n_person = int(person.sum())
+    keep = ~person
+    if n_person == 0 or int(keep.sum()) < cfg.min_inliers:
+        return None, n_person
+    obs = PoseObservations(frame.points_w[keep], frame.uv_px[keep], frame.u_right_px[keep], frame.inv_sigma2[keep])
+    res = optimize_pose(invert(frame.T_world_cam), obs, frame.camera, rounds=cfg.pose_rounds, iterations=cfg.pose_iterations)
+    if res.n_inliers < cfg.min_inliers:
+        return None, n_person
+    T_world_cam = invert(res.T_cam_world)
+    T_cam_correction = invert(frame.T_world_cam) @ T_world_cam  # the change, in the tracked camera's frame
+    moved_m = float(np.linalg.norm(T_cam_correction[:3, 3]))
+    cos = float(np.clip((np.trace(T_cam_correction[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+    turned_deg = math.degrees(math.acos(cos))
+    if moved_m > cfg.max_correction_m or turned_deg > cfg.max_correction_deg:
+        return None, n_person
+    refined = RefinedPose(frame.stamp_ns, frame.record_index, T_world_cam, frame.T_ref_cam @ T_cam_correction,
+                          n_person, res.n_inliers, moved_m, turned_deg)  # fmt: skip
+    return refined, n_person
+
+
+class DeferredRefinement:
+    """The ring of recently tracked frames and the detection sets seen; `add` each tracked frame, hand each
+    detection set over with `on_detections` as it arrives; both return the frames refined."""
+
+    def __init__(self, config: RefinementConfig, classification: KeypointClassificationConfig | None = None) -> None:
+        self.config = config
+        self.classification = classification or KeypointClassificationConfig()
+        self._frames: deque[TrackedFrameMatches] = deque()
+        self._sets: list[DetectionSet] = []  # by stamp, those within max_age_s + max_bracket_gap_s of the newest
+        self.stats = RefinementStats()
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the ring's match arrays (depth images not counted: shared with the frames)."""
+        return sum(f.nbytes for f in self._frames)
+
+    def add(self, frame: TrackedFrameMatches) -> RefinedPose | None:
+        """Keep `frame` (older frames beyond `max_age_s` / `max_frames` are forgotten). When a later detection set
+        is in already (the frame waited in a queue while the detector went past it) it is refined at once with the
+        sets around it; when its own set is in, it was tracked with it and is left as it is (lossless: every frame)."""
+        cfg = self.config
+        self._frames.append(frame)
+        self.stats.frames_added += 1
+        oldest = frame.stamp_ns - round(cfg.max_age_s * 1e9)
+        while self._frames and (self._frames[0].stamp_ns < oldest or len(self._frames) > cfg.max_frames):
+            self._frames.popleft()
+        later = [s for s in self._sets if s.stamp_ns >= frame.stamp_ns]
+        if not later or later[0].stamp_ns == frame.stamp_ns:
+            return None
+        after = later[0]
+        return self._refine(frame, self._set_before(after.stamp_ns), after)
+
+    def on_detections(self, detections: DetectionSet) -> list[RefinedPose]:
+        """A detection set has arrived: the kept frames it brackets with the set before it (and, when it came
+        out of order, those it brackets with the set after it) are refined; returns those refined."""
+        stamps = [s.stamp_ns for s in self._sets]
+        if detections.stamp_ns in stamps:
+            return []
+        self._sets.append(detections)
+        self._sets.sort(key=lambda s: s.stamp_ns)
+        newest = self._sets[-1].stamp_ns
+        keep_ns = round((self.config.max_age_s + self.config.max_bracket_gap_s) * 1e9)
+        self._sets = [s for s in self._sets if s.stamp_ns >= newest - keep_ns]
+        out: list[RefinedPose] = []
+        before = self._set_before(detections.stamp_ns)
+        later = [s for s in self._sets if s.stamp_ns > detections.stamp_ns]
+        brackets = [(before, detections)] + ([(detections, later[0])] if later else [])
+        for lo, hi in brackets:
+            lo_ns = lo.stamp_ns if lo is not None else hi.stamp_ns - 1
+            for frame in self._frames:
+                if lo_ns < frame.stamp_ns <= hi.stamp_ns:
+                    refined = self._refine(frame, lo, hi)
+                    if refined is not None:
+                        out.append(refined)
+        return out
+
+    def _set_before(self, stamp_ns: int) -> DetectionSet | None:
+        """The newest set before `stamp_ns` within `max_bracket_gap_s`, else None."""
+        earlier = [s for s in self._sets if s.stamp_ns < stamp_ns]
+        if not earlier or (stamp_ns - earlier[-1].stamp_ns) * 1e-9 > self.config.max_bracket_gap_s:
+            return None
+        return earlier[-1]
+
+    def _refine(self, frame: TrackedFrameMatches, before: DetectionSet | None, after: DetectionSet) -> RefinedPose | None:
+        if before is None and frame.stamp_ns != after.stamp_ns:
+            return None  # not bracketed: only the set's own frame is refined without a set before it
+        self.stats.frames_bracketed += 1
+        h, w = frame.depth_m.shape[:2]
+        boxes = interpolated_boxes(before, after, frame.stamp_ns, self.config, w, h)
+        refined, n_person = refine_frame(frame, boxes, self.config, self.classification)
+        if n_person > 0:
+            self.stats.frames_optimised += 1
+            self.stats.matches_dropped += n_person
+            if refined is None:
+                self.stats.frames_rejected += 1
+        if refined is not None:
+            self.stats.frames_refined += 1
+        return refined
+
+
+def _pairs(a: list[Detection], b: list[Detection], min_iou: float) -> list[tuple[int, int]]:
+    """Greedy pairs (i, j) of boxes of `a` and `b`, same class, highest IoU first, IoU >= `min_iou`."""
+    if not a or not b:
+        return []
+    iou = iou_matrix(np.array([d.box_xyxy for d in a], dtype=np.float64), np.array([d.box_xyxy for d in b], dtype=np.float64))
+    same = np.array([[da.class_id == db.class_id for db in b] for da in a])
+    iou = np.where(same, iou, -1.0)
+    pairs: list[tuple[int, int]] = []
+    while True:
+        i, j = np.unravel_index(int(np.argmax(iou)), iou.shape)
+        if iou[i, j] < min_iou:
+            return pairs
+        pairs.append((int(i), int(j)))
+        iou[i, :] = -1.0
+        iou[:, j] = -1.0
+
+
+def _grown(box: F64, grow: float, width: int, height: int) -> tuple[float, float, float, float]:
+    """`box` (4,) xyxy grown by `grow` of its width and height per side, kept inside the image when its size is known."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    gx, gy = grow * (x1 - x0), grow * (y1 - y0)
+    x0, y0, x1, y1 = x0 - gx, y0 - gy, x1 + gx, y1 + gy
+    if width > 0 and height > 0:
+        x0, y0, x1, y1 = max(x0, 0.0), max(y0, 0.0), min(x1, width - 1.0), min(y1, height - 1.0)
+    return (x0, y0, x1, y1)
