@@ -297,6 +297,10 @@ class TrackingNode(QuietQosEvents, Node):
             self._previous_detections, self._newest_detections = self._newest_detections, ds
         while len(self.detections) > 30:
             del self.detections[next(iter(self.detections))]
+        if self.backend is not None and self.backend.system.refinement is not None:
+            # tracking.deferred_refinement: the frames tracked before these detections came get their final pose
+            # refined (core.deferred_refinement); the published poses stay
+            self.backend.system.refine_with_detections(ds)
         self._drain()
 
     def _carried_detections(self, stamp_ns: int) -> Any:
@@ -631,6 +635,8 @@ class TrackingNode(QuietQosEvents, Node):
             "frames_without_detections": self.frames_without_detections,
             "frames_with_carried_detections": self.frames_with_carried_detections,
             "carry_cpu_ms_mean": float(np.mean(self.carry_cpu_ms)) if self.carry_cpu_ms else None,
+            "deferred_refinement": None if self.backend is None or self.backend.system.refinement is None
+            else dict(vars(self.backend.system.refinement.stats)),  # frames bracketed / optimised again / refined
             "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
             "frames_not_waited_for_late_detections": self.frames_not_waited,
             "latency_ms_median": float(np.median(lat)) if lat.size else None,

@@ -413,3 +413,49 @@ def test_real_time_carried_boxes_move_with_the_image_motion_when_detections_carr
         moved = max(moved, float(np.max(np.abs(np.subtract(carried.box_xyxy, box)))))
     assert moved > 2.0, moved  # the hand-held camera moved the scene by pixels; the boxes followed (no growth)
     node.destroy_node()
+
+
+def test_real_time_frames_tracked_before_later_detections_get_their_final_pose_refined(ros_context, tmp_path):
+    """tracking.deferred_refinement on (a config file): frames 1-4 are tracked with frame 0's boxes carried forward;
+    when frame 4's detections come, those four are bracketed by frames 0 and 4 (core.deferred_refinement), the ones
+    with matches in the interpolated boxes get a new final pose, and the published (online) poses stay."""
+    import itertools
+
+    import yaml
+    from helpers import FR1_XYZ_10, REPO, require
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(itertools.islice(iter(src), 6))
+    data = yaml.safe_load((REPO / "config" / "tum_fr1.yaml").read_text())
+    data.setdefault("tracking", {})["deferred_refinement"] = {"enabled": True}
+    config = tmp_path / "tum_fr1_refine.yaml"
+    config.write_text(yaml.safe_dump(data))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value=str(config)), Parameter("in_process_backend", value=True),
+        Parameter("dynamic", value="on"), Parameter("frame_policy", value="latest"),
+        Parameter("detections_carry_flow", value=False), Parameter("debug_image", value=False),
+    ])  # fmt: skip
+    system = node.backend.system
+    assert system.refinement is not None
+    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
+
+    def detections(stamp_ns: int, x0: float) -> DetectionArray:
+        return DetectionArray(header=cv.make_header(stamp_ns, "camera"), width=640, height=480,
+                              detections=[Detection(x=x0, y=150.0, w=150.0, h=250.0, class_id=0, score=0.9)])  # fmt: skip
+
+    for k, f in enumerate(frames):
+        node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
+        node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
+        if k == 0:
+            node.on_detections(detections(f.stamp_ns, 250.0))
+    online = [r.T_world_cam_online.copy() for r in system.records]
+    before = [None if r.T_ref_cam is None else r.T_ref_cam.copy() for r in system.records]
+    node.on_detections(detections(frames[4].stamp_ns, 330.0))  # frame 4's, after frame 5 was tracked
+    stats = node.stats()["deferred_refinement"]
+    assert node.frames_in == 6 and stats["frames_bracketed"] >= 3  # frames 1-4 less keyframes
+    assert stats["frames_refined"] >= 1
+    changed = [b is not None and not np.array_equal(b, r.T_ref_cam) for b, r in zip(before, system.records)]
+    assert sum(changed) == stats["frames_refined"]
+    assert not changed[0] and not changed[5]  # frame 0 has its own boxes; frame 5 comes after frame 4's
+    assert all(np.array_equal(a, r.T_world_cam_online) for a, r in zip(online, system.records))
+    node.destroy_node()
