@@ -224,7 +224,7 @@ class DynamicFilter:
     def after_tracking(self, T_world_cam: F64 | None) -> None:
         """The frame's camera-to-world pose (4, 4) from tracking, None when tracking failed."""
         if self._classified and T_world_cam is not None and self._tracker is not None:
-            self._tracker.update(T_world_cam)
+            self._tracker.update_filters(T_world_cam)  # the frame's result is not needed: skip building it
         self._classified = False
         if self._movers is not None:
             self._movers.after_tracking(T_world_cam)

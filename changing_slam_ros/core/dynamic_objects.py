@@ -239,11 +239,18 @@ class DynamicObjectTracker:
         """Feed the last classified frame's object centroids to the EKFs with the camera pose (4, 4) of that
         frame (camera-to-world), refresh the verdicts and return the frame's result with them. A second
         call for the same frame changes nothing (each measurement is used once)."""
+        self.update_filters(T_world_cam)
+        assert self._pending is not None
+        return self._result(self._pending)
+
+    def update_filters(self, T_world_cam: F64) -> None:
+        """`update()` without building the frame's result (what tracking calls: the next frame only needs the
+        filters and verdicts)."""
         if self._pending is None:
             raise RuntimeError("DynamicObjectTracker.update() called before classify()")
         pending = self._pending
         if pending.updated:
-            return self._result(pending)
+            return
         pending.updated = True
         for b, det in enumerate(pending.detections):
             oid = int(pending.object_ids[b])
@@ -251,13 +258,12 @@ class DynamicObjectTracker:
             ekf = self._filters.get(oid)
             if z is not None:
                 if ekf is None:
-                    self._filters[oid] = ObjectEkf(det.class_id, z, T_world_cam, pending.stamp_ns, self.config.ekf)
+                    ekf = self._filters[oid] = ObjectEkf(det.class_id, z, T_world_cam, pending.stamp_ns, self.config.ekf)
                 else:
                     ekf.update(z, T_world_cam, pending.stamp_ns)
             elif ekf is not None:
                 ekf.predict(pending.stamp_ns)
-            self._motion[oid] = self._verdict(det.class_id, self._filters.get(oid), self._motion.get(oid))
-        return self._result(pending)
+            self._motion[oid] = self._verdict(det.class_id, ekf, self._motion.get(oid))
 
     def process(
         self,
@@ -279,10 +285,11 @@ class DynamicObjectTracker:
         if ekf is None or ekf.n_updates < self.config.min_updates:
             return ObjectMotion.UNKNOWN
         threshold = self.config.doc_threshold(class_id)
-        if ekf.speed_mps > threshold:
+        speed_mps = ekf.speed_mps
+        if speed_mps > threshold:
             # moving, if the filter is sure of it (or already said so): a speed over the threshold by less than
             # `dynamic_min_sigmas` standard deviations is noise of a young filter, not motion
-            sure = ekf.speed_mps - threshold >= self.config.dynamic_min_sigmas * ekf.velocity_sigma_mps
+            sure = speed_mps - threshold >= self.config.dynamic_min_sigmas * ekf.velocity_sigma_mps
             return ObjectMotion.DYNAMIC if sure or previous == ObjectMotion.DYNAMIC else ObjectMotion.UNKNOWN
         if ekf.velocity_sigma_mps <= self.config.static_sigma_ratio * threshold:
             return ObjectMotion.STATIC

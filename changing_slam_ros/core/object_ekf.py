@@ -7,7 +7,9 @@ chair 0.02, others 0.01 m/s^2). P0 = I.
 Measurement (eq. 8): the centroid in the camera frame, from the object's keypoints: their mean pixel
 back-projected at their (median) depth. Model (eq. 9): h(x) = R_cw p + t_cw, the world -> camera transform
 of the position (T_cam_world = inverse of the camera pose); its Jacobian is H = [R_cw 0].
-The filter itself is filterpy's `ExtendedKalmanFilter` (eqs. 7, 10-13).
+The filter itself is filterpy's `ExtendedKalmanFilter` (eqs. 7, 10-13). F and Q depend on the frame gap only, so
+each filter keeps them per gap (a 30 Hz stream alternates two, 33.333 and 33.334 ms) instead of building them
+on every prediction: the same matrices, so the same results bit for bit.
 """
 
 from __future__ import annotations
@@ -96,6 +98,9 @@ def centroid_measurement(
     return np.array([(mu_x - camera.cx) * z / camera.fx, (mu_y - camera.cy) * z / camera.fy, z])
 
 
+MODEL_CACHE_SIZE = 4  # (F, Q) pairs an ObjectEkf keeps, by frame gap; cleared when full
+
+
 class ObjectEkf:
     """EKF of one MapObject's centroid, started from its first measurement."""
 
@@ -112,6 +117,7 @@ class ObjectEkf:
         self.sigma_a_mps2 = self.config.sigma_a(class_id)
         self._ekf = ExtendedKalmanFilter(dim_x=6, dim_z=3)
         self._ekf.R = np.diag(np.square(self.config.measurement_sigma_m))
+        self._models: dict[int, tuple[F64, F64]] = {}  # frame gap (ns) -> (F, Q) of eqs. 3 and 5-6
         self._start(z_cam, T_world_cam, stamp_ns)
 
     def _start(self, z_cam: F64, T_world_cam: F64, stamp_ns: int) -> None:
@@ -125,11 +131,16 @@ class ObjectEkf:
 
     def predict(self, stamp_ns: int) -> None:
         """Eqs. 2-4 up to `stamp_ns` (no-op for the same or an older stamp)."""
-        dt_s = (stamp_ns - self.stamp_ns) * 1e-9
+        gap_ns = stamp_ns - self.stamp_ns
+        dt_s = gap_ns * 1e-9
         if dt_s <= 0.0:
             return
-        self._ekf.F = transition_matrix(dt_s)
-        self._ekf.Q = process_noise(dt_s, self.sigma_a_mps2)
+        model = self._models.get(gap_ns)
+        if model is None:
+            if len(self._models) >= MODEL_CACHE_SIZE:
+                self._models.clear()
+            model = self._models[gap_ns] = (transition_matrix(dt_s), process_noise(dt_s, self.sigma_a_mps2))
+        self._ekf.F, self._ekf.Q = model  # filterpy's predict reads them, never writes them
         self._ekf.predict()
         self.stamp_ns = stamp_ns
 
@@ -166,9 +177,9 @@ class ObjectEkf:
 
     @property
     def speed_mps(self) -> float:
-        return float(np.linalg.norm(self.x[3:]))
+        return float(np.linalg.norm(self._ekf.x.reshape(6)[3:]))  # a view: no copy of the state
 
     @property
     def velocity_sigma_mps(self) -> float:
         """Largest standard deviation of the velocity estimate (sqrt of P_vv's largest eigenvalue)."""
-        return float(np.sqrt(np.linalg.eigvalsh(self.P[3:, 3:])[-1]))
+        return float(np.sqrt(np.linalg.eigvalsh(self._ekf.P[3:, 3:])[-1]))
