@@ -38,7 +38,15 @@ from changing_slam_ros.errors import ConfigError
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 
-DEFAULT_MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "ssd_mobilenet_v2_coco.onnx"
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+DEFAULT_MODEL_PATH = MODELS_DIR / "ssd_mobilenet_v2_coco.onnx"
+# Detectors shipped in `models/` (see models/PROVENANCE.md), by the name `DetectorConfig.model` takes. The INT8
+# one is the fp32 graph cut before its NMS, slimmed and statically quantised (tools/quantize_detector.py): about
+# 0.4x the CPU per detection, for the real-time graph; offline accuracy is measured with the fp32 default.
+SHIPPED_MODELS: dict[str, Path] = {
+    "ssd_mobilenet_v2_coco": DEFAULT_MODEL_PATH,
+    "ssd_mobilenet_v2_coco_int8": MODELS_DIR / "ssd_mobilenet_v2_coco_int8.onnx",
+}
 
 BACKGROUND_CLASS_ID = -1
 PERSON_CLASS_ID = 0
@@ -140,7 +148,9 @@ class DetectionSet:
 class DetectorConfig:
     """`detector` config section.
 
-    - `model_path`: ONNX file; empty = the shipped SSD-MobileNetV2 COCO model.
+    - `model`: which shipped detector runs when `model_path` is empty, one of `SHIPPED_MODELS`:
+      "ssd_mobilenet_v2_coco" (fp32, the default) or "ssd_mobilenet_v2_coco_int8" (static INT8, cheaper).
+    - `model_path`: ONNX file; empty = the shipped model named by `model`.
     - `layout`: "auto" (from the model's outputs), "ssd_tf" or "yolo".
     - `score_threshold`: detections scoring lower are dropped (the SSD graph never emits < 0.3).
     - `nms_iou_threshold`: per-class NMS IoU for layouts without NMS in the graph (YOLO).
@@ -168,6 +178,7 @@ class DetectorConfig:
       (empty = `$XDG_CACHE_HOME/changing_slam_ros/onnx`), so later start-ups only load them.
     """
 
+    model: str = "ssd_mobilenet_v2_coco"
     model_path: str = ""
     layout: str = "auto"
     score_threshold: float = 0.3
@@ -191,6 +202,8 @@ class DetectorConfig:
     cache_dir: str = ""
 
     def __post_init__(self) -> None:
+        if self.model not in SHIPPED_MODELS:
+            raise ConfigError(f"detector.model: {self.model!r} is not one of {', '.join(SHIPPED_MODELS)}")
         if self.layout not in LAYOUTS:
             raise ConfigError(f"detector.layout: {self.layout!r} is not one of {', '.join(LAYOUTS)}")
         if self.nms not in NMS_MODES:
@@ -405,7 +418,7 @@ def _clip_boxes(xyxy: F64, width: int, height: int) -> F64:
 
 
 _SESSION_FIELDS = (
-    "model_path", "layout", "intra_op_threads", "providers", "nms", "graph_optimization", "allow_spinning",
+    "model", "model_path", "layout", "intra_op_threads", "providers", "nms", "graph_optimization", "allow_spinning",
     "spin_duration_us", "slim_graph", "quantize_int8", "model_cache", "cache_dir",
 )  # fmt: skip
 
@@ -428,7 +441,7 @@ class Detector:
 
     def __init__(self, config: DetectorConfig | None = None) -> None:
         self.config = config or DetectorConfig()
-        path = Path(self.config.model_path) if self.config.model_path else DEFAULT_MODEL_PATH
+        path = Path(self.config.model_path) if self.config.model_path else SHIPPED_MODELS[self.config.model]
         if not path.is_file():
             raise ConfigError(f"detector.model_path: {path}: no such ONNX model file")
         self.model_path = path

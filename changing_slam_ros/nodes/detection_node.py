@@ -44,6 +44,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         self.params = declare_parameters(self, [
             ("config", "", "config name (tum_fr3, realsense_d435, ...) or YAML path; its `detector` section"),
             ("model_path", "", "ONNX detector; empty = from the config, else the shipped SSD-MobileNetV2"),
+            ("model", "", "shipped detector (ssd_mobilenet_v2_coco, ssd_mobilenet_v2_coco_int8); empty = from the config"),
             ("score_threshold", -1.0, "drop detections below this score; < 0 = from the config (0.3)"),
             ("intra_op_threads", -1, "onnxruntime threads; < 0 = from the config (2)"),
             ("compressed", False, "subscribe sensor_msgs/CompressedImage on image/compressed instead"),
@@ -79,6 +80,8 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
             where = "detection node parameters"
         if p["model_path"]:
             base["model_path"] = p["model_path"]
+        if p["model"]:
+            base["model"] = p["model"]
         if p["score_threshold"] >= 0:
             base["score_threshold"] = float(p["score_threshold"])
         if p["intra_op_threads"] >= 0:
