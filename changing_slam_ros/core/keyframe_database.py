@@ -9,6 +9,10 @@ Queries follow ORB-SLAM2 `DetectLoopCandidates` / `DetectRelocalizationCandidate
 Keyframes carry a `map_id` (ORB-SLAM3 Atlas): loop candidates come from the query's own map; relocalisation
 and merge queries can name the map. Features can be left out of a keyframe's BoW with a mask (dynamic
 keypoints, or points of MapObjects whose belief dropped - Changing-SLAM §4.6).
+
+A keyframe's descriptors never change, so the database quantises each keyframe once: the word (and direct-index
+node) of every descriptor is kept (`KeyframeWords`), and re-indexing under a new mask is a tf-idf histogram over
+the masked words, equal bit for bit to quantising the masked descriptors again.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.keyframe import Keyframe, KeypointClass
-from changing_slam_ros.core.vocabulary import BowVector, Quantised, Vocabulary, l1_score
+from changing_slam_ros.core.vocabulary import I32, U8, BowVector, Quantised, Vocabulary, l1_score
 
 Covisibility = Mapping[int, Iterable[int]]
 """keyframe id -> covisible keyframe ids, best (most shared points) first where the caller knows the order."""
@@ -35,6 +39,21 @@ class PlaceCandidate:
     keyframe_id: int
     score: float
     accumulated_score: float
+
+
+@dataclass(frozen=True)
+class KeyframeWords:
+    """A keyframe's quantisation, every descriptor (N,): `words` and direct-index `nodes` (int32), and the
+    `descriptors` (N, 32) they were computed from (a keyframe re-added with other descriptors is quantised again)."""
+
+    descriptors: U8
+    words: I32
+    nodes: I32
+
+    def matches(self, descriptors: U8) -> bool:
+        return self.descriptors is descriptors or (
+            self.descriptors.shape == descriptors.shape and np.array_equal(self.descriptors, descriptors)
+        )
 
 
 def loop_feature_mask(kf: Keyframe, inactive_object_ids: Iterable[int] = ()) -> npt.NDArray[np.bool_]:
@@ -56,6 +75,7 @@ class KeyframeDatabase:
         self._postings: dict[int, set[int]] = {}
         self._bow: dict[int, BowVector] = {}
         self._map_of: dict[int, int] = {}
+        self._words: dict[int, KeyframeWords] = {}  # per indexed keyframe, all its descriptors quantised once
 
     def __len__(self) -> int:
         return len(self._bow)
@@ -64,17 +84,33 @@ class KeyframeDatabase:
         return kf_id in self._bow
 
     def add(self, kf: Keyframe, active_mask: npt.NDArray[np.bool_] | None = None) -> Quantised:
-        """Quantise `kf.descriptors[active_mask]` and index the keyframe; returns the quantisation
-        (BoW vector, per-descriptor word and direct-index node for the *kept* descriptors)."""
-        desc = kf.descriptors if active_mask is None else kf.descriptors[np.asarray(active_mask, bool)]
-        q = self.vocabulary.transform(desc)
-        self.add_bow(kf.id, q.bow, kf.map_id)
-        return q
+        """Index the keyframe with the BoW vector of `kf.descriptors[active_mask]`; returns that quantisation
+        (BoW vector, per-descriptor word and direct-index node for the *kept* descriptors). Re-adding a
+        keyframe (a new mask) reuses its words: only the histogram is recomputed."""
+        kw = self.words(kf)
+        if active_mask is None:
+            words, nodes = kw.words, kw.nodes
+        else:
+            keep = np.asarray(active_mask, bool)
+            words, nodes = kw.words[keep], kw.nodes[keep]
+        bow = self.vocabulary.bow_from_words(words)
+        self.add_bow(kf.id, bow, kf.map_id)
+        self._words[kf.id] = kw
+        return Quantised(bow, words, nodes)
+
+    def words(self, kf: Keyframe) -> KeyframeWords:
+        """Every descriptor of `kf` quantised: the database's copy when it holds one for these descriptors."""
+        kw = self._words.get(kf.id)
+        if kw is not None and kw.matches(kf.descriptors):
+            return kw
+        q = self.vocabulary.transform(kf.descriptors)
+        return KeyframeWords(kf.descriptors, q.word_of_descriptor, q.node_of_descriptor)
 
     def add_bow(self, kf_id: int, bow: BowVector, map_id: int = 0) -> None:
-        """Index a keyframe from an already computed BoW vector (re-adding replaces the old entry)."""
+        """Index a keyframe from an already computed BoW vector (re-adding replaces the old entry; words kept
+        by `add` for this id stay, and are checked against the descriptors on the next `add`)."""
         if kf_id in self._bow:
-            self.erase(kf_id)
+            self._unindex(kf_id)
         self._bow[kf_id] = bow
         self._map_of[kf_id] = map_id
         for w in bow.word_ids.tolist():
@@ -82,6 +118,10 @@ class KeyframeDatabase:
 
     def erase(self, kf_id: int) -> None:
         """Remove a keyframe (culled by local mapping); unknown ids are ignored."""
+        self._words.pop(kf_id, None)
+        self._unindex(kf_id)
+
+    def _unindex(self, kf_id: int) -> None:
         bow = self._bow.pop(kf_id, None)
         self._map_of.pop(kf_id, None)
         if bow is None:

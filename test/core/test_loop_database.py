@@ -108,6 +108,57 @@ def test_erase_and_masks_remove_words_from_the_index(vocab, fr1):
     assert db.relocalisation_candidates(vocab.bow(kf.descriptors), covisibility={}) == []
 
 
+def _same_bow(a, b) -> bool:
+    return a.word_ids.tobytes() == b.word_ids.tobytes() and a.weights.tobytes() == b.weights.tobytes()
+
+
+def test_reindexing_from_cached_words_equals_quantising_the_masked_descriptors(vocab, fr1, kitchen):
+    """Each keyframe is quantised once; re-adding it under a new mask (points deactivated, classes changed)
+    builds the BoW from its cached words. Vectors and every query must equal a database fed with
+    `vocabulary.bow(descriptors[mask])`, the computation the cache replaces, on real frames."""
+    keyframes = fr1 + kitchen
+    cached, reference = KeyframeDatabase(vocab), KeyframeDatabase(vocab)
+    rng = np.random.default_rng(0)
+    masks = {kf.id: np.ones(len(kf), bool) for kf in keyframes}
+    covisibility = {kf.id: [o.id for o in keyframes if o.id != kf.id and o.map_id == kf.map_id][:3] for kf in keyframes}
+    quantised = 0
+    real_transform = vocab.transform
+
+    def counting_transform(*args, **kwargs):
+        nonlocal quantised
+        quantised += 1
+        return real_transform(*args, **kwargs)
+
+    for round_ in range(4):  # round 0 indexes; later rounds drop (and bring back) random features
+        for kf in keyframes:
+            if round_:
+                masks[kf.id] = rng.random(len(kf)) < 0.7
+            vocab.transform = counting_transform  # instance attribute: only this test's calls
+            try:
+                q = cached.add(kf, masks[kf.id])
+            finally:
+                del vocab.transform
+            expected = vocab.transform(kf.descriptors[masks[kf.id]])
+            reference.add_bow(kf.id, expected.bow, kf.map_id)
+            assert _same_bow(q.bow, expected.bow) and _same_bow(cached.bow(kf.id), expected.bow)
+            np.testing.assert_array_equal(q.word_of_descriptor, expected.word_of_descriptor)
+            np.testing.assert_array_equal(q.node_of_descriptor, expected.node_of_descriptor)
+        for kf in keyframes:
+            assert cached.loop_candidates(kf.id, covisibility[kf.id], 0.0, covisibility) == \
+                reference.loop_candidates(kf.id, covisibility[kf.id], 0.0, covisibility)
+            assert cached.merge_candidates(kf.id, covisibility) == reference.merge_candidates(kf.id, covisibility)
+        for kf in keyframes[::3]:
+            query = vocab.bow(kf.descriptors)
+            found = cached.relocalisation_candidates(query, covisibility)
+            assert found and found == reference.relocalisation_candidates(query, covisibility)
+    assert quantised == len(keyframes)  # once per keyframe, whatever the masks did
+    # a keyframe re-added with other descriptors under the same id is quantised again; erase forgets it
+    other = Keyframe(**{**fr1[0].__dict__, "descriptors": np.bitwise_not(fr1[0].descriptors)})
+    assert _same_bow(cached.add(other).bow, vocab.bow(other.descriptors))
+    cached.erase(other.id)
+    assert other.id not in cached and _same_bow(cached.add(fr1[0]).bow, vocab.bow(fr1[0].descriptors))
+
+
 def test_consistency_checker_accepts_after_three_consistent_keyframes_and_resets():
     chk = ConsistencyChecker(threshold=3)
     cov = {10: [11], 11: [10, 12], 12: [11], 40: [41], 41: [40]}

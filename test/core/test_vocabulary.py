@@ -112,6 +112,42 @@ def test_transform_of_1000_descriptors_takes_a_few_milliseconds(vocab):
     assert np.median(times) < 0.025  # ~3 ms measured on the shared 2-core machine
 
 
+def _descend(vocab: Vocabulary, descriptor: np.ndarray, level: int) -> tuple[int, int]:
+    """One descriptor quantised by definition, bit by bit in Python ints: from the root, the closest child
+    (first on ties) until a leaf; returns (word, node at `level`, or the leaf when `level` <= 0)."""
+    bits = int.from_bytes(descriptor.tobytes(), "little")
+    node, at_level, depth = 0, 0, 0
+    while (vocab.children[node] >= 0).any():
+        kids = [int(c) for c in vocab.children[node] if c >= 0]
+        dist = [(bits ^ int.from_bytes(vocab.node_descriptors[c].tobytes(), "little")).bit_count() for c in kids]
+        node = kids[int(np.argmin(dist))]
+        depth += 1
+        if depth <= level:
+            at_level = node
+    return int(vocab.node_word[node]), node if level <= 0 else at_level
+
+
+def test_transform_matches_a_descriptor_by_descriptor_descent_on_real_descriptors(vocab):
+    grey = cv2.imread(str(require(FR1_XYZ_10) / "rgb" / "1305031102.175304.png"), cv2.IMREAD_GRAYSCALE)
+    desc = orb_descriptors(grey)[:150]
+    extremes = np.array([[0] * 32, [255] * 32], np.uint8)
+    for d, level in ((desc, 2), (desc, 0), (extremes, 4)):
+        q = vocab.transform(d, direct_index_level=level)
+        expected = np.array([_descend(vocab, x, level) for x in d])
+        np.testing.assert_array_equal(q.word_of_descriptor, expected[:, 0])
+        np.testing.assert_array_equal(q.node_of_descriptor, expected[:, 1])
+
+
+def test_bow_from_words_is_the_bow_of_the_descriptors_bit_for_bit(vocab):
+    desc = np.random.default_rng(5).integers(0, 256, (700, 32), dtype=np.uint8)
+    words = vocab.transform(desc).word_of_descriptor
+    keep = np.random.default_rng(6).random(700) < 0.6
+    for d, w in ((desc, words), (desc[keep], words[keep]), (desc[:0], words[:0])):
+        a, b = vocab.bow_from_words(w), vocab.bow(d)
+        assert a.word_ids.dtype == b.word_ids.dtype and a.weights.dtype == b.weights.dtype
+        assert a.word_ids.tobytes() == b.word_ids.tobytes() and a.weights.tobytes() == b.weights.tobytes()
+
+
 def test_shipped_vocabulary_has_the_documented_shape(vocab):
     assert DEFAULT_VOCABULARY_PATH.stat().st_size < 4_000_000
     assert (vocab.branching, vocab.depth) == (10, 5)
