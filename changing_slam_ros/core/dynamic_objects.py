@@ -40,6 +40,10 @@ from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 
+# KeypointClass values as plain ints for the per-frame array comparisons (an IntEnum member costs a class
+# attribute lookup through enum's __getattr__ on every use)
+_STATIC, _MOVABLE, _DYNAMIC = int(KeypointClass.STATIC), int(KeypointClass.MOVABLE), int(KeypointClass.DYNAMIC)
+
 
 class ObjectMotion(enum.IntEnum):
     """Verdict of the dynamic object classification (values are what the object-state messages carry)."""
@@ -212,22 +216,36 @@ class DynamicObjectTracker:
         for lost in assoc.lost_ids:
             self._filters.pop(lost, None)
             self._motion.pop(lost, None)
+        measurements = self._measurements(kps, depth_m, keypoint_depths_m, dets, cls, assoc.object_ids) if dets else {}
+        mask = None if moving_mask is None else np.asarray(moving_mask, dtype=bool).reshape(-1)
+        self._pending = _Pending(stamp_ns, dets, assoc.object_ids, assoc.is_new, measurements, cls, mask)
+        return self._result(self._pending)
+
+    def _measurements(
+        self,
+        kps: F64,
+        depth_m: npt.NDArray[np.float32],
+        keypoint_depths_m: npt.NDArray[np.floating] | None,
+        dets: tuple[Detection, ...],
+        cls: KeypointClassification,
+        object_ids: npt.NDArray[np.int64],
+    ) -> dict[int, F64]:
+        """Object id -> the centroid (3,) in the camera frame (eq. 8) of each measurable box's object keypoints."""
         kp_depth = _keypoint_depths(kps, depth_m, keypoint_depths_m)
-        measurements: dict[int, F64] = {}
+        # object keypoints with depth, whatever their box (the same mask for every box: built once)
+        measurable = (kp_depth > 0.0) & ((cls.kp_classes == _MOVABLE) | (cls.kp_classes == _DYNAMIC))
+        out: dict[int, F64] = {}
         for b, det in enumerate(dets):
             if not cls.box_usable[b] or (det.class_id not in self.config.always_dynamic_class_ids
                                          and self._cut(det.box_xyxy)):
                 continue
-            sel = (cls.kp_box_index == b) & (kp_depth > 0.0)
-            sel &= (cls.kp_classes == KeypointClass.MOVABLE) | (cls.kp_classes == KeypointClass.DYNAMIC)
+            sel = (cls.kp_box_index == b) & measurable
             if int(sel.sum()) < self.config.min_object_keypoints:
                 continue
             z = centroid_measurement(kps[sel], kp_depth[sel], self.camera)
             if z is not None:
-                measurements[int(assoc.object_ids[b])] = z
-        mask = None if moving_mask is None else np.asarray(moving_mask, dtype=bool).reshape(-1)
-        self._pending = _Pending(stamp_ns, dets, assoc.object_ids, assoc.is_new, measurements, cls, mask)
-        return self._result(self._pending)
+                out[int(object_ids[b])] = z
+        return out
 
     def _cut(self, box_xyxy: tuple[float, float, float, float]) -> bool:
         """True when the box (max exclusive) lies within `cut_box_border_px` of the image border."""
@@ -258,7 +276,8 @@ class DynamicObjectTracker:
             ekf = self._filters.get(oid)
             if z is not None:
                 if ekf is None:
-                    ekf = self._filters[oid] = ObjectEkf(det.class_id, z, T_world_cam, pending.stamp_ns, self.config.ekf)
+                    ekf = ObjectEkf(det.class_id, z, T_world_cam, pending.stamp_ns, self.config.ekf)
+                    self._filters[oid] = ekf
                 else:
                     ekf.update(z, T_world_cam, pending.stamp_ns)
             elif ekf is not None:
@@ -307,7 +326,7 @@ class DynamicObjectTracker:
             if det.class_id in self.config.always_dynamic_class_ids:
                 motion = ObjectMotion.DYNAMIC
             elif flagged is not None:
-                own = (cls.kp_box_index == b) & (cls.kp_classes == KeypointClass.MOVABLE)
+                own = (cls.kp_box_index == b) & (cls.kp_classes == _MOVABLE)
                 if own.any() and flagged[own].mean() >= self.config.segmentation_object_fraction:
                     motion = ObjectMotion.DYNAMIC
             x = ekf.x if ekf is not None else np.full(6, np.nan)
@@ -328,9 +347,9 @@ class DynamicObjectTracker:
         kp_object_ids = np.full(len(cls.kp_classes), -1, dtype=np.int64)
         has_box = cls.kp_box_index >= 0
         kp_object_ids[has_box] = pending.object_ids[cls.kp_box_index[has_box]]
-        use = cls.kp_classes == KeypointClass.STATIC
+        use = cls.kp_classes == _STATIC
         static_objects = np.array([o.motion == ObjectMotion.STATIC for o in objects] + [False], dtype=bool)
-        movable = cls.kp_classes == KeypointClass.MOVABLE
+        movable = cls.kp_classes == _MOVABLE
         use |= movable & static_objects[cls.kp_box_index]  # index -1 hits the trailing False
         if flagged is not None:
             use &= ~flagged

@@ -22,6 +22,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID
+from changing_slam_ros.core.keypoint_classification import median_1d
 from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.errors import ConfigError
 
@@ -94,7 +95,7 @@ def centroid_measurement(
     if not ok.any():
         return None
     mu_x, mu_y = kps[ok].mean(axis=0)
-    z = float(np.median(d[ok]))
+    z = median_1d(d[ok])
     return np.array([(mu_x - camera.cx) * z / camera.fx, (mu_y - camera.cy) * z / camera.fy, z])
 
 

@@ -12,6 +12,8 @@ from changing_slam_ros.core.keypoint_classification import (
     box_depth_stats,
     classify_keypoints,
     draw_keypoint_classes,
+    median_1d,
+    nearest_depth_around,
 )
 
 H, W = 480, 640
@@ -183,3 +185,31 @@ def test_the_box_margin_widens_only_a_priori_dynamic_boxes() -> None:
     res = classify_keypoints(np.concatenate([edge, inner]), depth, [chair])
     assert (res.kp_classes[:3] == KeypointClass.STATIC).all()
     assert res.kp_classes[3] == KeypointClass.MOVABLE
+
+
+def test_nearest_depth_is_the_smallest_valid_depth_of_the_window_clipped_at_the_image_border() -> None:
+    """Against a per-keypoint loop: windows cut by the border (keypoints on and past it, where the window's rows
+    and columns clip one by one), no valid depth (0), a NaN in the window (-> 0, as the min propagates it)."""
+    rng = np.random.default_rng(4)
+    h, w, r = 24, 32, 2
+    depth = rng.uniform(0.5, 4.0, (h, w)).astype(np.float32)
+    depth[rng.random((h, w)) < 0.3] = 0.0
+    depth[5:10, 5:10] = 0.0
+    depth[20, 3] = np.nan
+    kps = np.vstack([rng.uniform(-3.0, w + 2.0, (300, 2)) * [1.0, h / w], [[7.0, 7.0], [3.2, 19.6], [31.6, 23.5]]])
+    got = nearest_depth_around(depth, kps, r)
+    for (x, y), d in zip(kps, got):
+        u, v = int(np.rint(x)), int(np.rint(y))
+        win = depth[np.clip(np.arange(v - r, v + r + 1), 0, h - 1)][:, np.clip(np.arange(u - r, u + r + 1), 0, w - 1)]
+        if np.isnan(win).any():
+            assert d == 0.0
+            continue
+        valid = win[win > 0.0]
+        assert d == (float(valid.min()) if valid.size else 0.0)
+    assert got[-3] == 0.0 and got[-2] == 0.0
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11])
+def test_median_1d_is_numpys_median_bit_for_bit(n: int) -> None:
+    vals = np.random.default_rng(n).uniform(0.3, 5.0, n)
+    assert median_1d(vals) == float(np.median(vals))
