@@ -20,6 +20,7 @@ itself into "background" (`check_centre_in_object_band`, off by default).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,6 +31,11 @@ from changing_slam_ros.core.keyframe import KeypointClass
 from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
+
+# KeypointClass values as plain ints for the per-frame arrays (an IntEnum member costs a lookup through enum's
+# __getattr__ on every use)
+_STATIC, _MOVABLE, _DYNAMIC, _UNUSED = (int(c) for c in (KeypointClass.STATIC, KeypointClass.MOVABLE,
+                                                          KeypointClass.DYNAMIC, KeypointClass.UNUSED))
 
 
 @dataclass(frozen=True)
@@ -153,7 +159,7 @@ def box_depth_stats(
     """Statistics of depth image (H, W) metres (0 = invalid) inside a box, without the areas where the
     boxes `others_xyxy` (K, 4) overlap it; None when too few valid samples remain."""
     h, w = depth_m.shape
-    x0, y0, x1, y1 = (int(np.floor(box_xyxy[0])), int(np.floor(box_xyxy[1])), int(np.ceil(box_xyxy[2])), int(np.ceil(box_xyxy[3])))
+    x0, y0, x1, y1 = math.floor(box_xyxy[0]), math.floor(box_xyxy[1]), math.ceil(box_xyxy[2]), math.ceil(box_xyxy[3])
     x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
     if x1 - x0 < 1 or y1 - y0 < 1:
         return None
@@ -163,12 +169,10 @@ def box_depth_stats(
     if config.exclude_overlaps and len(others_xyxy):
         xs = np.arange(x0, x1, s, dtype=np.float64)[: patch.shape[1]] + 0.5
         ys = np.arange(y0, y1, s, dtype=np.float64)[: patch.shape[0]] + 0.5
-        overlap = np.zeros(patch.shape, dtype=bool)
-        for ox0, oy0, ox1, oy1 in np.asarray(others_xyxy, dtype=np.float64):
-            in_x = (xs >= ox0) & (xs < ox1)
-            in_y = (ys >= oy0) & (ys < oy1)
-            if in_x.any() and in_y.any():
-                overlap |= in_y[:, None] & in_x[None, :]
+        o = np.asarray(others_xyxy, dtype=np.float64).reshape(-1, 4)
+        in_x = (xs[None, :] >= o[:, 0:1]) & (xs[None, :] < o[:, 2:3])  # (K, columns) inside each other box
+        in_y = (ys[None, :] >= o[:, 1:2]) & (ys[None, :] < o[:, 3:4])  # (K, rows)
+        overlap = (in_y[:, :, None] & in_x[:, None, :]).any(axis=0)  # samples inside any of them
         if (keep & ~overlap).sum() >= config.min_valid_depth_fraction * patch.size:
             keep &= ~overlap  # a box covered by others keeps all its samples rather than none
     vals = patch[keep].astype(np.float64)
@@ -201,7 +205,7 @@ def _centre_depth(depth_m: npt.NDArray[np.float32], box: tuple[int, int, int, in
     cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
     hw = max(1.0, 0.5 * fraction * (x1 - x0))
     hh = max(1.0, 0.5 * fraction * (y1 - y0))
-    patch = depth_m[int(cy - hh) : int(np.ceil(cy + hh)), int(cx - hw) : int(np.ceil(cx + hw))]
+    patch = depth_m[int(cy - hh) : math.ceil(cy + hh), int(cx - hw) : math.ceil(cx + hw)]
     vals = patch[patch > 0.0].astype(np.float64)
     return median_1d(vals) if vals.size else float("nan")
 
@@ -281,7 +285,7 @@ def classify_keypoints(
         else:
             bg_depth[b] = st.min_m + margin
 
-    kp_classes = np.full(n, KeypointClass.STATIC, dtype=np.int8)
+    kp_classes = np.full(n, _STATIC, dtype=np.int8)
     kp_object = np.full(n, -1, dtype=np.int64)
     kp_box = np.full(n, -1, dtype=np.int64)
     if m and n:
@@ -299,18 +303,14 @@ def classify_keypoints(
         dyn = np.array([d.class_id in cfg.dynamic_class_ids for d in dets])
         near = np.array([s.min_m if s is not None else np.inf for s in stats])
         rank = np.lexsort((near, ~dyn, usable))  # best box first
-        for b in rank[::-1]:  # worst first, so the best box writes last
-            sel = member[:, b]
-            if not sel.any():
-                continue
-            kp_box[sel] = index_of[b]
-            kp_object[sel] = dets[b].class_id
-            if not usable[b]:
-                kp_classes[sel] = KeypointClass.UNUSED
-            elif dyn[b]:
-                kp_classes[sel] = KeypointClass.DYNAMIC
-            else:
-                kp_classes[sel] = KeypointClass.MOVABLE
+        by_rank = member[:, rank]
+        first = by_rank.argmax(axis=1)  # per keypoint, its best box among those it belongs to
+        has = by_rank[np.arange(n), first]
+        best = rank[first[has]]
+        kp_box[has] = np.asarray(index_of, dtype=np.int64)[best]
+        kp_object[has] = np.array([d.class_id for d in dets], dtype=np.int64)[best]
+        box_class = np.where(~usable, _UNUSED, np.where(dyn, _DYNAMIC, _MOVABLE)).astype(np.int8)
+        kp_classes[has] = box_class[best]
     full_usable = np.ones(len(detections), dtype=bool)
     full_bg = np.full(len(detections), np.inf)
     full_stats: list[BoxDepthStats | None] = [None] * len(detections)
