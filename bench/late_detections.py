@@ -19,7 +19,8 @@ and grow a moved box by F widths/s instead (a box whose motion is not measured: 
 interpolated boxes' growth in widths/s, default 0.25) turns `tracking.deferred_refinement` on: each detection set
 is handed to `SlamSystem.refine_with_detections` when it becomes usable, so the frames it brackets with the set
 before get their final pose optimised again without the keypoints in the interpolated person boxes
-(`core.deferred_refinement`). Every row prints the final ATE (trajectory.txt's, what the tables compare) and the
+(`core.deferred_refinement`), in the map as it is then (`current_map`); `+refinetracked[G]`: only the frames with
+matches on a person, in the map as they were tracked in. Every row prints the final ATE (trajectory.txt's, what the tables compare) and the
 online one. Detections are computed once per bag (every frame) and reused by every row. With +flow the CPU time of
 `carried_forward` per carried frame (`time.process_time`) is printed too; with +refine that of the refinement per
 detection set and its counters.
@@ -54,7 +55,7 @@ def parse_setting(text: str) -> tuple[CarryConfig, RefinementConfig | None]:
     flow=True, flow_grow_widths_per_s=0.25; '+refine[G]' the deferred refinement (None without it)."""
     parts = text.split("+")
     if not parts[0].startswith("grow"):
-        raise SystemExit(f"--settings {text}: expected grow<G>[+extrapolate][+flow<F>][+refine[G]], e.g. grow0.5+flow0.25")
+        raise SystemExit(f"--settings {text}: expected grow<G>[+extrapolate][+flow<F>][+refine[tracked][G]], e.g. grow0.5+flow0.25")
     cfg = CarryConfig(grow_widths_per_s=_number(text, parts[0][4:]), flow=False)  # +flow<F> switches it on
     refine = None
     for part in parts[1:]:
@@ -66,10 +67,13 @@ def parse_setting(text: str) -> tuple[CarryConfig, RefinementConfig | None]:
             cfg = dataclasses.replace(cfg, flow=True, flow_grow_widths_per_s=_number(text, part[4:]))
         elif part.startswith("refine"):
             refine = RefinementConfig(enabled=True, class_ids=cfg.class_ids)
-            if part[6:]:
-                refine = dataclasses.replace(refine, interpolated_grow_widths_per_s=_number(text, part[6:]))
+            rest = part[6:]
+            if rest.startswith("tracked"):  # in the map as tracked, only frames with matches on a person
+                refine, rest = dataclasses.replace(refine, current_map=False), rest[7:]
+            if rest:
+                refine = dataclasses.replace(refine, interpolated_grow_widths_per_s=_number(text, rest))
         else:
-            raise SystemExit(f"--settings {text}: unknown option {part!r}; only +extrapolate, +flow<F>, +hull, +refine[G]")
+            raise SystemExit(f"--settings {text}: unknown option {part!r}; only +extrapolate, +flow<F>, +hull, +refine[tracked][G]")
     return cfg, refine
 
 
@@ -171,7 +175,7 @@ def main() -> int:
     parser.add_argument("--cadences", nargs="+", default=["3:4", "3:3", "2:4", "4:5", "3:5"], metavar="EVERY:DELAY[:PHASE]",
                         help="detector on every EVERY-th frame, its boxes usable DELAY frames later")
     parser.add_argument("--settings", nargs="+", default=["grow1", "grow0.5", "grow0.5+extrapolate"],
-                        help="carry settings, grow<G>[+extrapolate][+flow<F>[+hull]][+refine[G]]")
+                        help="carry settings, grow<G>[+extrapolate][+flow<F>[+hull]][+refine[tracked][G]]")
     args = parser.parse_args()
     cadences = [parse_cadence(c) for c in args.cadences]
     settings = {s: parse_setting(s) for s in args.settings}

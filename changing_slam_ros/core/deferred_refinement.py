@@ -33,13 +33,21 @@ is the new set's own frame (its boxes are then exact).
 A frame is only optimised again when at least one of its matches moves onto a person, and its refined pose is
 kept when at least `min_inliers` matches stay inliers and it is within `max_correction_m` / `max_correction_deg` of
 the tracked pose (a refinement that jumps further is a failed optimisation, not a correction).
+
+`current_map`: by the time a frame is bracketed (~7 frames later) local mapping has usually bundle-adjusted its
+reference keyframe and points again. With it, the caller re-expresses the frame in the map as it stands then
+(`on_detections(..., now=...)`: the reference keyframe's current pose composed with the tracked relative pose, the
+current positions of the matched points, culled ones left out) and every bracketed frame is optimised again there,
+with or without matches on a person: the refined pose relative to the keyframe is then the one that fits the
+adjusted map, as a frame tracked later would be.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -71,6 +79,8 @@ class RefinementConfig:
     - `min_inliers`: fewer inliers after the new optimisation keep the tracked pose.
     - `max_correction_m`, `max_correction_deg`: a refined pose further from the tracked one is not used.
     - `pose_rounds`, `pose_iterations`: the optimisation's outlier rounds and iterations per round (tracking's).
+    - `current_map`: optimise every bracketed frame again in the map as it is when the frame is bracketed (see the
+      module doc); off: only frames with matches on a person, against the map as it was when tracked.
     """
 
     enabled: bool = False
@@ -86,6 +96,7 @@ class RefinementConfig:
     max_correction_deg: float = 3.0
     pose_rounds: int = 4
     pose_iterations: int = 6
+    current_map: bool = True
 
     def __post_init__(self) -> None:
         where = "tracking.deferred_refinement"
@@ -110,7 +121,8 @@ class TrackedFrameMatches:
       `u_right_px` (M,) virtual right coordinate (< 0: no depth), `inv_sigma2` (M,) pyramid-level weights;
     - `point_ids` (M,) map point ids, `points_w` (M, 3) their positions (m) when the frame was tracked;
     - `depth_m` (H, W) float32 the frame's depth image (0 = no reading), for the boxes' depth statistics;
-    - `camera`: intrinsics and virtual baseline of the projection.
+    - `camera`: intrinsics and virtual baseline of the projection;
+    - `map_id`, `ref_kf_id`: the map and reference keyframe the frame was tracked in and against.
     """
 
     stamp_ns: int
@@ -125,6 +137,8 @@ class TrackedFrameMatches:
     points_w: F64
     depth_m: F32
     camera: PinholeStereo
+    map_id: int = 0
+    ref_kf_id: int = -1
 
     def __len__(self) -> int:
         return len(self.point_ids)
@@ -134,6 +148,13 @@ class TrackedFrameMatches:
         """Bytes held by the match arrays (the depth image is shared with the frame: not counted)."""
         arrays = (self.raw_px, self.uv_px, self.u_right_px, self.inv_sigma2, self.point_ids, self.points_w)
         return int(sum(a.nbytes for a in arrays))
+
+    def in_map(self, T_world_cam: F64, keep: npt.NDArray[np.bool_], points_w: F64) -> TrackedFrameMatches:
+        """The frame re-expressed in the map as it is now: pose (4, 4), the matches `keep` (M,) bool of it with their
+        points now at `points_w` (K, 3), K = keep.sum()."""
+        return replace(self, T_world_cam=T_world_cam, raw_px=self.raw_px[keep], uv_px=self.uv_px[keep],
+                       u_right_px=self.u_right_px[keep], inv_sigma2=self.inv_sigma2[keep],
+                       point_ids=self.point_ids[keep], points_w=points_w)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -206,16 +227,20 @@ def refine_frame(
     boxes: tuple[Detection, ...],
     cfg: RefinementConfig,
     classification: KeypointClassificationConfig,
+    always: bool = False,
 ) -> tuple[RefinedPose | None, int]:
     """`frame`'s pose optimised again without its matches on a person in `boxes`; returns the refined pose
-    (None: nothing on a person, or the optimisation not trusted) and the number of matches on a person."""
-    if len(frame) == 0 or not boxes:
+    (None: nothing on a person and not `always`, or the optimisation not trusted) and the number of matches on a
+    person."""
+    if len(frame) == 0 or not (boxes or always):
         return None, 0
-    cls = classify_keypoints(frame.raw_px, frame.depth_m, boxes, classification)
-    person = (cls.kp_classes == KeypointClass.DYNAMIC) | (cls.kp_classes == KeypointClass.UNUSED)
-    n_person = int(person.sum())
-    keep = ~person
-    if n_person == 0 or int(keep.sum()) < cfg.min_inliers:
+    n_person = 0
+    keep = np.ones(len(frame), dtype=bool)
+    if boxes:
+        cls = classify_keypoints(frame.raw_px, frame.depth_m, boxes, classification)
+        keep = (cls.kp_classes != KeypointClass.DYNAMIC) & (cls.kp_classes != KeypointClass.UNUSED)
+        n_person = int((~keep).sum())
+    if (n_person == 0 and not always) or int(keep.sum()) < cfg.min_inliers:
         return None, n_person
     obs = PoseObservations(frame.points_w[keep], frame.uv_px[keep], frame.u_right_px[keep], frame.inv_sigma2[keep])
     res = optimize_pose(invert(frame.T_world_cam), obs, frame.camera, rounds=cfg.pose_rounds, iterations=cfg.pose_iterations)
@@ -268,9 +293,12 @@ class DeferredRefinement:
         after = later[0]
         return self._refine(frame, self._set_before(after.stamp_ns), after)
 
-    def on_detections(self, detections: DetectionSet) -> list[RefinedPose]:
+    def on_detections(
+        self, detections: DetectionSet, now: Callable[[TrackedFrameMatches], TrackedFrameMatches | None] | None = None
+    ) -> list[RefinedPose]:
         """A detection set has arrived: the kept frames it brackets with the set before it (and, when it came
-        out of order, those it brackets with the set after it) are refined; returns those refined."""
+        out of order, those it brackets with the set after it) are refined; returns those refined. `now` gives a
+        frame re-expressed in the map as it is now (`current_map`; None from it: the frame as tracked)."""
         stamps = [s.stamp_ns for s in self._sets]
         if detections.stamp_ns in stamps:
             return []
@@ -287,7 +315,7 @@ class DeferredRefinement:
             lo_ns = lo.stamp_ns if lo is not None else hi.stamp_ns - 1
             for frame in self._frames:
                 if lo_ns < frame.stamp_ns <= hi.stamp_ns:
-                    refined = self._refine(frame, lo, hi)
+                    refined = self._refine(frame, lo, hi, now)
                     if refined is not None:
                         out.append(refined)
         return out
@@ -299,14 +327,21 @@ class DeferredRefinement:
             return None
         return earlier[-1]
 
-    def _refine(self, frame: TrackedFrameMatches, before: DetectionSet | None, after: DetectionSet) -> RefinedPose | None:
+    def _refine(
+        self,
+        frame: TrackedFrameMatches,
+        before: DetectionSet | None,
+        after: DetectionSet,
+        now: Callable[[TrackedFrameMatches], TrackedFrameMatches | None] | None = None,
+    ) -> RefinedPose | None:
         if before is None and frame.stamp_ns != after.stamp_ns:
             return None  # not bracketed: only the set's own frame is refined without a set before it
         self.stats.frames_bracketed += 1
         h, w = frame.depth_m.shape[:2]
         boxes = interpolated_boxes(before, after, frame.stamp_ns, self.config, w, h)
-        refined, n_person = refine_frame(frame, boxes, self.config, self.classification)
-        if n_person > 0:
+        moved = now(frame) if now is not None and self.config.current_map else None
+        refined, n_person = refine_frame(moved or frame, boxes, self.config, self.classification, always=moved is not None)
+        if n_person > 0 or moved is not None:
             self.stats.frames_optimised += 1
             self.stats.matches_dropped += n_person
             if refined is None:

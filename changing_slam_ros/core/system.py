@@ -279,9 +279,23 @@ class SlamSystem:
         `tracking.deferred_refinement` is off). The online poses, the map and tracking's state stay as they were."""
         if self.refinement is None:
             return []
-        refined = self.refinement.on_detections(detections)
+        refined = self.refinement.on_detections(detections, self._in_current_map)
         self._apply_refined(refined)
         return refined
+
+    def _in_current_map(self, frame: TrackedFrameMatches) -> TrackedFrameMatches | None:
+        """`frame` as the map is now: its reference keyframe's current pose composed with the tracked relative pose,
+        its matched points where they are now (culled ones left out); None after a merge moved its map."""
+        rec = self.records[frame.record_index]
+        if rec.map_id != frame.map_id or rec.ref_kf_id != frame.ref_kf_id:
+            return None
+        m = self.atlas.maps[rec.map_id]
+        if rec.ref_kf_id not in m.keyframes and rec.ref_kf_id not in m.removed:
+            return None
+        pts = m.points
+        ok = frame.point_ids < pts.size
+        ok[ok] = ~pts.bad[frame.point_ids[ok]]
+        return frame.in_map(m.pose_of(rec.ref_kf_id) @ frame.T_ref_cam, ok, pts.positions[frame.point_ids[ok]].copy())
 
     def _keep_for_refinement(self, frame: Frame, rgbd: RgbdFrame, res: TrackResult) -> None:
         """A tracked frame's matches go into the refinement ring (keyframes not: their pose is the keyframe's, which
@@ -297,7 +311,7 @@ class SlamSystem:
             frame.stamp_ns, len(self.records) - 1, frame.T_world_cam.copy(), rec.T_ref_cam.copy(), f.raw_px[idx],
             f.keypoints_px[idx], f.u_right[idx], self.tracker.inv_sigma2[f.octaves[idx]], ids,
             self.atlas.current.points.positions[ids].copy(), rgbd.depth_m,
-            PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.config.features.bf_m_px),
+            PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.config.features.bf_m_px), rec.map_id, rec.ref_kf_id,
         )
         refined = self.refinement.add(kept)
         if refined is not None:

@@ -96,6 +96,38 @@ def test_a_bracketed_frame_loses_its_person_matches_and_its_pose_error_drops():
     assert ring.stats.frames_refined == 1 and ring.stats.matches_dropped == refined.n_person
 
 
+def test_in_the_current_map_every_bracketed_frame_is_optimised_again_and_keeps_its_place_relative_to_the_keyframe():
+    # Local BA moved the frame's reference keyframe and its points together (rigidly, by G) after it was tracked.
+    G = np.eye(4)
+    G[:3, :3] = _rot((0.0, 0.0, 1.0), 1.0)
+    G[:3, 3] = (0.02, 0.0, -0.01)
+
+    def now(f: TrackedFrameMatches) -> TrackedFrameMatches:
+        return f.in_map(G @ f.T_world_cam, np.ones(len(f), bool), f.points_w @ G[:3, :3].T + G[:3, 3])
+
+    frame, T_true = _frame(1050 * MS, record_index=1)
+    plain = DeferredRefinement(RefinementConfig(enabled=True))
+    moved = DeferredRefinement(RefinementConfig(enabled=True))
+    for ring in (plain, moved):
+        ring.add(frame)
+        ring.on_detections(_person_set(1000 * MS, -12.0))
+    (without,) = plain.on_detections(_person_set(1100 * MS, 12.0))
+    (within,) = moved.on_detections(_person_set(1100 * MS, 12.0), now)
+    assert _error_m(within.T_world_cam, G @ T_true) < 0.003  # refined in the moved map
+    assert within.T_ref_cam == pytest.approx(without.T_ref_cam, abs=1e-6)  # the same place relative to the keyframe
+    # Person boxes away from the frame's matches: in the current map the frame is optimised again all the same; in
+    # the map as tracked (or with current_map off) it is left alone.
+    corner = (Detection((0.0, 0.0, 2.0, 2.0), 0, 0.9),)  # a person box where no tracked keypoint lies
+    away = (DetectionSet(2000 * MS, corner, 320, 240), DetectionSet(2100 * MS, corner, 320, 240))
+    for cfg, hand_over, optimised in ((RefinementConfig(enabled=True), True, 1), (RefinementConfig(enabled=True), False, 0),
+                                      (RefinementConfig(enabled=True, current_map=False), True, 0)):  # fmt: skip
+        ring = DeferredRefinement(cfg)
+        ring.add(dataclasses.replace(frame, stamp_ns=2050 * MS))
+        ring.on_detections(away[0])
+        out = ring.on_detections(away[1], now if hand_over else None)
+        assert (ring.stats.frames_optimised, len(out), ring.stats.matches_dropped) == (optimised, optimised, 0)
+
+
 def test_frames_without_detections_on_both_sides_keep_their_pose():
     cfg = RefinementConfig(enabled=True, max_bracket_gap_s=0.3)
     ring = DeferredRefinement(cfg)
