@@ -258,12 +258,11 @@ def classify_keypoints(
     cfg = config or KeypointClassificationConfig()
     kps = np.asarray(keypoints_px, dtype=np.float64).reshape(-1, 2)
     n = len(kps)
-    if keypoint_depths_m is None:
-        kp_depth = nearest_depth_around(depth_m, kps, cfg.keypoint_depth_window_px)
-    else:
-        kp_depth = np.asarray(keypoint_depths_m, dtype=np.float64).reshape(-1)
-        if len(kp_depth) != n:
-            raise ValueError(f"classify_keypoints: {n} keypoints but {len(kp_depth)} depths")
+    given_depth_m = None
+    if keypoint_depths_m is not None:
+        given_depth_m = np.asarray(keypoint_depths_m, dtype=np.float64).reshape(-1)
+        if len(given_depth_m) != n:
+            raise ValueError(f"classify_keypoints: {n} keypoints but {len(given_depth_m)} depths")
     dets = [d for d in detections if d.score >= cfg.min_detection_score]
     index_of = [i for i, d in enumerate(detections) if d.score >= cfg.min_detection_score]
     m = len(dets)
@@ -295,6 +294,12 @@ def classify_keypoints(
             (kps[:, None, 0] >= boxes[None, :, 0] - g) & (kps[:, None, 0] < boxes[None, :, 2] + g)
             & (kps[:, None, 1] >= boxes[None, :, 1] - g) & (kps[:, None, 1] < boxes[None, :, 3] + g)
         )  # fmt: skip
+        if given_depth_m is not None:
+            kp_depth = given_depth_m
+        else:  # only a keypoint inside a box needs its depth (the object / background test)
+            kp_depth = np.zeros(n)
+            in_box = inside.any(axis=1)
+            kp_depth[in_box] = nearest_depth_around(depth_m, kps[in_box], cfg.keypoint_depth_window_px)
         valid = kp_depth > 0.0
         fg = np.where(valid[:, None], kp_depth[:, None] <= bg_depth[None, :], cfg.invalid_depth_is_object)
         member = inside & (fg | ~usable[None, :])
