@@ -3,10 +3,12 @@
 A person counts as found when a detected person box overlaps its oracle box with IoU >= `--iou` (0.5).
 Recall is printed for three sets of oracle persons: all of them (>= 40 visible pixels, the oracle's
 floor), the "reasonably visible" ones (>= `--min-pixels` visible pixels), and those of them not cut by
-the image border. Detections come from `ablation_dynamic.model_detections` (cached per folder, frame count
-and model). Prints, never asserts.
+the image border. Precision: detected person boxes that overlap an oracle person box (any of them) with IoU
+>= `--iou`, over all detected person boxes. Detections come from `ablation_dynamic.model_detections` (cached
+per folder, frame count and model file name) of the shipped detector or `--model`. Prints, never asserts.
 
     nice -n 10 .venv/bin/python bench/person_recall_sim.py /tmp/sim/walking_xyz [--frames 300] [--stride 1]
+        [--model changing_slam_ros/models/ssd_mobilenet_v2_coco_int8.onnx]
 """
 
 from __future__ import annotations
@@ -39,13 +41,18 @@ def iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
 
 def person_recall(folder: Path, detections: dict[int, tuple[Detection, ...]], n_frames: int, stride: int,
                   min_iou: float, min_pixels: int) -> dict[str, tuple[int, int]]:
-    """{set name: (found, total)} over every `stride`-th of the first `n_frames` frames."""
+    """{set name: (found, total)} over every `stride`-th of the first `n_frames` frames; set "precision": (detected
+    person boxes matching an oracle person, detected person boxes)."""
     doc = json.loads(find_detections_file(folder).read_text())
-    sets = {"all": [0, 0], "visible": [0, 0], "visible_uncut": [0, 0]}
+    sets = {"all": [0, 0], "visible": [0, 0], "visible_uncut": [0, 0], "precision": [0, 0]}
     for k, frame in enumerate(doc["frames"][:n_frames]):
         if k % stride:
             continue
         found_boxes = [d.box_xyxy for d in detections.get(int(frame["stamp_ns"]), ()) if d.class_id == PERSON]
+        oracle = [tuple(o["box_xyxy"]) for o in frame["detections"] if o["class_id"] == PERSON]
+        for b in found_boxes:
+            sets["precision"][0] += int(any(iou(o, b) >= min_iou for o in oracle))
+            sets["precision"][1] += 1
         for o in frame["detections"]:
             if o["class_id"] != PERSON:
                 continue
@@ -69,13 +76,15 @@ def main() -> int:
     parser.add_argument("--iou", type=float, default=0.5)
     parser.add_argument("--min-pixels", type=int, default=5000, help="'reasonably visible': this many pixels")
     parser.add_argument("--model-cache", type=Path, default=Path(tempfile.gettempdir()) / "changing_slam_bench_detections")
+    parser.add_argument("--model", default="", help="ONNX detector (default: the shipped fp32 SSD-MobileNetV2)")
     args = parser.parse_args()
-    detector = Detector(DetectorConfig())
+    detector = Detector(DetectorConfig(model_path=args.model))
     for folder in args.folders:
         dets, ms = model_detections(folder, args.frames, detector, args.model_cache)
         rec = person_recall(folder, dets, args.frames, args.stride, args.iou, args.min_pixels)
         cells = "  ".join(f"{k} {f}/{t} = {100 * f / t if t else float('nan'):.1f} %" for k, (f, t) in rec.items())
-        print(f"{folder}: person recall (IoU >= {args.iou}): {cells}  [detector {ms:.0f} ms/frame]", flush=True)
+        print(f"{folder}: person recall (IoU >= {args.iou}): {cells}  [{detector.model_path.name}, {ms:.0f} ms/frame]",
+              flush=True)
     return 0
 
 
