@@ -65,3 +65,13 @@ def test_detection_publishes_the_people_of_a_walking_frame_with_the_image_stamp(
     executor.shutdown()
     node.destroy_node()
     peer.destroy_node()
+
+
+def test_the_model_parameter_picks_a_shipped_detector_and_model_path_still_wins(ros_context, tmp_path):
+    node = DetectionNode(context=ros_context, parameter_overrides=[Parameter("model", value="ssd_mobilenet_v2_coco_int8")])
+    assert node.detector_config.model == "ssd_mobilenet_v2_coco_int8" and node.detector_config.model_path == ""
+    node.destroy_node()
+    node = DetectionNode(context=ros_context, parameter_overrides=[
+        Parameter("model", value="ssd_mobilenet_v2_coco_int8"), Parameter("model_path", value=str(tmp_path / "x.onnx"))])
+    assert node.detector_config.model_path == str(tmp_path / "x.onnx")  # a path overrides the shipped name
+    node.destroy_node()
