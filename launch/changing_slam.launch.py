@@ -6,7 +6,9 @@ Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_pla
 per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock), map_file (multi-session:
 start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz), detector_threads (onnxruntime
 threads of the detection node; -1 = the config's; 1 costs ~10 % less CPU per detection where the nodes share few
-cores, as `changing-slam graph` does in real time), ba_solver (local BA: gtsam or schur, the numpy
+cores, as `changing-slam graph` does in real time), detector_model (a shipped detector by name, e.g.
+ssd_mobilenet_v2_coco_int8, the static INT8 SSD at ~0.4x the CPU that `changing-slam graph` uses in real time;
+empty = the config's), ba_solver (local BA: gtsam or schur, the numpy
 Schur-complement LM at ~0.35x the CPU that `changing-slam graph` uses in real time; empty = the config's). Out of lossless mode tracking
 runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest) and no waiting for
 detections that keep arriving late.
@@ -32,6 +34,7 @@ def generate_launch_description() -> LaunchDescription:
     map_out = LaunchConfiguration("map_out")
     detector_threads = LaunchConfiguration("detector_threads")
     ba_solver = LaunchConfiguration("ba_solver")
+    detector_model = LaunchConfiguration("detector_model")
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
@@ -50,6 +53,9 @@ def generate_launch_description() -> LaunchDescription:
                               "(and on ~/save_map); start the next session from it with map_file"),
         DeclareLaunchArgument("detector_threads", default_value="-1",
                               description="onnxruntime threads of the detection node (-1: the config's)"),
+        DeclareLaunchArgument("detector_model", default_value="",
+                              description="shipped detector of the detection node, e.g. ssd_mobilenet_v2_coco_int8 "
+                                          "(empty: the config's)"),
         DeclareLaunchArgument("ba_solver", default_value="",
                               description="local BA solver of local_mapping: gtsam or schur (empty: the config's)"),
         Node(
@@ -58,7 +64,7 @@ def generate_launch_description() -> LaunchDescription:
                          "ack_topics": ["/camera/rgb/image_color"], "confirm_topics": ["/camera/rgb/camera_info"]}],
         ),
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
-             parameters=[{"config": config, "intra_op_threads": detector_threads}, sim_time],
+             parameters=[{"config": config, "intra_op_threads": detector_threads, "model": detector_model}, sim_time],
              remappings=[("image", "/camera/rgb/image_color")]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,

@@ -2,8 +2,8 @@
 
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
         [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--detector-threads N]
-        [--ba-solver gtsam|schur|config] [--max-restarts N] [--timeout S] [--kill NODE@SECONDS]
-        [--load-map MAP@SECONDS]
+        [--detector-model NAME|config] [--ba-solver gtsam|schur|config] [--max-restarts N] [--timeout S]
+        [--kill NODE@SECONDS] [--load-map MAP@SECONDS]
         [--backend split|in_process] [--map-in PREVIOUS/map.npz]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
@@ -69,6 +69,7 @@ RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
+REAL_TIME_DETECTOR = "ssd_mobilenet_v2_coco_int8"  # the detection node's model in real time (--detector-model)
 PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
 
 
@@ -94,6 +95,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="onnxruntime threads of the detection node (default: 1 in real time, where the graph's "
                              "six processes share the cores and one thread costs ~10 %% less CPU per detection; "
                              "the config's in --lossless, where the detector's wall time per frame counts; -1: the config's)")
+    parser.add_argument("--detector-model", default=None, metavar="NAME",
+                        help="shipped detector of the detection node (default: ssd_mobilenet_v2_coco_int8 in real "
+                             "time, the static INT8 SSD at ~0.4x the fp32 CPU per detection; the config's in "
+                             "--lossless, so that the graph repeats `changing-slam run`; config: the config's)")
     parser.add_argument("--ba-solver", choices=("gtsam", "schur", "config"), default=None,
                         help="local_mapping's local BA solver (default: schur in real time, the numpy Schur-complement "
                              "LM that solves gtsam's problem at ~0.35x the CPU; the config's, gtsam unless set, in "
@@ -321,9 +326,16 @@ class Graph:
         if self.detection:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
             threads = a.detector_threads if a.detector_threads is not None else (-1 if a.lossless else 1)
+            model = getattr(a, "detector_model", None) or ("config" if a.lossless else REAL_TIME_DETECTOR)
+            from changing_slam_ros.core.detector import SHIPPED_MODELS
+
+            if model != "config" and model not in SHIPPED_MODELS:
+                raise ConfigError(f"--detector-model {model}: not a shipped detector (shipped: "
+                                  f"{', '.join(SHIPPED_MODELS)}; config: the config's)")  # fmt: skip
             self.nodes["detection"] = NodeProcess("detection", _node_argv("detection_node", {
                 "config": self.config, "compressed": info.compressed, "reliable_images": True,
-                "intra_op_threads": int(threads)}, remaps), self.logs)  # fmt: skip
+                "intra_op_threads": int(threads), "model": "" if model == "config" else model}, remaps),
+                self.logs)  # fmt: skip
         self.nodes["tracking"] = NodeProcess("tracking", _node_argv("tracking_node", {
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),

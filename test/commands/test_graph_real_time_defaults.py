@@ -1,7 +1,7 @@
 """What `changing-slam graph` starts its nodes with in real time and in lossless mode (no process is started).
 
 Real time, where the graph's six processes share the cores: the detector gets one onnxruntime thread (~10 % less
-CPU per detection) and local_mapping the numpy Schur-complement BA solver (~0.35x gtsam's solver CPU, same cost);
+CPU per detection) and the static INT8 SSD (~0.4x the fp32 CPU per detection), and local_mapping the numpy Schur-complement BA solver (~0.35x gtsam's solver CPU, same cost);
 lossless keeps the config's (gtsam), so that the graph repeats `changing-slam run` byte for byte
 (docs/architecture.md, "Session 9: the real-time graph's defaults")."""
 
@@ -37,3 +37,14 @@ def test_real_time_maps_with_the_schur_solver_and_lossless_with_the_configs(tmp_
     assert _param(tmp_path / "rt", "local_mapping", "ba_solver") == "'schur'"
     assert _param(tmp_path / "ll", "local_mapping", "ba_solver", "--lossless") == "''"
     assert _param(tmp_path / "g", "local_mapping", "ba_solver", "--ba-solver", "gtsam") == "'gtsam'"
+
+
+def test_real_time_detects_with_the_int8_ssd_and_lossless_with_the_configs(tmp_path: Path) -> None:
+    from changing_slam_ros.errors import ConfigError
+
+    assert _param(tmp_path / "rt", "detection", "model") == "'ssd_mobilenet_v2_coco_int8'"
+    assert _param(tmp_path / "ll", "detection", "model", "--lossless") == "''"
+    assert _param(tmp_path / "c", "detection", "model", "--detector-model", "config") == "''"
+    assert _param(tmp_path / "f", "detection", "model", "--detector-model", "ssd_mobilenet_v2_coco") == "'ssd_mobilenet_v2_coco'"
+    with pytest.raises(ConfigError, match="--detector-model yolo9: not a shipped detector"):
+        _param(tmp_path / "bad", "detection", "model", "--detector-model", "yolo9")
