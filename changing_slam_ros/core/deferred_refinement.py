@@ -1,26 +1,33 @@
-"""Deferred pose refinement: a frame's pose estimated again once the detections that bracket it are in.
+"""Deferred pose refinement: a frame's final pose estimated again once the detections around it are in.
 
 In real time the detector is slower than tracking, so a frame is tracked with the newest earlier detections carried
-forward (`core.late_detections`); a person's keypoints outside a carried box reach the pose optimisation and spoil
-that frame's pose (docs/architecture.md, "Session 8: late detections": the map is not what the late boxes spoil).
-A few frames later the detections of an image *after* the frame arrive. Every recently tracked frame whose stamp
-lies between the stamps of two consecutive detection sets (the newer one's own frame included) is then bracketed:
-its person boxes are interpolated between the two sets (`interpolated_boxes`), its matched keypoints classified
-again with them (`keypoint_classification.classify_keypoints`, §4.1 with repopulation, on the frame's depth
-image), and its pose optimised again (`pose_optimizer.optimize_pose`, as tracking's last step) on the frame's
-matches as tracked, less the keypoints now on a person. The refined pose replaces the frame's pose relative to its
-reference keyframe, so the final trajectory changes and the live one does not: tracking, the map and the
-published poses stay as they were (the refined pose comes too late for them).
+forward (`core.late_detections`), and a person's keypoints outside a carried box reach its pose optimisation. A few
+frames later the detections of an image *after* the frame arrive. Every recently tracked frame whose stamp lies
+between the stamps of two consecutive detection sets (the newer one's own frame included) is then *bracketed*: its
+person boxes are interpolated between the two sets (`interpolated_boxes`) and its matched keypoints classified again
+with them (`person_matches`: `keypoint_classification.classify_keypoints`, §4.1 with repopulation, on the frame's
+depth image). Its pose is then optimised again (`optimised_pose`: `pose_optimizer.optimize_pose`, tracking's last
+step) on its matches less those on a person, and the result replaces the frame's pose relative to its reference
+keyframe: the final trajectory changes, the live one does not (tracking, the map and the published poses stay as
+they were; the refined pose comes too late for them).
+
+*Where* it is optimised matters more than which matches are left out (docs/architecture.md, "Session 10"): with
+`current_map` the frame is re-expressed in the map as it stands when it is optimised (its reference keyframe's
+pose then composed with the tracked relative pose, its matched points where they are then, culled ones left out)
+and every bracketed frame is optimised again, with or without matches on a person; with `settle_s` that happens
+`settle_s` after the frame was tracked, once local mapping has bundle-adjusted the keyframes and points around it
+a few more times (and for the last frames at the end of the run, `settle_all`). In the replay the frames' own person
+matches are a small part of the gap (each refined frame moves by ~1 mm); re-expressing them in the settled map is
+most of the gain.
 
 The ring (`DeferredRefinement`) keeps, per tracked frame, what that takes (`TrackedFrameMatches`): M matches
-(M ~ 150-400) with the keypoint's raw and undistorted pixel, virtual right coordinate, pyramid weight, map point id
-and the map point's position when the frame was tracked (the pose is optimised against the map as tracking saw
-it, so the relative pose stays consistent with the reference keyframe's pose at that time: 80 bytes a match,
-~12-32 kB a frame), the online pose and pose relative to the reference keyframe, and a reference to the frame's
-depth image (float32, 0.3 MB at 320x240, 1.2 MB at 640x480; shared with the frame, not copied). It holds the
-frames of the last `max_age_s` (0.6 s: 18 frames at 30 Hz, ~6 MB of depth images at 320x240, ~22 MB at 640x480)
-and at most `max_frames`. A frame's detections arrive ~4 frames late and the sets ~3 frames apart at the graph's
-1x cadence, so a frame waits ~7 frames (0.23 s) for the set after it.
+(M ~ 150-400, 80 bytes each: raw and undistorted pixel, virtual right coordinate, pyramid weight, map point id and
+position when tracked; ~12-32 kB a frame), the online pose and pose relative to the reference keyframe, and until
+it is bracketed a reference to the frame's depth image (float32, shared with the frame, not copied: 0.3 MB at
+320x240, 1.2 MB at 640x480), then its person mask (M bools) instead. A frame not bracketed within `max_age_s`
+(0.6 s) is forgotten; a bracketed one stays until it settles. At 30 Hz with detections ~4 frames late every ~3
+frames that is ~10 frames with a depth image (3 MB at 320x240, 12 MB at 640x480) and ~60 without (`settle_s` 2 s:
+~1-2 MB of matches), at most `max_frames` (128) in all.
 
 Box interpolation: the two sets' boxes of `class_ids` are paired greedily by IoU (same class, IoU >=
 `match_min_iou`, as the carry code's extrapolation pairs them); a paired box is interpolated linearly in its
@@ -28,23 +35,19 @@ corners by the frame's time between the two stamps and grown by `interpolated_gr
 side per second to the nearer set; a box of only one set is carried to the frame unmoved and grown by
 `carried_grow_widths_per_s` per second of the time between them (a person entering or leaving, or a missed
 detection). A frame with no set before it within `max_bracket_gap_s` is not bracketed and keeps its pose, unless it
-is the new set's own frame (its boxes are then exact).
+is the new set's own frame (its boxes are then exact). A frame tracked while its own detections were in already
+(lossless: every frame) is never refined.
 
-A frame is only optimised again when at least one of its matches moves onto a person, and its refined pose is
-kept when at least `min_inliers` matches stay inliers and it is within `max_correction_m` / `max_correction_deg` of
-the tracked pose (a refinement that jumps further is a failed optimisation, not a correction).
-
-`current_map`: by the time a frame is bracketed (~7 frames later) local mapping has usually bundle-adjusted its
-reference keyframe and points again. With it, the caller re-expresses the frame in the map as it stands then
-(`on_detections(..., now=...)`: the reference keyframe's current pose composed with the tracked relative pose, the
-current positions of the matched points, culled ones left out) and every bracketed frame is optimised again there,
-with or without matches on a person: the refined pose relative to the keyframe is then the one that fits the
-adjusted map, as a frame tracked later would be.
+A refined pose is kept when at least `min_inliers` matches stay inliers and it is within `max_correction_m` /
+`max_correction_deg` of the pose it started from (a refinement that jumps further is a failed optimisation, not a
+correction). Without `current_map` (the map as tracked) only frames with matches on a person are optimised again,
+at once when bracketed.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -61,6 +64,7 @@ from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
+BoolArr = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True)
@@ -79,13 +83,16 @@ class RefinementConfig:
     - `min_inliers`: fewer inliers after the new optimisation keep the tracked pose.
     - `max_correction_m`, `max_correction_deg`: a refined pose further from the tracked one is not used.
     - `pose_rounds`, `pose_iterations`: the optimisation's outlier rounds and iterations per round (tracking's).
-    - `current_map`: optimise every bracketed frame again in the map as it is when the frame is bracketed (see the
-      module doc); off: only frames with matches on a person, against the map as it was when tracked.
+    - `current_map`: optimise every bracketed frame again in the map as it is then (see the module doc); off: only
+      frames with matches on a person, at once when bracketed, against the map as it was when tracked.
+    - `settle_s`: with `current_map`, a bracketed frame is optimised again this long after it was tracked (the map
+      around it bundle-adjusted meanwhile; `SlamSystem.settle_refinement` at the end of a run does the rest); 0 = at
+      once when bracketed.
     """
 
     enabled: bool = False
     max_age_s: float = 0.6
-    max_frames: int = 32
+    max_frames: int = 128
     max_bracket_gap_s: float = 0.5
     class_ids: tuple[int, ...] = (0,)
     match_min_iou: float = 0.1
@@ -97,6 +104,7 @@ class RefinementConfig:
     pose_rounds: int = 4
     pose_iterations: int = 6
     current_map: bool = True
+    settle_s: float = 2.0
 
     def __post_init__(self) -> None:
         where = "tracking.deferred_refinement"
@@ -106,6 +114,8 @@ class RefinementConfig:
             raise ConfigError(f"{where}.max_bracket_gap_s: expected > 0, got {self.max_bracket_gap_s}")
         if self.interpolated_grow_widths_per_s < 0.0 or self.carried_grow_widths_per_s < 0.0:
             raise ConfigError(f"{where}: grow rates must be >= 0")
+        if self.settle_s < 0.0:
+            raise ConfigError(f"{where}.settle_s: expected >= 0, got {self.settle_s}")
         if self.pose_rounds < 1 or self.pose_iterations < 1:
             raise ConfigError(f"{where}: pose_rounds and pose_iterations must be >= 1")
 
@@ -122,7 +132,9 @@ class TrackedFrameMatches:
     - `point_ids` (M,) map point ids, `points_w` (M, 3) their positions (m) when the frame was tracked;
     - `depth_m` (H, W) float32 the frame's depth image (0 = no reading), for the boxes' depth statistics;
     - `camera`: intrinsics and virtual baseline of the projection;
-    - `map_id`, `ref_kf_id`: the map and reference keyframe the frame was tracked in and against.
+    - `map_id`, `ref_kf_id`: the map and reference keyframe the frame was tracked in and against;
+    - `person` (M,) bool: the matches on a person, once the frame is bracketed (None before; the depth image is
+      let go then).
     """
 
     stamp_ns: int
@@ -135,10 +147,11 @@ class TrackedFrameMatches:
     inv_sigma2: F64
     point_ids: npt.NDArray[np.int64]
     points_w: F64
-    depth_m: F32
+    depth_m: F32 | None
     camera: PinholeStereo
     map_id: int = 0
     ref_kf_id: int = -1
+    person: BoolArr | None = None
 
     def __len__(self) -> int:
         return len(self.point_ids)
@@ -154,7 +167,11 @@ class TrackedFrameMatches:
         points now at `points_w` (K, 3), K = keep.sum()."""
         return replace(self, T_world_cam=T_world_cam, raw_px=self.raw_px[keep], uv_px=self.uv_px[keep],
                        u_right_px=self.u_right_px[keep], inv_sigma2=self.inv_sigma2[keep],
-                       point_ids=self.point_ids[keep], points_w=points_w)  # fmt: skip
+                       point_ids=self.point_ids[keep], points_w=points_w,
+                       person=None if self.person is None else self.person[keep])  # fmt: skip
+
+
+MapNow = Callable[[TrackedFrameMatches], "TrackedFrameMatches | None"]  # a frame in the map as it is now, or None
 
 
 @dataclass(frozen=True)
@@ -175,7 +192,8 @@ class RefinedPose:
 
 @dataclass
 class RefinementStats:
-    """Counters over a run: frames bracketed, optimised again (some match on a person), refined (kept)."""
+    """Counters over a run: frames kept, bracketed, optimised again, refined (kept) and rejected, matches left out
+    as on a person, and the process CPU time (ms) of all the ring's calls."""
 
     frames_added: int = 0
     frames_bracketed: int = 0
@@ -183,6 +201,7 @@ class RefinementStats:
     frames_refined: int = 0
     frames_rejected: int = 0
     matches_dropped: int = 0
+    cpu_ms: float = 0.0
 
 
 def interpolated_boxes(
@@ -222,50 +241,60 @@ def interpolated_boxes(
     return tuple(out)
 
 
-def refine_frame(
-    frame: TrackedFrameMatches,
-    boxes: tuple[Detection, ...],
-    cfg: RefinementConfig,
-    classification: KeypointClassificationConfig,
-    always: bool = False,
-) -> tuple[RefinedPose | None, int]:
-    """`frame`'s pose optimised again without its matches on a person in `boxes`; returns the refined pose
-    (None: nothing on a person and not `always`, or the optimisation not trusted) and the number of matches on a
-    person."""
-    if len(frame) == 0 or not (boxes or always):
-        return None, 0
-    n_person = 0
-    keep = np.ones(len(frame), dtype=bool)
-    if boxes:
-        cls = classify_keypoints(frame.raw_px, frame.depth_m, boxes, classification)
-        keep = (cls.kp_classes != KeypointClass.DYNAMIC) & (cls.kp_classes != KeypointClass.UNUSED)
-        n_person = int((~keep).sum())
-    if (n_person == 0 and not always) or int(keep.sum()) < cfg.min_inliers:
-        return None, n_person
+def person_matches(frame: TrackedFrameMatches, boxes: tuple[Detection, ...], classification: KeypointClassificationConfig) -> BoolArr:
+    """(M,) the frame's matches on a person in `boxes` (dynamic, or of a box whose keypoints are not used: §4.1 with
+    repopulation on the frame's depth image)."""
+    if not boxes or len(frame) == 0 or frame.depth_m is None:
+        return np.zeros(len(frame), dtype=bool)
+    cls = classify_keypoints(frame.raw_px, frame.depth_m, boxes, classification)
+    return np.asarray((cls.kp_classes == KeypointClass.DYNAMIC) | (cls.kp_classes == KeypointClass.UNUSED))
+
+
+def optimised_pose(frame: TrackedFrameMatches, person: BoolArr, cfg: RefinementConfig) -> RefinedPose | None:
+    """`frame`'s pose optimised again from its pose without the matches `person` (M,); None when fewer than
+    `min_inliers` stay inliers or it moves further than `max_correction_m` / `max_correction_deg`."""
+    keep = ~person
+    if int(keep.sum()) < cfg.min_inliers:
+        return None
     obs = PoseObservations(frame.points_w[keep], frame.uv_px[keep], frame.u_right_px[keep], frame.inv_sigma2[keep])
     res = optimize_pose(invert(frame.T_world_cam), obs, frame.camera, rounds=cfg.pose_rounds, iterations=cfg.pose_iterations)
     if res.n_inliers < cfg.min_inliers:
-        return None, n_person
+        return None
     T_world_cam = invert(res.T_cam_world)
     T_cam_correction = invert(frame.T_world_cam) @ T_world_cam  # the change, in the tracked camera's frame
     moved_m = float(np.linalg.norm(T_cam_correction[:3, 3]))
     cos = float(np.clip((np.trace(T_cam_correction[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
     turned_deg = math.degrees(math.acos(cos))
     if moved_m > cfg.max_correction_m or turned_deg > cfg.max_correction_deg:
-        return None, n_person
-    refined = RefinedPose(frame.stamp_ns, frame.record_index, T_world_cam, frame.T_ref_cam @ T_cam_correction,
-                          n_person, res.n_inliers, moved_m, turned_deg)  # fmt: skip
-    return refined, n_person
+        return None
+    return RefinedPose(frame.stamp_ns, frame.record_index, T_world_cam, frame.T_ref_cam @ T_cam_correction,
+                       int(person.sum()), res.n_inliers, moved_m, turned_deg)  # fmt: skip
+
+
+def refine_frame(
+    frame: TrackedFrameMatches,
+    boxes: tuple[Detection, ...],
+    cfg: RefinementConfig,
+    classification: KeypointClassificationConfig,
+) -> tuple[RefinedPose | None, int]:
+    """`frame`'s pose optimised again, in the map as tracked, without its matches on a person in `boxes`; returns
+    the refined pose (None: nothing on a person, or the optimisation not trusted) and the number of those matches."""
+    person = person_matches(frame, boxes, classification)
+    n_person = int(person.sum())
+    if n_person == 0:
+        return None, 0
+    return optimised_pose(frame, person, cfg), n_person
 
 
 class DeferredRefinement:
-    """The ring of recently tracked frames and the detection sets seen; `add` each tracked frame, hand each
-    detection set over with `on_detections` as it arrives; both return the frames refined."""
+    """The ring of recently tracked frames and the detection sets seen. `add` each tracked frame, hand each detection
+    set over with `on_detections` as it arrives, and `settle_all` at the end of the run; each returns the frames
+    refined. `now` (optional in each) re-expresses a frame in the map as it is then (`current_map`)."""
 
     def __init__(self, config: RefinementConfig, classification: KeypointClassificationConfig | None = None) -> None:
         self.config = config
         self.classification = classification or KeypointClassificationConfig()
-        self._frames: deque[TrackedFrameMatches] = deque()
+        self._frames: deque[TrackedFrameMatches] = deque()  # by stamp
         self._sets: list[DetectionSet] = []  # by stamp, those within max_age_s + max_bracket_gap_s of the newest
         self.stats = RefinementStats()
 
@@ -277,28 +306,46 @@ class DeferredRefinement:
         """Bytes of the ring's match arrays (depth images not counted: shared with the frames)."""
         return sum(f.nbytes for f in self._frames)
 
-    def add(self, frame: TrackedFrameMatches) -> RefinedPose | None:
-        """Keep `frame` (older frames beyond `max_age_s` / `max_frames` are forgotten). When a later detection set
-        is in already (the frame waited in a queue while the detector went past it) it is refined at once with the
-        sets around it; when its own set is in, it was tracked with it and is left as it is (lossless: every frame)."""
+    def add(self, frame: TrackedFrameMatches, now: MapNow | None = None) -> list[RefinedPose]:
+        """Keep `frame`. Frames not bracketed within `max_age_s` are forgotten; bracketed frames `settle_s` older
+        than it (or beyond `max_frames`) are settled: optimised again in the map as it is now and forgotten. When a
+        later detection set is in already (the frame waited in a queue while the detector went past it), `frame` is
+        bracketed at once; when its own set is in, it was tracked with it and is left as it is (lossless: every
+        frame)."""
+        c0 = time.process_time()
         cfg = self.config
+        out: list[RefinedPose] = []
         self._frames.append(frame)
         self.stats.frames_added += 1
-        oldest = frame.stamp_ns - round(cfg.max_age_s * 1e9)
-        while self._frames and (self._frames[0].stamp_ns < oldest or len(self._frames) > cfg.max_frames):
-            self._frames.popleft()
+        unbracketed_ns = frame.stamp_ns - round(cfg.max_age_s * 1e9)
+        settled_ns = frame.stamp_ns - round(cfg.settle_s * 1e9)
+        kept: deque[TrackedFrameMatches] = deque()
+        n_over = max(len(self._frames) - cfg.max_frames, 0)
+        for k, f in enumerate(self._frames):
+            if f.person is None:
+                if f.stamp_ns >= unbracketed_ns and k >= n_over:
+                    kept.append(f)
+            elif f.stamp_ns <= settled_ns or k < n_over:
+                out += self._optimised(f, now)
+            else:
+                kept.append(f)
+        self._frames = kept
         later = [s for s in self._sets if s.stamp_ns >= frame.stamp_ns]
-        if not later or later[0].stamp_ns == frame.stamp_ns:
-            return None
-        after = later[0]
-        return self._refine(frame, self._set_before(after.stamp_ns), after)
+        if later and later[0].stamp_ns != frame.stamp_ns:
+            out += self._bracket(len(self._frames) - 1, self._set_before(later[0].stamp_ns), later[0], now)
+        self.stats.cpu_ms += (time.process_time() - c0) * 1e3
+        return out
 
-    def on_detections(
-        self, detections: DetectionSet, now: Callable[[TrackedFrameMatches], TrackedFrameMatches | None] | None = None
-    ) -> list[RefinedPose]:
+    @property
+    def has_detections(self) -> bool:
+        """Whether a detection set was handed over yet (before that no frame can be bracketed)."""
+        return bool(self._sets)
+
+    def on_detections(self, detections: DetectionSet, now: MapNow | None = None) -> list[RefinedPose]:
         """A detection set has arrived: the kept frames it brackets with the set before it (and, when it came
-        out of order, those it brackets with the set after it) are refined; returns those refined. `now` gives a
-        frame re-expressed in the map as it is now (`current_map`; None from it: the frame as tracked)."""
+        out of order, those it brackets with the set after it) are classified again; with `settle_s` 0 (or
+        `current_map` off, or no `now`) they are refined at once and returned, else they wait to be settled."""
+        c0 = time.process_time()
         stamps = [s.stamp_ns for s in self._sets]
         if detections.stamp_ns in stamps:
             return []
@@ -313,11 +360,21 @@ class DeferredRefinement:
         brackets = [(before, detections)] + ([(detections, later[0])] if later else [])
         for lo, hi in brackets:
             lo_ns = lo.stamp_ns if lo is not None else hi.stamp_ns - 1
-            for frame in self._frames:
-                if lo_ns < frame.stamp_ns <= hi.stamp_ns:
-                    refined = self._refine(frame, lo, hi, now)
-                    if refined is not None:
-                        out.append(refined)
+            for k, frame in enumerate(self._frames):
+                if lo_ns < frame.stamp_ns <= hi.stamp_ns and frame.person is None:
+                    out += self._bracket(k, lo, hi, now)
+        self.stats.cpu_ms += (time.process_time() - c0) * 1e3
+        return out
+
+    def settle_all(self, now: MapNow | None = None) -> list[RefinedPose]:
+        """The end of the run: every bracketed frame still waiting is optimised again in the map as it is now."""
+        c0 = time.process_time()
+        out: list[RefinedPose] = []
+        for f in self._frames:
+            if f.person is not None:
+                out += self._optimised(f, now)
+        self._frames = deque(f for f in self._frames if f.person is None)
+        self.stats.cpu_ms += (time.process_time() - c0) * 1e3
         return out
 
     def _set_before(self, stamp_ns: int) -> DetectionSet | None:
@@ -327,28 +384,41 @@ class DeferredRefinement:
             return None
         return earlier[-1]
 
-    def _refine(
-        self,
-        frame: TrackedFrameMatches,
-        before: DetectionSet | None,
-        after: DetectionSet,
-        now: Callable[[TrackedFrameMatches], TrackedFrameMatches | None] | None = None,
-    ) -> RefinedPose | None:
-        if before is None and frame.stamp_ns != after.stamp_ns:
-            return None  # not bracketed: only the set's own frame is refined without a set before it
+    def _waits(self, now: MapNow | None) -> bool:
+        """Whether a bracketed frame waits `settle_s` to be optimised again (else: at once)."""
+        return self.config.settle_s > 0.0 and self.config.current_map and now is not None
+
+    def _bracket(self, k: int, before: DetectionSet | None, after: DetectionSet, now: MapNow | None) -> list[RefinedPose]:
+        """Frame `k` of the ring between `before` and `after`: its matches on a person found (the depth image is then
+        let go); optimised again at once unless it waits to be settled."""
+        frame = self._frames[k]
+        if (before is None and frame.stamp_ns != after.stamp_ns) or frame.depth_m is None:
+            return []  # not bracketed: only the set's own frame is refined without a set before it
         self.stats.frames_bracketed += 1
         h, w = frame.depth_m.shape[:2]
         boxes = interpolated_boxes(before, after, frame.stamp_ns, self.config, w, h)
+        frame = replace(frame, person=person_matches(frame, boxes, self.classification), depth_m=None)
+        self._frames[k] = frame
+        if self._waits(now):
+            return []
+        return self._optimised(frame, now)
+
+    def _optimised(self, frame: TrackedFrameMatches, now: MapNow | None) -> list[RefinedPose]:
+        """A bracketed frame optimised again without its matches on a person (in the map as it is now when
+        `current_map` and `now`); [] when nothing changes or the result is not trusted."""
+        assert frame.person is not None
+        n_person = int(frame.person.sum())
         moved = now(frame) if now is not None and self.config.current_map else None
-        refined, n_person = refine_frame(moved or frame, boxes, self.config, self.classification, always=moved is not None)
-        if n_person > 0 or moved is not None:
-            self.stats.frames_optimised += 1
-            self.stats.matches_dropped += n_person
-            if refined is None:
-                self.stats.frames_rejected += 1
-        if refined is not None:
-            self.stats.frames_refined += 1
-        return refined
+        if n_person == 0 and moved is None:
+            return []  # the same matches in the same map: the tracked pose
+        self.stats.frames_optimised += 1
+        self.stats.matches_dropped += n_person
+        refined = optimised_pose(moved or frame, moved.person if moved is not None else frame.person, self.config)
+        if refined is None:
+            self.stats.frames_rejected += 1
+            return []
+        self.stats.frames_refined += 1
+        return [replace(refined, n_person=n_person)]
 
 
 def _pairs(a: list[Detection], b: list[Detection], min_iou: float) -> list[tuple[int, int]]:

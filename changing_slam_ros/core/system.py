@@ -276,10 +276,20 @@ class SlamSystem:
     def refine_with_detections(self, detections: DetectionSet) -> list[RefinedPose]:
         """A frame's detections have arrived after tracking went past it (real time): the tracked frames they
         bracket with the set before get their final pose refined (`core.deferred_refinement`; nothing when
-        `tracking.deferred_refinement` is off). The online poses, the map and tracking's state stay as they were."""
+        `tracking.deferred_refinement` is off), at once or `settle_s` later (then `process` and, at the end,
+        `settle_refinement` apply it). The online poses, the map and tracking's state stay as they were."""
         if self.refinement is None:
             return []
         refined = self.refinement.on_detections(detections, self._in_current_map)
+        self._apply_refined(refined)
+        return refined
+
+    def settle_refinement(self) -> list[RefinedPose]:
+        """The end of a run (before the final trajectory is written): the bracketed frames still waiting to settle
+        are optimised again in the map as it is now (`tracking.deferred_refinement.settle_s`)."""
+        if self.refinement is None:
+            return []
+        refined = self.refinement.settle_all(self._in_current_map)
         self._apply_refined(refined)
         return refined
 
@@ -302,6 +312,8 @@ class SlamSystem:
         local BA refines)."""
         assert self.refinement is not None
         rec = self.records[-1]
+        if not self.refinement.has_detections:  # none handed over yet (offline: never): no frame can be bracketed
+            return
         if res.state != TrackingState.OK or res.new_keyframe is not None or rec.T_ref_cam is None or frame.T_world_cam is None:
             return
         idx = np.flatnonzero(frame.point_ids >= 0)
@@ -313,9 +325,7 @@ class SlamSystem:
             self.atlas.current.points.positions[ids].copy(), rgbd.depth_m,
             PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.config.features.bf_m_px), rec.map_id, rec.ref_kf_id,
         )
-        refined = self.refinement.add(kept)
-        if refined is not None:
-            self._apply_refined([refined])
+        self._apply_refined(self.refinement.add(kept, self._in_current_map))
 
     def _apply_refined(self, refined: list[RefinedPose]) -> None:
         for r in refined:

@@ -701,6 +701,7 @@ class TrackingNode(QuietQosEvents, Node):
         from changing_slam_ros.nodes.slam_backend import write_backend_outputs
 
         out_dir = Path(self.params["output_dir"])
+        self.backend.system.settle_refinement()  # tracking.deferred_refinement: the last frames' final poses
         written = write_backend_outputs(out_dir, self.backend, self.stats())
         if self._before_load:
             from changing_slam_ros.io.tum_trajectory import write_tum_trajectory

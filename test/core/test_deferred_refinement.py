@@ -83,7 +83,7 @@ def test_a_bracketed_frame_loses_its_person_matches_and_its_pose_error_drops():
     before_m = _error_m(frame.T_world_cam, T_true)
     assert before_m > 0.01  # tracked with the person's stale map points: 22 mm off
     ring = DeferredRefinement(RefinementConfig(enabled=True))
-    assert ring.add(frame) is None  # no detections after it yet
+    assert ring.add(frame) == []  # no detections after it yet
     assert ring.on_detections(_person_set(1000 * MS, -12.0)) == []  # before it: nothing bracketed yet
     (refined,) = ring.on_detections(_person_set(1100 * MS, 12.0))
     assert (refined.stamp_ns, refined.record_index) == (1050 * MS, 7)
@@ -107,7 +107,7 @@ def test_in_the_current_map_every_bracketed_frame_is_optimised_again_and_keeps_i
 
     frame, T_true = _frame(1050 * MS, record_index=1)
     plain = DeferredRefinement(RefinementConfig(enabled=True))
-    moved = DeferredRefinement(RefinementConfig(enabled=True))
+    moved = DeferredRefinement(RefinementConfig(enabled=True, settle_s=0.0))  # at once, not settle_s later
     for ring in (plain, moved):
         ring.add(frame)
         ring.on_detections(_person_set(1000 * MS, -12.0))
@@ -119,8 +119,9 @@ def test_in_the_current_map_every_bracketed_frame_is_optimised_again_and_keeps_i
     # the map as tracked (or with current_map off) it is left alone.
     corner = (Detection((0.0, 0.0, 2.0, 2.0), 0, 0.9),)  # a person box where no tracked keypoint lies
     away = (DetectionSet(2000 * MS, corner, 320, 240), DetectionSet(2100 * MS, corner, 320, 240))
-    for cfg, hand_over, optimised in ((RefinementConfig(enabled=True), True, 1), (RefinementConfig(enabled=True), False, 0),
-                                      (RefinementConfig(enabled=True, current_map=False), True, 0)):  # fmt: skip
+    at_once = RefinementConfig(enabled=True, settle_s=0.0)
+    for cfg, hand_over, optimised in ((at_once, True, 1), (at_once, False, 0),
+                                      (dataclasses.replace(at_once, current_map=False), True, 0)):  # fmt: skip
         ring = DeferredRefinement(cfg)
         ring.add(dataclasses.replace(frame, stamp_ns=2050 * MS))
         ring.on_detections(away[0])
@@ -128,11 +129,37 @@ def test_in_the_current_map_every_bracketed_frame_is_optimised_again_and_keeps_i
         assert (ring.stats.frames_optimised, len(out), ring.stats.matches_dropped) == (optimised, optimised, 0)
 
 
+def _same_map(f: TrackedFrameMatches) -> TrackedFrameMatches:
+    return f.in_map(f.T_world_cam, np.ones(len(f), bool), f.points_w)
+
+
+def test_bracketed_frames_settle_settle_s_after_they_were_tracked_or_at_the_end():
+    ring = DeferredRefinement(RefinementConfig(enabled=True, settle_s=1.0))
+    frame, T_true = _frame(1050 * MS, record_index=1)
+    ring.add(frame, _same_map)
+    ring.add(dataclasses.replace(frame, stamp_ns=1150 * MS, record_index=2), _same_map)
+    ring.on_detections(_person_set(1000 * MS, -12.0), _same_map)
+    assert ring.on_detections(_person_set(1100 * MS, 12.0), _same_map) == []  # bracketed: waits for the map to settle
+    assert len(ring) == 2 and ring.stats.frames_bracketed == 1 and ring.stats.frames_optimised == 0
+    # A frame tracked 1 s after it: the bracketed frame is optimised again now and leaves the ring; the frame of
+    # 1150 ms, never bracketed, is forgotten after max_age_s.
+    (settled,) = ring.add(dataclasses.replace(frame, stamp_ns=2050 * MS, record_index=3), _same_map)
+    assert settled.record_index == 1 and _error_m(settled.T_world_cam, T_true) < 0.003
+    assert [f.record_index for f in ring._frames] == [3]  # noqa: SLF001
+    # The end of the run: what is bracketed settles; the rest stays as tracked.
+    ring.on_detections(_person_set(2100 * MS, 0.0), _same_map)
+    ring.on_detections(_person_set(2000 * MS, -10.0), _same_map)  # late and out of order: brackets 2050 with 2100
+    (last,) = ring.settle_all(_same_map)
+    assert last.record_index == 3 and len(ring) == 0
+    assert ring.settle_all(_same_map) == []
+    assert ring.stats.frames_refined == 2 and ring.stats.cpu_ms > 0.0
+
+
 def test_frames_without_detections_on_both_sides_keep_their_pose():
     cfg = RefinementConfig(enabled=True, max_bracket_gap_s=0.3)
     ring = DeferredRefinement(cfg)
     for k, stamp in enumerate((1000, 1033, 1066, 1100, 1133)):
-        assert ring.add(_frame(stamp * MS, record_index=k)[0]) is None
+        assert ring.add(_frame(stamp * MS, record_index=k)[0]) == []
     # The first set ever, of frame 1100: only its own frame is refined (its boxes are exact); the frames before
     # it have no set before them, and 1133 comes after it.
     (own,) = ring.on_detections(_person_set(1100 * MS, 0.0))
@@ -165,12 +192,12 @@ def test_a_frame_tracked_after_the_sets_around_it_arrived_is_refined_when_added_
     ring = DeferredRefinement(RefinementConfig(enabled=True))
     ring.on_detections(_person_set(1000 * MS, -12.0))
     ring.on_detections(_person_set(1100 * MS, 12.0))
-    refined = ring.add(frame)
-    assert refined is not None and refined.record_index == 2
+    (refined,) = ring.add(frame)
+    assert refined.record_index == 2
     assert _error_m(refined.T_world_cam, T_true) < 0.3 * _error_m(frame.T_world_cam, T_true)
     # A frame whose own detections were in when it was tracked (lossless: every frame) was tracked with them.
     ring.on_detections(_person_set(1150 * MS, 0.0))
-    assert ring.add(dataclasses.replace(frame, stamp_ns=1150 * MS, record_index=3)) is None
+    assert ring.add(dataclasses.replace(frame, stamp_ns=1150 * MS, record_index=3)) == []
 
 
 def test_the_ring_forgets_frames_older_than_max_age_and_beyond_max_frames():
@@ -240,8 +267,8 @@ def test_the_system_refines_bracketed_frames_only_and_leaves_the_online_poses_an
     """walking_xyz (seed 0, 320x240, 30 fps, 60 frames, oracle boxes), each frame's boxes usable 4 frames later on
     every 3rd frame (the graph's 1x cadence, as bench/late_detections.py replays it), carried forward to the frames
     without their own: with the refinement on, the online trajectory and the keyframes are the run without it to
-    the bit, frames that no two detection sets bracket keep their final pose, and bracketed frames with matches on
-    a person are refined."""
+    the bit, frames that no two detection sets bracket keep their final pose, and bracketed frames are refined
+    (1 s later, or at the end of the run)."""
     from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
     from changing_slam_ros.core.late_detections import CarryConfig, carried_forward
     from changing_slam_ros.core.system import SlamSystem, SystemConfig
@@ -259,7 +286,7 @@ def test_the_system_refines_bracketed_frames_only_and_leaves_the_online_poses_an
     carry = CarryConfig(flow=False)
 
     def run(refine: bool) -> SlamSystem:
-        tracking = TrackingConfig(deferred_refinement=RefinementConfig(enabled=refine))
+        tracking = TrackingConfig(deferred_refinement=RefinementConfig(enabled=refine, settle_s=1.0))
         system = SlamSystem(SystemConfig(tracking=tracking), dynamic_filter=DynamicFilter(DynamicConfig()))
         newest = None
         for i, rgbd in enumerate(frames):
@@ -268,6 +295,7 @@ def test_the_system_refines_bracketed_frames_only_and_leaves_the_online_poses_an
                 newest = sets[j]
                 system.refine_with_detections(sets[j])
             system.process(rgbd, None if newest is None else carried_forward(newest, rgbd.stamp_ns, carry))
+        system.settle_refinement()  # the end of the run: the frames of the last second settle now
         return system
 
     off, on = run(False), run(True)
