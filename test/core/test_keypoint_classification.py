@@ -213,3 +213,49 @@ def test_nearest_depth_is_the_smallest_valid_depth_of_the_window_clipped_at_the_
 def test_median_1d_is_numpys_median_bit_for_bit(n: int) -> None:
     vals = np.random.default_rng(n).uniform(0.3, 5.0, n)
     assert median_1d(vals) == float(np.median(vals))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_keypoint_in_several_boxes_takes_the_unusable_then_dynamic_then_nearest_one(seed: int) -> None:
+    """Random overlapping boxes over layered depth, against the rule written per keypoint: among the boxes a
+    keypoint is inside (person boxes widened by `box_margin_px`) and in front of the box's background depth (or
+    any keypoint, for an unusable box), the unusable box wins, then a dynamic class, then the smallest minimum
+    depth; a low score drops a box."""
+    rng = np.random.default_rng(seed)
+    cfg = KeypointClassificationConfig(min_detection_score=0.2)
+    depth = np.full((H, W), WALL_M, np.float32)
+    dets = []
+    for k in range(6):
+        x0, y0 = rng.uniform(0, W - 200), rng.uniform(0, H - 200)
+        x1, y1 = x0 + rng.uniform(60, 200), y0 + rng.uniform(60, 200)
+        depth[int(y0) + 5 : int(y1) - 5, int(x0) + 5 : int(x1) - 5] = rng.uniform(0.8, 2.8)
+        if k == 5:  # something in front of this box's centre only: occluded, so unusable
+            cy, cx = int((y0 + y1) / 2), int((x0 + x1) / 2)
+            depth[cy - 12 : cy + 12, cx - 12 : cx + 12] = 0.3
+        cls = PERSON_CLASS_ID if k % 3 == 0 else CHAIR_CLASS_ID
+        dets.append(Detection((x0, y0, x1, y1), cls, 0.1 if k == 4 else 0.9))
+    depth[rng.random((H, W)) < 0.05] = 0.0
+    kps = rng.uniform([0, 0], [W, H], (800, 2))
+    res = classify_keypoints(kps, depth, dets, cfg)
+    kp_depth = nearest_depth_around(depth, kps, cfg.keypoint_depth_window_px)
+    for i, (x, y) in enumerate(kps):
+        owners = []
+        for b, d in enumerate(dets):
+            if d.score < cfg.min_detection_score:
+                continue
+            g = cfg.box_margin_px if d.class_id == PERSON_CLASS_ID else 0.0
+            bx0, by0, bx1, by1 = d.box_xyxy
+            if not (bx0 - g <= x < bx1 + g and by0 - g <= y < by1 + g):
+                continue
+            fg = kp_depth[i] <= res.box_background_depth_m[b] if kp_depth[i] > 0 else cfg.invalid_depth_is_object
+            if fg or not res.box_usable[b]:
+                st = res.box_stats[b]
+                owners.append((bool(res.box_usable[b]), d.class_id != PERSON_CLASS_ID, st.min_m if st else np.inf, b))
+        if not owners:
+            assert res.kp_box_index[i] == -1 and res.kp_classes[i] == KeypointClass.STATIC
+            continue
+        usable, not_dyn, _, b = min(owners)
+        assert res.kp_box_index[i] == b and res.kp_object_class_ids[i] == dets[b].class_id
+        want = KeypointClass.UNUSED if not usable else KeypointClass.MOVABLE if not_dyn else KeypointClass.DYNAMIC
+        assert res.kp_classes[i] == want
+    assert not res.box_usable[5] and (res.kp_classes == KeypointClass.UNUSED).any()
