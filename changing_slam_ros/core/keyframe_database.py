@@ -109,11 +109,15 @@ class KeyframeDatabase:
     def add_bow(self, kf_id: int, bow: BowVector, map_id: int = 0) -> None:
         """Index a keyframe from an already computed BoW vector (re-adding replaces the old entry; words kept
         by `add` for this id stay, and are checked against the descriptors on the next `add`)."""
-        if kf_id in self._bow:
-            self._unindex(kf_id)
+        old = self._bow.get(kf_id)
+        if old is None:
+            gained = bow.word_ids
+        else:  # a new mask changes a few words: only their postings change
+            self._drop_postings(kf_id, np.setdiff1d(old.word_ids, bow.word_ids, assume_unique=True))
+            gained = np.setdiff1d(bow.word_ids, old.word_ids, assume_unique=True)
         self._bow[kf_id] = bow
         self._map_of[kf_id] = map_id
-        for w in bow.word_ids.tolist():
+        for w in gained.tolist():
             self._postings.setdefault(w, set()).add(kf_id)
 
     def erase(self, kf_id: int) -> None:
@@ -124,9 +128,11 @@ class KeyframeDatabase:
     def _unindex(self, kf_id: int) -> None:
         bow = self._bow.pop(kf_id, None)
         self._map_of.pop(kf_id, None)
-        if bow is None:
-            return
-        for w in bow.word_ids.tolist():
+        if bow is not None:
+            self._drop_postings(kf_id, bow.word_ids)
+
+    def _drop_postings(self, kf_id: int, word_ids: I32) -> None:
+        for w in word_ids.tolist():
             s = self._postings.get(w)
             if s is not None:
                 s.discard(kf_id)

@@ -460,23 +460,33 @@ class SlamMapLoopClosing:
 
     # loop closer seam
     def process(self, kf: Keyframe, slam_map: SlamMap) -> bool:
+        """Close a loop through `kf` if there is one (`find_loop`) and write it into the map (`apply_loop`)."""
+        correction = self.find_loop(kf, slam_map)
+        if correction is None:
+            return False
+        self.apply_loop(slam_map, correction)
+        return True
+
+    def find_loop(self, kf: Keyframe, slam_map: SlamMap) -> LoopCorrection | None:
+        """The loop through `kf`, or None; reads the map and changes only the closer's own state (its index,
+        consistency groups, loop edges): the map is as it was until `apply_loop`."""
         # keyframes culled from the map without `erase` (when this object is not also the keyframe index)
         gone = [k for k, held in self.closer.keyframes.items() if held.map_id == slam_map.id and k not in slam_map.keyframes]
         for k in gone:
             self.closer.erase(k)
         points = slam_map.points
-        correction = self.closer.process(
+        return self.closer.process(
             kf, slam_map.covisibility, slam_map.parent, _PointPositions(points), _active_mask(kf, points),
             _ReferenceKeyframes(points),
         )
-        if correction is None:
-            return False
+
+    def apply_loop(self, slam_map: SlamMap, correction: LoopCorrection) -> None:
+        """Write a correction from `find_loop` into the map (then global BA when configured)."""
         apply_correction(slam_map, correction)
         if self.global_ba is not None:
             self.last_global_ba = global_bundle_adjust(slam_map, self.global_ba)
         self.closer.update_poses({k: held.T_world_cam for k, held in slam_map.keyframes.items()})
         self.last_correction = correction
-        return True
 
 
 def _active_mask(kf: Keyframe, points: PointStore) -> npt.NDArray[np.bool_]:

@@ -479,14 +479,17 @@ class LoopSide:
         return self._close(kf, m)
 
     def _close(self, kf: Keyframe, m: SlamMap) -> LoopResult:
-        before = snapshot(m)
         t0 = time.perf_counter()
-        closed = bool(self.closing.process(kf, m))
+        correction = self.closing.find_loop(kf, m)  # leaves the map as it is
+        before = None
+        if correction is not None:
+            before = snapshot(m)  # only when there is a delta to send (a snapshot walks every point)
+            self.closing.apply_loop(m, correction)
         merge = None
-        if not closed and self.merge_enabled and len(self.atlas.live_maps()) > 1 and kf.id in self.atlas.current.keyframes:
+        if before is None and self.merge_enabled and len(self.atlas.live_maps()) > 1 and kf.id in self.atlas.current.keyframes:
             merge = self.closing.detect_merge_in(kf, self.atlas)  # as `SlamSystem._try_merge` offline
         self.timings_ms.append((time.perf_counter() - t0) * 1e3)
-        if not closed:
+        if before is None:
             return LoopResult(kf.id, False, merge=merge)
         self.n_loops += 1
         return LoopResult(kf.id, True, diff(before, m), self.closing.last_correction)
