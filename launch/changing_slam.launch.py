@@ -8,7 +8,8 @@ start tracking, local_mapping and loop_closing from a `changing-slam run` map.np
 threads of the detection node; -1 = the config's; 1 costs ~10 % less CPU per detection where the nodes share few
 cores, as `changing-slam graph` does in real time), detector_model (a shipped detector by name, e.g.
 ssd_mobilenet_v2_coco_int8, the static INT8 SSD at ~0.4x the CPU that `changing-slam graph` uses in real time;
-empty = the config's), ba_solver (local BA: gtsam or schur, the numpy
+empty = the config's), detection_max_hz (real time: detect at most this often; 0 = as often as the detector is
+free), ba_solver (local BA: gtsam or schur, the numpy
 Schur-complement LM at ~0.35x the CPU that `changing-slam graph` uses in real time; empty = the config's). Out of lossless mode tracking
 runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest) and no waiting for
 detections that keep arriving late.
@@ -35,6 +36,7 @@ def generate_launch_description() -> LaunchDescription:
     detector_threads = LaunchConfiguration("detector_threads")
     ba_solver = LaunchConfiguration("ba_solver")
     detector_model = LaunchConfiguration("detector_model")
+    detection_max_hz = LaunchConfiguration("detection_max_hz")
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
@@ -56,6 +58,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("detector_model", default_value="",
                               description="shipped detector of the detection node, e.g. ssd_mobilenet_v2_coco_int8 "
                                           "(empty: the config's)"),
+        DeclareLaunchArgument("detection_max_hz", default_value="0.0",
+                              description="real time: detect at most this often by image stamp (0: as often as "
+                                          "the detector is free; keep 0 with lossless)"),
         DeclareLaunchArgument("ba_solver", default_value="",
                               description="local BA solver of local_mapping: gtsam or schur (empty: the config's)"),
         Node(
@@ -64,7 +69,8 @@ def generate_launch_description() -> LaunchDescription:
                          "ack_topics": ["/camera/rgb/image_color"], "confirm_topics": ["/camera/rgb/camera_info"]}],
         ),
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
-             parameters=[{"config": config, "intra_op_threads": detector_threads, "model": detector_model}, sim_time],
+             parameters=[{"config": config, "intra_op_threads": detector_threads, "model": detector_model,
+                         "max_rate_hz": detection_max_hz}, sim_time],
              remappings=[("image", "/camera/rgb/image_color")]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,

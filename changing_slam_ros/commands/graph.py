@@ -2,8 +2,8 @@
 
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
         [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--detector-threads N]
-        [--detector-model NAME|config] [--ba-solver gtsam|schur|config] [--max-restarts N] [--timeout S]
-        [--kill NODE@SECONDS] [--load-map MAP@SECONDS]
+        [--detector-model NAME|config] [--detection-max-hz HZ] [--ba-solver gtsam|schur|config]
+        [--max-restarts N] [--timeout S] [--kill NODE@SECONDS] [--load-map MAP@SECONDS]
         [--backend split|in_process] [--map-in PREVIOUS/map.npz]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
@@ -70,6 +70,7 @@ BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
 REAL_TIME_DETECTOR = "ssd_mobilenet_v2_coco_int8"  # the detection node's model in real time (--detector-model)
+REAL_TIME_DETECTION_MAX_HZ = 0.0  # the detection node's rate cap in real time (--detection-max-hz; 0 = none)
 PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
 
 
@@ -99,6 +100,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="shipped detector of the detection node (default: ssd_mobilenet_v2_coco_int8 in real "
                              "time, the static INT8 SSD at ~0.4x the fp32 CPU per detection; the config's in "
                              "--lossless, so that the graph repeats `changing-slam run`; config: the config's)")
+    parser.add_argument("--detection-max-hz", type=float, default=None, metavar="HZ",
+                        help="real time: the detection node detects at most this often by image stamp (detection "
+                             "node max_rate_hz; default: none, as often as it is free); not with --lossless, "
+                             "where tracking waits for every frame's detections")
     parser.add_argument("--ba-solver", choices=("gtsam", "schur", "config"), default=None,
                         help="local_mapping's local BA solver (default: schur in real time, the numpy Schur-complement "
                              "LM that solves gtsam's problem at ~0.35x the CPU; the config's, gtsam unless set, in "
@@ -332,10 +337,15 @@ class Graph:
             if model != "config" and model not in SHIPPED_MODELS:
                 raise ConfigError(f"--detector-model {model}: not a shipped detector (shipped: "
                                   f"{', '.join(SHIPPED_MODELS)}; config: the config's)")  # fmt: skip
+            max_hz = getattr(a, "detection_max_hz", None)
+            max_hz = REAL_TIME_DETECTION_MAX_HZ if max_hz is None and not a.lossless else (max_hz or 0.0)
+            if max_hz < 0 or (max_hz > 0 and a.lossless):
+                raise ConfigError(f"--detection-max-hz {max_hz}: must be >= 0, and 0 with --lossless (tracking waits "
+                                  "for every frame's detections there)")  # fmt: skip
             self.nodes["detection"] = NodeProcess("detection", _node_argv("detection_node", {
                 "config": self.config, "compressed": info.compressed, "reliable_images": True,
-                "intra_op_threads": int(threads), "model": "" if model == "config" else model}, remaps),
-                self.logs)  # fmt: skip
+                "intra_op_threads": int(threads), "model": "" if model == "config" else model,
+                "max_rate_hz": float(max_hz)}, remaps), self.logs)  # fmt: skip
         self.nodes["tracking"] = NodeProcess("tracking", _node_argv("tracking_node", {
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),

@@ -47,6 +47,8 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
             ("model", "", "shipped detector (ssd_mobilenet_v2_coco, ssd_mobilenet_v2_coco_int8); empty = from the config"),
             ("score_threshold", -1.0, "drop detections below this score; < 0 = from the config (0.3)"),
             ("intra_op_threads", -1, "onnxruntime threads; < 0 = from the config (2)"),
+            ("max_rate_hz", 0.0, "detect at most this often by image stamp (an image less than 1/max_rate_hz after "
+                                 "the last detected one is skipped before decoding); 0 = every image it is free for"),
             ("compressed", False, "subscribe sensor_msgs/CompressedImage on image/compressed instead"),
             ("autostart", True, "configure and activate at start (main() only)"),
             ("reliable_images", False, "reliable image subscription (keep last 1) instead of sensor-data best effort"),
@@ -61,6 +63,9 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         self._sub: Any = None
         self.frames = 0
         self.images_in = 0
+        self.images_skipped_rate = 0  # skipped by max_rate_hz
+        self._min_step_ns = round(1e9 / self.params["max_rate_hz"]) if self.params["max_rate_hz"] > 0 else 0
+        self._last_detected_ns: int | None = None
         self.latency_ms: list[float] = []
         self.cpu_ms: list[float] = []  # process CPU time per detected frame (load-independent)
         self._started_s = time.monotonic()
@@ -141,6 +146,10 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         self.images_in += 1
         if self.detector is None:
             return
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if self._rate_capped(stamp_ns):
+            self.images_skipped_rate += 1
+            return
         t0 = time.perf_counter()
         c0 = time.process_time()
         topic = self._sub.topic_name if self._sub is not None else "image"
@@ -149,7 +158,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         except SlamError as err:
             self.get_logger().warning(f"detection: image rejected: {err}", throttle_duration_sec=5.0)
             return
-        stamp_ns = stamp_to_ns(msg.header.stamp)
+        self._last_detected_ns = stamp_ns
         detections = self.detector.detect(rgb, stamp_ns)
         self._pub.publish(detections_to_msg(detections, msg.header.frame_id))
         self.frames += 1
@@ -162,11 +171,20 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
             )
 
 
+    def _rate_capped(self, stamp_ns: int) -> bool:
+        """max_rate_hz: the image comes less than one period after the last detected one (a stamp that goes back,
+        a replayed bag looping, resets the cap)."""
+        if not self._min_step_ns or self._last_detected_ns is None:
+            return False
+        step_ns = stamp_ns - self._last_detected_ns
+        return 0 <= step_ns < self._min_step_ns - self._min_step_ns // 10  # 10 % slack for stamp jitter
+
     def diagnostic_values(self) -> dict[str, Any]:
         """Images in, frames detected, the rate since the first frame and per-frame time, for /diagnostics."""
         from changing_slam_ros.nodes.diagnostics import summarise_ms
 
-        out: dict[str, Any] = {"images_received": self.images_in, "frames_detected": self.frames}
+        out: dict[str, Any] = {"images_received": self.images_in, "frames_detected": self.frames,
+                               "images_skipped_rate": self.images_skipped_rate}
         out.update(summarise_ms(self.latency_ms, "detect"))
         out.update(summarise_ms(self.cpu_ms, "detect_cpu"))
         return out

@@ -75,3 +75,35 @@ def test_the_model_parameter_picks_a_shipped_detector_and_model_path_still_wins(
         Parameter("model", value="ssd_mobilenet_v2_coco_int8"), Parameter("model_path", value=str(tmp_path / "x.onnx"))])
     assert node.detector_config.model_path == str(tmp_path / "x.onnx")  # a path overrides the shipped name
     node.destroy_node()
+
+
+def test_max_rate_hz_detects_every_other_frame_of_a_30_hz_stream_by_stamp_and_a_busy_node_takes_what_comes(ros_context):
+    """max_rate_hz 15 on 30 Hz images: frames 0, 2, 4, ... are detected, the others skipped before decoding; when
+    the node was busy and the next image it sees is already two periods on, that one is detected (no catching
+    up), and a stamp that goes back (a looping bag) is detected at once."""
+    from changing_slam_ros.core.detector import DetectionSet
+
+    node = DetectionNode(context=ros_context, parameter_overrides=[Parameter("max_rate_hz", value=15.0)])
+    detected: list[int] = []
+    decoded: list[int] = []
+
+    class Stub:
+        def detect(self, rgb, stamp_ns):  # noqa: ANN001, ANN202
+            detected.append(stamp_ns)
+            return DetectionSet(stamp_ns, (), rgb.shape[1], rgb.shape[0])
+
+    class Sink:
+        def publish(self, msg):  # noqa: ANN001, ANN202
+            decoded.append(stamp_to_ns(msg.header.stamp))
+
+    node.detector, node._pub = Stub(), Sink()
+    rgb = np.zeros((24, 32, 3), np.uint8)
+    period_ns = 33_333_333
+    t0 = STAMP_NS
+    for k in [0, 1, 2, 3, 4, 7, 8, 9, 10, 0, 1]:  # frames 5 and 6 never reach it (busy); then the bag loops
+        node.on_image(rgb_to_image(rgb, t0 + k * period_ns, "camera"))
+    assert [(s - t0) // period_ns for s in detected] == [0, 2, 4, 7, 9, 0]
+    assert decoded == detected and node.images_skipped_rate == 5
+    assert node.diagnostic_values()["images_skipped_rate"] == 5
+    node.detector = None
+    node.destroy_node()
