@@ -26,8 +26,8 @@ position when tracked; ~12-32 kB a frame), the online pose and pose relative to 
 it is bracketed a reference to the frame's depth image (float32, shared with the frame, not copied: 0.3 MB at
 320x240, 1.2 MB at 640x480), then its person mask (M bools) instead. A frame not bracketed within `max_age_s`
 (0.6 s) is forgotten; a bracketed one stays until it settles. At 30 Hz with detections ~4 frames late every ~3
-frames that is ~10 frames with a depth image (3 MB at 320x240, 12 MB at 640x480) and ~60 without (`settle_s` 2 s:
-~1-2 MB of matches), at most `max_frames` (128) in all.
+frames that is ~10 frames with a depth image (3 MB at 320x240, 12 MB at 640x480) and ~30 without (`settle_s` 1 s:
+~0.4-1 MB of matches), at most `max_frames` (128) in all.
 
 Box interpolation: the two sets' boxes of `class_ids` are paired greedily by IoU (same class, IoU >=
 `match_min_iou`, as the carry code's extrapolation pairs them); a paired box is interpolated linearly in its
@@ -72,7 +72,11 @@ class RefinementConfig:
     """YAML `tracking: deferred_refinement:` (see the module doc).
 
     - `enabled`: keep tracked frames and refine them when the detections after them arrive (real time only:
-      a caller that tracks every frame with its own detections never hands a detection set over).
+      a caller that tracks every frame with its own detections never hands a detection set over, and nothing is
+      kept before the first set). On: in the replay of the graph's 1x cadence (`bench/late_detections.py`,
+      `+refine`) it lowered the final ATE in 19 of 20 runs on three 30 Hz walking bags and the sample (means
+      wxyz30s 1.06 -> 1.02 cm, walking_halfsphere 1.35 -> 1.31, walking_rpy 0.62 -> 0.60, sample 0.93 -> 0.89)
+      for ~1.1 ms of CPU per 30 Hz frame (docs/architecture.md, "Session 10").
     - `max_age_s`, `max_frames`: the ring of tracked frames (seconds behind the newest frame, count).
     - `max_bracket_gap_s`: two detection sets further apart do not bracket the frames between them.
     - `class_ids`: the classes whose boxes are interpolated (person: the a-priori dynamic class; the carried
@@ -87,10 +91,12 @@ class RefinementConfig:
       frames with matches on a person, at once when bracketed, against the map as it was when tracked.
     - `settle_s`: with `current_map`, a bracketed frame is optimised again this long after it was tracked (the map
       around it bundle-adjusted meanwhile; `SlamSystem.settle_refinement` at the end of a run does the rest); 0 = at
-      once when bracketed.
+      once when bracketed. 1 s: on wxyz30s (3:4 / 3:3) 0.5 / 1 / 2 / 4 s gave 0.93 / 0.92 / 0.90 / 0.89 and 0.94 /
+      0.90 / 0.90 / 0.91 cm, on walking_rpy 0.59 / 0.59 / 0.61 / 0.61 and 0.56 / 0.56 / 0.62 / 0.62 (0.58 / 0.58
+      without).
     """
 
-    enabled: bool = False
+    enabled: bool = True
     max_age_s: float = 0.6
     max_frames: int = 128
     max_bracket_gap_s: float = 0.5
@@ -104,7 +110,7 @@ class RefinementConfig:
     pose_rounds: int = 4
     pose_iterations: int = 6
     current_map: bool = True
-    settle_s: float = 2.0
+    settle_s: float = 1.0
 
     def __post_init__(self) -> None:
         where = "tracking.deferred_refinement"

@@ -72,7 +72,8 @@ class TrackingConfig:
       the reference keyframe's points) or short of close points, as ORB-SLAM's c1a / c1c; an idle mapper takes one
       whenever the ratio rule holds (c1b). 0 = insert as if idle. Offline and lossless, mapping is always idle.
     - `deferred_refinement`: real time with late detections, a tracked frame's pose in the final trajectory is
-      optimised again once the detection sets before and after it are in (`core.deferred_refinement`).
+      optimised again once the detection sets before and after it are in (`core.deferred_refinement`; on, inert
+      offline and lossless where every frame has its own detections).
     """
 
     min_init_points: int = 300

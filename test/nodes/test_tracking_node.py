@@ -416,24 +416,19 @@ def test_real_time_carried_boxes_move_with_the_image_motion_when_detections_carr
 
 
 def test_real_time_frames_tracked_before_later_detections_get_their_final_pose_refined(ros_context, tmp_path):
-    """tracking.deferred_refinement on (a config file): frames 1-4 are tracked with frame 0's boxes carried forward;
+    """tracking.deferred_refinement (on by default): frames 1-4 are tracked with frame 0's boxes carried forward;
     when frame 4's detections come, those four are bracketed by frames 0 and 4 (core.deferred_refinement), and when
     the node finishes they are optimised again in the map as it is then: trajectory.txt has their refined poses, the
     published (online) poses stay."""
     import itertools
 
-    import yaml
-    from helpers import FR1_XYZ_10, REPO, require
+    from helpers import FR1_XYZ_10, require
 
     src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
     frames = list(itertools.islice(iter(src), 6))
-    data = yaml.safe_load((REPO / "config" / "tum_fr1.yaml").read_text())
-    data.setdefault("tracking", {})["deferred_refinement"] = {"enabled": True}
-    config = tmp_path / "tum_fr1_refine.yaml"
-    config.write_text(yaml.safe_dump(data))
     out = tmp_path / "out"
     node = TrackingNode(context=ros_context, parameter_overrides=[
-        Parameter("config", value=str(config)), Parameter("in_process_backend", value=True),
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
         Parameter("dynamic", value="on"), Parameter("frame_policy", value="latest"), Parameter("output_dir", value=str(out)),
         Parameter("detections_carry_flow", value=False), Parameter("debug_image", value=False),
     ])  # fmt: skip
@@ -455,7 +450,7 @@ def test_real_time_frames_tracked_before_later_detections_get_their_final_pose_r
     node.on_detections(detections(frames[4].stamp_ns, 330.0))  # frame 4's, after frame 5 was tracked
     stats = node.stats()["deferred_refinement"]
     assert node.frames_in == 6 and stats["frames_bracketed"] >= 3  # frames 1-4 less keyframes
-    assert stats["frames_refined"] == 0  # they settle 2 s (settle_s) later, or when the node finishes
+    assert stats["frames_refined"] == 0  # they settle 1 s (settle_s) later, or when the node finishes
     node.finish()
     stats = node.stats()["deferred_refinement"]
     assert stats["frames_refined"] == stats["frames_bracketed"]
