@@ -64,7 +64,7 @@ def main() -> None:
         print(f"{key:28s}" + "".join(f"{v:20.1f}" for v in row))
     for key in ("ATE cm", "poses"):  # per run too: a 1x run's ATE swings between identical runs
         cells = [" ".join(f"{r.get(key, float('nan')):.4g}" for r in results[label]) for label in results]
-        print(f"{key + ' per run':28s}" + "".join(f"{c:>20s}" for c in cells))
+        print(f"{key + ' per run':28s}" + "".join(f" {c:>19s}" for c in cells))
 
 
 def _runs(a: argparse.Namespace) -> list[tuple[str, str, tuple[str, ...]]]:
