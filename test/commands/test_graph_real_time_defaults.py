@@ -50,10 +50,12 @@ def test_real_time_detects_with_the_int8_ssd_and_lossless_with_the_configs(tmp_p
         _param(tmp_path / "bad", "detection", "model", "--detector-model", "yolo9")
 
 
-def test_the_detection_rate_cap_goes_to_the_node_in_real_time_and_is_refused_in_lossless_mode(tmp_path: Path) -> None:
+def test_real_time_caps_detection_at_15_hz_and_lossless_refuses_a_cap(tmp_path: Path) -> None:
     from changing_slam_ros.errors import ConfigError
 
-    assert _param(tmp_path / "rt", "detection", "max_rate_hz", "--detection-max-hz", "15") == "15.0"
+    assert _param(tmp_path / "rt", "detection", "max_rate_hz") == "15.0"
+    assert _param(tmp_path / "rt0", "detection", "max_rate_hz", "--detection-max-hz", "0") == "0.0"
+    assert _param(tmp_path / "rt10", "detection", "max_rate_hz", "--detection-max-hz", "10") == "10.0"
     assert _param(tmp_path / "ll", "detection", "max_rate_hz", "--lossless") == "0.0"
     with pytest.raises(ConfigError, match="--detection-max-hz 15.0: must be >= 0, and 0 with --lossless"):
         _param(tmp_path / "bad", "detection", "max_rate_hz", "--lossless", "--detection-max-hz", "15")
