@@ -27,7 +27,9 @@ Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
    history) must be confirmed by a subscriber, which publishes a `std_msgs/Header` on `ack_topic` whose
    `frame_id` is that topic's name. Until it is, the topic's latest message is re-sent every `confirm_resend_s`
    before the next `ack_topics` message goes out (at most `ack_timeout_s`, then a warning, counted). Once
-   confirmed, nothing more is waited for.
+   confirmed, nothing more is waited for. A frame's ack names a node, a confirmation a topic (leading '/'): a
+   confirmation is never counted as a frame's ack, also when the player asks for none (tracking confirms every
+   camera_info it accepts).
 Time spent waiting does not count against the schedule: playback resumes at the recorded spacing.
 The timing logic is ROS-free, in `changing_slam_ros.io.playback`.
 """
@@ -123,7 +125,6 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._check_confirm_topics()
         # lossless: output topic name -> bag topic, for the confirm topics the bag has; confirmed ones drop out
         self._unconfirmed: dict[str, str] = {self.options.output_topic(t): t for t in self._confirm_topics}
-        self._confirm_names = frozenset(self._unconfirmed)
         self._confirm_latest: dict[str, Any] = {}  # bag topic -> its latest published message
         self.result = PlaybackResult()  # the current (or last) play() call's counts
         from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
@@ -403,7 +404,7 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._confirm_latest.clear()
 
     def _on_ack(self, msg: Header) -> None:
-        if msg.frame_id in self._confirm_names:  # a subscriber confirms a confirm topic's delivery, not a frame
+        if msg.frame_id.startswith("/"):  # a topic's confirmation (a frame's ack names a node), confirmed or not
             self._unconfirmed.pop(msg.frame_id, None)
             return
         stamp = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec

@@ -276,6 +276,13 @@ def test_lossless_mode_re_sends_camera_info_until_a_late_matched_reader_confirms
     assert result.completed and result.ack_timeouts == len(fr1_bag.rgb_stamps_ns)
     reader.destroy_node()
     player.destroy_node()
+    # ... also when the player asks for no confirmation (tracking confirms every camera_info it accepts).
+    reader = LateCameraInfoReader(ros_context, deaf_s=0.0, ack_frames=False)
+    player = make_player(ros_context, fr1_bag.path, **{**params, "ack_timeout_s": 0.2})
+    result = play(ros_context, player, reader)
+    assert result.completed and result.ack_timeouts == len(fr1_bag.rgb_stamps_ns)
+    reader.destroy_node()
+    player.destroy_node()
     # A topic the bag does not play (a bag without camera_info) has nothing to confirm: the bag plays as without.
     reader = LateCameraInfoReader(ros_context, deaf_s=0.0)
     player = make_player(ros_context, fr1_bag.path, **{**params, "topics": [colour], "wait_for_topics": [colour]},
