@@ -49,7 +49,8 @@ Outputs (`nodes/tracking_outputs.py`; odometry, path, TF and debug image only wh
   trajectory after a loop closure), ~/keyframes, ~/semantic_map (MapObjectArray, transient-local, after each
   keyframe the object layer worked on), ~/debug_image (keypoints used for tracking, coloured by class, and the
   frame's detection boxes), TF map->odom (identity: no separate odometry yet) and odom->camera (REP-105,
-  `publish_tf`), and, when `ack_topic` is set, a std_msgs/Header per processed frame (bag_player lossless).
+  `publish_tf`), and, when `ack_topic` is set, a std_msgs/Header per processed frame (frame_id: this node's
+  name) and per accepted camera_info (frame_id: the camera_info topic) for bag_player's lossless mode.
 On shutdown (SIGINT/SIGTERM, or `destroy_node`) with `output_dir` set: trajectory.txt (final, after all
 optimisation), trajectory_online.txt, keyframes.txt (TUM), semantic_map.json and tracking_stats.json (frames,
 drops, image-to-pose latency: colour message received -> pose published, steady clock), written atomically.

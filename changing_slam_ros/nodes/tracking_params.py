@@ -17,7 +17,8 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("odom_frame", "odom", "REP-105 odom frame"),
     ("camera_frame", "camera", "camera optical frame of the published pose"),
     ("publish_tf", True, "publish map->odom->camera on /tf"),
-    ("ack_topic", "", "std_msgs/Header per processed frame (bag_player lossless); empty = off"),
+    ("ack_topic", "", "std_msgs/Header per processed frame and per accepted camera_info (bag_player lossless); "
+                      "empty = off"),
     ("stats_period_s", 10.0, "seconds between log lines with frame and drop counts"),
     ("compressed", False, "subscribe CompressedImage on <colour>/compressed and <depth>/compressed"),
     ("slam", True, "false: pair, convert and acknowledge frames only (no poses; plumbing tests)"),
