@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rclpy._rclpy_pybind11 import RCLError  # a publish after the context shut down
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -407,7 +408,12 @@ class LocalMappingNode(Node):
             return []
         self._finished = True
         while self.queue:
-            self.map_keyframe(self.queue.popleft())
+            packet = self.queue.popleft()
+            try:
+                self.map_keyframe(packet)
+            except RCLError as err:  # shut down: mapped into the map saved below, only its update is not sent
+                self.get_logger().warning(f"local_mapping: keyframe {packet.keyframe.id} mapped at shutdown, its "
+                                          f"update not published ({err})")  # fmt: skip
         if self.params["map_out"]:
             try:
                 self.save_map(Path(self.params["map_out"]))

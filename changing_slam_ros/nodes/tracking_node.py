@@ -65,6 +65,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rclpy._rclpy_pybind11 import RCLError  # a publish after the context shut down
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
@@ -691,7 +692,11 @@ class TrackingNode(QuietQosEvents, Node):
             return []
         self._finished = True
         while self.queue:
-            self._process(self.queue.pop())
+            item = self.queue.pop()
+            try:
+                self._process(item)
+            except RCLError as err:  # shut down: tracked and recorded for the files below, only not published
+                self.get_logger().warning(f"tracking: frame {item.stamp_ns} tracked at shutdown, not published ({err})")
         if self.movers is not None and self._movers_stamp_ns and self.context.ok():
             try:
                 self.publish_moving_objects(self._movers_stamp_ns)  # the final trajectories

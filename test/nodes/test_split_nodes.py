@@ -139,6 +139,36 @@ def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros
     probe.destroy_node()
 
 
+def test_keyframes_still_queued_at_shutdown_are_mapped_and_saved_when_publishing_fails(ros_context, kitchen_packets,
+                                                                                        tmp_path):
+    """SIGINT shuts the context down before `destroy_node` runs `finish`: the keyframes still queued are mapped, and
+    their updates fail to publish ("publisher's context is invalid"). Seen in CI: local_mapping died there and
+    never saved map.npz. Now each is mapped, the failure logged, and the map saved with every keyframe."""
+    from rclpy._rclpy_pybind11 import RCLError
+
+    from changing_slam_ros.io.map_file import load_map
+
+    packets, owner, _ = kitchen_packets
+    node = LocalMappingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="7scenes"), Parameter("objects", value="off"), Parameter("resync_timeout_s", value=0.0),
+        Parameter("ba_yields_to_keyframes", value=False), Parameter("map_out", value=str(tmp_path / "map.npz"))])  # fmt: skip
+    sent: list[int] = []
+
+    def publish_after_shutdown(msg):  # noqa: ANN001, ANN202
+        if len(sent) >= 2:
+            raise RCLError("Failed to publish: publisher's context is invalid")
+        sent.append(msg.keyframe_id)
+
+    node.update_pub.publish = publish_after_shutdown
+    node.queue.extend(copy.deepcopy(p) for p in packets)
+    node.destroy_node()
+    assert sent == [p.keyframe.id for p in packets[:2]]
+    saved = load_map(tmp_path / "map.npz").atlas.current
+    assert sorted(saved.keyframes) == sorted(owner.keyframes)
+    for k, kf in owner.keyframes.items():
+        np.testing.assert_allclose(saved.keyframes[k].T_world_cam, kf.T_world_cam, atol=1e-9, rtol=0)
+
+
 def test_local_ba_gives_way_to_waiting_keyframes_in_real_time(ros_context, kitchen_packets):
     """Real time (ba_yields_to_keyframes, the default without wait_for_loop_results): keyframes flooding in
     while local BA runs end it early (taken off the subscription between solver iterations and mapped next, in

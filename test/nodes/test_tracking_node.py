@@ -461,3 +461,35 @@ def test_real_time_frames_tracked_before_later_detections_get_their_final_pose_r
     written = read_tum_trajectory(out / "trajectory.txt")
     assert np.allclose(written.positions, system.final_trajectory().positions, atol=1e-6)
     node.destroy_node()
+
+
+def test_frames_still_queued_at_shutdown_are_tracked_and_written_when_publishing_fails(ros_context, tmp_path):
+    """SIGINT shuts the context down before `destroy_node` runs `finish`: publishing a queued frame's pose raises
+    ("publisher's context is invalid"). Tracking must still track it and write every output file."""
+    import itertools
+
+    from helpers import FR1_XYZ_10, require
+    from rclpy._rclpy_pybind11 import RCLError
+
+    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(itertools.islice(iter(src), 3))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("intrinsics_from", value="camera_info"), Parameter("frame_policy", value="all"),
+        Parameter("debug_image", value=False), Parameter("output_dir", value=str(tmp_path)),
+    ])  # fmt: skip
+    for f in frames:  # held: no camera_info yet
+        node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
+        node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
+    assert node.published_poses == 0 and len(node.queue) == 3
+
+    def context_gone(*args):  # noqa: ANN002, ANN202
+        raise RCLError("Failed to publish: publisher's context is invalid")
+
+    node.poses_out.publish = context_gone
+    node.camera = src.camera  # as if camera_info had come just before the shutdown
+    node.destroy_node()
+    traj = read_tum_trajectory(tmp_path / "trajectory.txt")
+    np.testing.assert_allclose(traj.stamps_s, [f.stamp_ns / 1e9 for f in frames], atol=1e-6, rtol=0)
