@@ -40,7 +40,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from stage_clock import StageClock  # noqa: E402
-from git_tree import archive_tree  # noqa: E402
+from git_tree import alternating_runs  # noqa: E402
 
 STAGES = ("create", "triangulate", "fuse", "fuse_search", "refresh", "connections", "cull_points", "segmentation", "ba_build",
           "ba_factors", "ba_chi2", "ba_solve", "cull_keyframes", "other")
@@ -172,15 +172,10 @@ def main() -> int:
         (Path(args.child) / "bench.json").write_text(json.dumps(res))
         return 0
     bag = str(Path(args.bag).resolve())
-    cur_runs: list[dict[str, Any]] = []
-    base_runs: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="bench_lm_base_") as tmp:
-        if args.baseline:
-            archive_tree(args.baseline, Path(tmp))
-        for _ in range(args.runs):
-            if args.baseline:
-                base_runs.append(run_tree(Path(tmp), bag, args.baseline_config or args.config))
-            cur_runs.append(run_tree(Path(args.current), bag, args.config))
+    base_config = args.baseline_config or args.config
+    cur_runs, base_runs = alternating_runs(
+        args.baseline, Path(args.current), args.runs,
+        lambda tree: run_tree(tree, bag, args.config if tree == Path(args.current) else base_config))
     print(f"{bag}, config {args.config} (baseline {args.baseline_config or args.config}), {args.runs} run(s) per tree; "
           "thread CPU ms per keyframe, median of runs")
     cur = report("current", cur_runs)

@@ -48,7 +48,7 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from git_tree import archive_tree  # noqa: E402
+from git_tree import alternating_runs  # noqa: E402
 from stage_clock import StageClock  # noqa: E402
 
 STAGES = ("add", "quantise", "bow", "refresh", "active_mask", "process", "query", "verify", "correct", "apply",
@@ -292,15 +292,9 @@ def main() -> int:
         (Path(args.child) / "bench.json").write_text(json.dumps(res))
         return 0
     bag = str(Path(args.bag).resolve())
-    cur_runs: list[dict[str, Any]] = []
-    base_runs: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="bench_lc_base_") as tmp:
-        if args.baseline:
-            archive_tree(args.baseline, Path(tmp))
-        for _ in range(args.runs):
-            if args.baseline:
-                base_runs.append(run_tree(Path(tmp), bag, args.config, max_frames=args.max_frames, split=args.split))
-            cur_runs.append(run_tree(Path(args.current), bag, args.config, max_frames=args.max_frames, split=args.split))
+    cur_runs, base_runs = alternating_runs(
+        args.baseline, Path(args.current), args.runs,
+        lambda tree: run_tree(tree, bag, args.config, max_frames=args.max_frames, split=args.split))
     print(f"{bag}, config {args.config}, {'split chain' if args.split else 'changing-slam run'}, {args.runs} run(s) "
           "per tree; thread CPU ms per keyframe, median of runs")
     cur = report("current", cur_runs)

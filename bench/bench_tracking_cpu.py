@@ -43,7 +43,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from stage_clock import StageClock  # noqa: E402
-from git_tree import archive_tree  # noqa: E402
+from git_tree import alternating_runs  # noqa: E402
 
 DATA = {
     "redkitchen": (REPO.parent / "shared/data/7scenes_redkitchen", "7scenes", False),
@@ -205,15 +205,8 @@ def main() -> int:
         res = run_once(args.data, args.frames)
         Path(args.json).write_text(json.dumps(res))
         return 0
-    base_runs: list[dict[str, Any]] = []
-    cur_runs: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="bench_base_") as tmp:
-        if args.baseline:
-            archive_tree(args.baseline, Path(tmp))
-        for _ in range(args.repeats):
-            if args.baseline:
-                base_runs.append(run_tree(Path(tmp), args.data, args.frames))
-            cur_runs.append(run_tree(Path(args.current), args.data, args.frames))
+    cur_runs, base_runs = alternating_runs(args.baseline, Path(args.current), args.repeats,
+                                           lambda tree: run_tree(tree, args.data, args.frames))
     print(f"data {args.data}, {args.frames} frames, {args.repeats} run(s) each; thread CPU time, best of runs per stage")
     report(best(cur_runs), best(base_runs) if base_runs else None)
     if args.cprofile:
