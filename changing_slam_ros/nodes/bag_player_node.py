@@ -123,8 +123,8 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(depth=10))
         self._acks: dict[int, set[str]] = {}
         self._check_confirm_topics()
-        # lossless: output topic name -> bag topic, for the confirm topics the bag has; confirmed ones drop out
-        self._unconfirmed: dict[str, str] = {self.options.output_topic(t): t for t in self._confirm_topics}
+        # lossless: the output names of the confirm topics the bag has; confirmed ones drop out
+        self._unconfirmed: set[str] = {self.options.output_topic(t) for t in self._confirm_topics}
         self._confirm_latest: dict[str, Any] = {}  # bag topic -> its latest published message
         self.result = PlaybackResult()  # the current (or last) play() call's counts
         from changing_slam_ros.nodes.diagnostics import NodeDiagnostics
@@ -405,7 +405,7 @@ class BagPlayerNode(QuietQosEvents, Node):
 
     def _on_ack(self, msg: Header) -> None:
         if msg.frame_id.startswith("/"):  # a topic's confirmation (a frame's ack names a node), confirmed or not
-            self._unconfirmed.pop(msg.frame_id, None)
+            self._unconfirmed.discard(msg.frame_id)
             return
         stamp = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec
         self._acks.setdefault(stamp, set()).add(msg.frame_id)
