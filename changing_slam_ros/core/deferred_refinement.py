@@ -58,6 +58,7 @@ import numpy.typing as npt
 from changing_slam_ros.core.detector import Detection, DetectionSet, iou_matrix
 from changing_slam_ros.core.keyframe import KeypointClass
 from changing_slam_ros.core.keypoint_classification import KeypointClassificationConfig, classify_keypoints
+from changing_slam_ros.core.late_detections import grown_box
 from changing_slam_ros.core.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose
 from changing_slam_ros.core.se3 import invert
 from changing_slam_ros.errors import ConfigError
@@ -235,15 +236,15 @@ def interpolated_boxes(
         b = np.asarray(b_dets[j].box_xyxy, dtype=np.float64)
         box = (1.0 - w) * a + w * b
         grow = cfg.interpolated_grow_widths_per_s * min(since_a_s, until_b_s)
-        out.append(Detection(_grown(box, grow, width, height), b_dets[j].class_id, max(a_dets[i].score, b_dets[j].score)))
+        out.append(Detection(grown_box(box, grow, width, height), b_dets[j].class_id, max(a_dets[i].score, b_dets[j].score)))
     for i, d in enumerate(a_dets):
         if i not in paired_a:
-            box = np.asarray(d.box_xyxy, dtype=np.float64)
-            out.append(Detection(_grown(box, cfg.carried_grow_widths_per_s * since_a_s, width, height), d.class_id, d.score))
+            box = grown_box(d.box_xyxy, cfg.carried_grow_widths_per_s * since_a_s, width, height)
+            out.append(Detection(box, d.class_id, d.score))
     for j, d in enumerate(b_dets):
         if j not in paired_b:
-            box = np.asarray(d.box_xyxy, dtype=np.float64)
-            out.append(Detection(_grown(box, cfg.carried_grow_widths_per_s * until_b_s, width, height), d.class_id, d.score))
+            box = grown_box(d.box_xyxy, cfg.carried_grow_widths_per_s * until_b_s, width, height)
+            out.append(Detection(box, d.class_id, d.score))
     return tuple(out)
 
 
@@ -442,13 +443,3 @@ def _pairs(a: list[Detection], b: list[Detection], min_iou: float) -> list[tuple
         pairs.append((int(i), int(j)))
         iou[i, :] = -1.0
         iou[:, j] = -1.0
-
-
-def _grown(box: F64, grow: float, width: int, height: int) -> tuple[float, float, float, float]:
-    """`box` (4,) xyxy grown by `grow` of its width and height per side, kept inside the image when its size is known."""
-    x0, y0, x1, y1 = (float(v) for v in box)
-    gx, gy = grow * (x1 - x0), grow * (y1 - y0)
-    x0, y0, x1, y1 = x0 - gx, y0 - gy, x1 + gx, y1 + gy
-    if width > 0 and height > 0:
-        x0, y0, x1, y1 = max(x0, 0.0), max(y0, 0.0), min(x1, width - 1.0), min(y1, height - 1.0)
-    return (x0, y0, x1, y1)

@@ -42,6 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from changing_slam_ros.core.box_flow import BoxFlowConfig, BoxMotion, FlowImage, box_motions
 from changing_slam_ros.core.detector import Detection, DetectionSet, iou_matrix
@@ -91,12 +92,20 @@ def carried_forward(
         else:
             x0, y0, x1, y1 = _moved_on(d, earlier.stamp_ns, age_s, previous, cfg) if cfg.extrapolate else d.box_xyxy
             grow = cfg.grow_widths_per_s * age_s
-        gx, gy = grow * (x1 - x0), grow * (y1 - y0)
-        box = (x0 - gx, y0 - gy, x1 + gx, y1 + gy)
-        if earlier.width > 0 and earlier.height > 0:  # stay inside the image
-            box = (max(box[0], 0.0), max(box[1], 0.0), min(box[2], earlier.width - 1.0), min(box[3], earlier.height - 1.0))
-        out.append(Detection(box, d.class_id, d.score))
+        out.append(Detection(grown_box((x0, y0, x1, y1), grow, earlier.width, earlier.height), d.class_id, d.score))
     return tuple(out)
+
+
+def grown_box(box_xyxy: tuple[float, float, float, float] | npt.NDArray[np.float64], grow: float, width: int,
+              height: int) -> tuple[float, float, float, float]:
+    """`box_xyxy` grown by `grow` of its width and height per side, kept inside a `width` x `height` image when
+    its size is known (0: not clipped)."""
+    x0, y0, x1, y1 = (float(v) for v in box_xyxy)
+    gx, gy = grow * (x1 - x0), grow * (y1 - y0)
+    x0, y0, x1, y1 = x0 - gx, y0 - gy, x1 + gx, y1 + gy
+    if width > 0 and height > 0:  # stay inside the image
+        x0, y0, x1, y1 = max(x0, 0.0), max(y0, 0.0), min(x1, width - 1.0), min(y1, height - 1.0)
+    return (x0, y0, x1, y1)
 
 
 class RecentImages:
