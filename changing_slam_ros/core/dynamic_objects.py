@@ -28,8 +28,10 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.camera import CameraIntrinsics
 from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
-from changing_slam_ros.core.keyframe import KeypointClass
 from changing_slam_ros.core.keypoint_classification import (
+    KP_DYNAMIC,
+    KP_MOVABLE,
+    KP_STATIC,
     KeypointClassification,
     KeypointClassificationConfig,
     classify_keypoints,
@@ -39,10 +41,6 @@ from changing_slam_ros.core.short_term_association import ShortTermAssociationCo
 from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
-
-# KeypointClass values as plain ints for the per-frame array comparisons (an IntEnum member costs a class
-# attribute lookup through enum's __getattr__ on every use)
-_STATIC, _MOVABLE, _DYNAMIC = int(KeypointClass.STATIC), int(KeypointClass.MOVABLE), int(KeypointClass.DYNAMIC)
 
 
 class ObjectMotion(enum.IntEnum):
@@ -233,7 +231,7 @@ class DynamicObjectTracker:
         """Object id -> the centroid (3,) in the camera frame (eq. 8) of each measurable box's object keypoints."""
         kp_depth = _keypoint_depths(kps, depth_m, keypoint_depths_m)
         # object keypoints with depth, whatever their box (the same mask for every box: built once)
-        measurable = (kp_depth > 0.0) & ((cls.kp_classes == _MOVABLE) | (cls.kp_classes == _DYNAMIC))
+        measurable = (kp_depth > 0.0) & ((cls.kp_classes == KP_MOVABLE) | (cls.kp_classes == KP_DYNAMIC))
         out: dict[int, F64] = {}
         for b, det in enumerate(dets):
             if not cls.box_usable[b] or (det.class_id not in self.config.always_dynamic_class_ids
@@ -326,7 +324,7 @@ class DynamicObjectTracker:
             if det.class_id in self.config.always_dynamic_class_ids:
                 motion = ObjectMotion.DYNAMIC
             elif flagged is not None:
-                own = (cls.kp_box_index == b) & (cls.kp_classes == _MOVABLE)
+                own = (cls.kp_box_index == b) & (cls.kp_classes == KP_MOVABLE)
                 if own.any() and flagged[own].mean() >= self.config.segmentation_object_fraction:
                     motion = ObjectMotion.DYNAMIC
             x = ekf.x if ekf is not None else np.full(6, np.nan)
@@ -347,9 +345,9 @@ class DynamicObjectTracker:
         kp_object_ids = np.full(len(cls.kp_classes), -1, dtype=np.int64)
         has_box = cls.kp_box_index >= 0
         kp_object_ids[has_box] = pending.object_ids[cls.kp_box_index[has_box]]
-        use = cls.kp_classes == _STATIC
+        use = cls.kp_classes == KP_STATIC
         static_objects = np.array([o.motion == ObjectMotion.STATIC for o in objects] + [False], dtype=bool)
-        movable = cls.kp_classes == _MOVABLE
+        movable = cls.kp_classes == KP_MOVABLE
         use |= movable & static_objects[cls.kp_box_index]  # index -1 hits the trailing False
         if flagged is not None:
             use &= ~flagged

@@ -32,10 +32,10 @@ from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 
-# KeypointClass values as plain ints for the per-frame arrays (an IntEnum member costs a lookup through enum's
-# __getattr__ on every use)
-_STATIC, _MOVABLE, _DYNAMIC, _UNUSED = (int(c) for c in (KeypointClass.STATIC, KeypointClass.MOVABLE,
-                                                          KeypointClass.DYNAMIC, KeypointClass.UNUSED))
+# KeypointClass values as plain ints for the per-frame arrays, here and in the object tracker (an IntEnum member
+# costs a lookup through enum's __getattr__ on every use)
+KP_STATIC, KP_MOVABLE, KP_DYNAMIC, KP_UNUSED = (int(c) for c in (KeypointClass.STATIC, KeypointClass.MOVABLE,
+                                                                  KeypointClass.DYNAMIC, KeypointClass.UNUSED))
 
 
 @dataclass(frozen=True)
@@ -284,7 +284,7 @@ def classify_keypoints(
         else:
             bg_depth[b] = st.min_m + margin
 
-    kp_classes = np.full(n, _STATIC, dtype=np.int8)
+    kp_classes = np.full(n, KP_STATIC, dtype=np.int8)
     kp_object = np.full(n, -1, dtype=np.int64)
     kp_box = np.full(n, -1, dtype=np.int64)
     if m and n:
@@ -314,7 +314,7 @@ def classify_keypoints(
         best = rank[first[has]]
         kp_box[has] = np.asarray(index_of, dtype=np.int64)[best]
         kp_object[has] = np.array([d.class_id for d in dets], dtype=np.int64)[best]
-        box_class = np.where(~usable, _UNUSED, np.where(dyn, _DYNAMIC, _MOVABLE)).astype(np.int8)
+        box_class = np.where(~usable, KP_UNUSED, np.where(dyn, KP_DYNAMIC, KP_MOVABLE)).astype(np.int8)
         kp_classes[has] = box_class[best]
     full_usable = np.ones(len(detections), dtype=bool)
     full_bg = np.full(len(detections), np.inf)
