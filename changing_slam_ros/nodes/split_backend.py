@@ -481,15 +481,15 @@ class LoopSide:
     def _close(self, kf: Keyframe, m: SlamMap) -> LoopResult:
         t0 = time.perf_counter()
         correction = self.closing.find_loop(kf, m)  # leaves the map as it is
-        before = None
-        if correction is not None:
+        closed = correction is not None
+        if closed:
             before = snapshot(m)  # only when there is a delta to send (a snapshot walks every point)
             self.closing.apply_loop(m, correction)
         merge = None
-        if before is None and self.merge_enabled and len(self.atlas.live_maps()) > 1 and kf.id in self.atlas.current.keyframes:
+        if not closed and self.merge_enabled and len(self.atlas.live_maps()) > 1 and kf.id in self.atlas.current.keyframes:
             merge = self.closing.detect_merge_in(kf, self.atlas)  # as `SlamSystem._try_merge` offline
         self.timings_ms.append((time.perf_counter() - t0) * 1e3)
-        if before is None:
+        if not closed:
             return LoopResult(kf.id, False, merge=merge)
         self.n_loops += 1
         return LoopResult(kf.id, True, diff(before, m), self.closing.last_correction)
