@@ -117,6 +117,7 @@ class LocalMappingNode(Node):
             self.get_logger().info(f"local_mapping: {self.owner.atlas.n_keyframes} keyframes, "
                                    f"{len(self.owner.atlas.maps)} maps loaded from {p['map_file']}")  # fmt: skip
         self.keyframes_in = 0
+        self.keyframes_duplicate = 0  # received again after being mapped or queued (dropped)
         self.keyframes_rejected = 0
         self.loops_applied = 0
         self.merges_applied = 0  # Atlas map merges found by loop_closing and applied here
@@ -182,6 +183,13 @@ class LocalMappingNode(Node):
             self.get_logger().warning(f"local_mapping: keyframe rejected: {err}", throttle_duration_sec=5.0)
             return
         self.keyframes_in += 1
+        kf_id = packet.keyframe.id
+        if self.owner.atlas.map_of_keyframe(kf_id) is not None or any(q.keyframe.id == kf_id for q in self.queue):
+            # sent twice (tracking re-sends what it has no update for after a resync): mapping it again would
+            # add its points a second time
+            self.keyframes_duplicate += 1
+            self.get_logger().info(f"local_mapping: keyframe {kf_id} received again; mapped or queued already")
+            return
         packet.received_s = time.monotonic()  # type: ignore[attr-defined]
         self.queue.append(packet)
 
@@ -385,6 +393,7 @@ class LocalMappingNode(Node):
         t = self.owner.timings_ms
         out: dict[str, Any] = {
             "keyframes_received": self.keyframes_in, "keyframes_rejected": self.keyframes_rejected,
+            "keyframes_duplicate": self.keyframes_duplicate,
             "keyframes_mapped": len(t["mapping"]), "keyframes_queued": len(self.queue), "loops_applied": self.loops_applied,
             "merges_applied": self.merges_applied, "merges_skipped": self.merges_skipped,
             "map_points": int(self.owner.atlas.current.points.usable().sum()),
