@@ -1,5 +1,9 @@
 """`detection`: colour image -> `~/detections` (changing_slam_msgs/DetectionArray, stamped with the image's stamp).
 
+Every image it receives but will not detect (`max_rate_hz` skipped it, or it was rejected) is announced on
+`~/skipped` (std_msgs/Header, the image's header), so that a tracker waiting for that frame's detections
+(`detections_wait_s`) stops waiting at once and tracks it with the earlier ones carried forward.
+
 A lifecycle node: the ONNX session (core.detector.Detector) is created in `on_activate` and released in
 `on_deactivate`, as yolo_ros does; `main()` configures and activates it at start (`autostart`).
 Images arrive with sensor-data QoS (best effort, shallow queue): when inference is slower than the camera,
@@ -21,6 +25,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CompressedImage, Image
+from std_msgs.msg import Header
 
 from changing_slam_msgs.msg import DetectionArray
 from changing_slam_ros.config import find_config, load_yaml, section
@@ -60,6 +65,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         self.detector: Detector | None = None
         self.detector_config = self._detector_config()
         self._pub: Any = None
+        self._skipped_pub: Any = None
         self._sub: Any = None
         self.frames = 0
         self.images_in = 0
@@ -99,6 +105,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
             DetectionArray, "~/detections", self._detections_qos,
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )  # fmt: skip
+        self._skipped_pub = self.create_lifecycle_publisher(Header, "~/skipped", self._detections_qos)
         if self.params["compressed"]:
             self._sub = self.create_subscription(CompressedImage, "image/compressed", self.on_image, self._image_qos,
                                                  event_callbacks=SubscriptionEventCallbacks())  # fmt: skip
@@ -133,6 +140,9 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         if self._pub is not None:
             self.destroy_lifecycle_publisher(self._pub)
             self._pub = None
+        if self._skipped_pub is not None:
+            self.destroy_lifecycle_publisher(self._skipped_pub)
+            self._skipped_pub = None
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -149,6 +159,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         stamp_ns = stamp_to_ns(msg.header.stamp)
         if self._rate_capped(stamp_ns):
             self.images_skipped_rate += 1
+            self._skipped_pub.publish(msg.header)
             return
         t0 = time.perf_counter()
         c0 = time.process_time()
@@ -157,6 +168,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
             rgb = image_to_rgb(msg, topic)
         except SlamError as err:
             self.get_logger().warning(f"detection: image rejected: {err}", throttle_duration_sec=5.0)
+            self._skipped_pub.publish(msg.header)
             return
         self._last_detected_ns = stamp_ns
         detections = self.detector.detect(rgb, stamp_ns)

@@ -1,9 +1,12 @@
 """The tracking node's paired colour/depth frames waiting for their detections: order, deadlines, frame policy.
 
-ROS-free (the messages are carried, never read). A frame is *ready* when its detections are in or its deadline
-(steady-clock seconds) has passed. The node tracks ready frames from the head, in stamp order; with policy
+ROS-free (the messages are carried, never read). A frame is *ready* when its detections are settled (in, or
+known not to come) or its deadline (steady-clock seconds) has passed. The node tracks ready frames from the head, in stamp order; with policy
 `latest` (real time) the frames older than the newest ready one are dropped first, so no queue builds up
-behind a slow frame. `next_deadline_s` tells the node when to wake up for a frame whose detections do not come.
+behind a slow frame, except those whose deadline has not passed yet: a frame still within its wait for its own
+detections is not given up for a later frame that is ready at once (one the detector announced it skips), so
+no frame waits past its deadline. `next_deadline_s` tells the node when to wake up for a frame whose detections
+do not come.
 """
 
 from __future__ import annotations
@@ -30,7 +33,8 @@ class PendingFrame:
 
 
 class FrameQueue:
-    """Frames in arrival (stamp) order. `has_detections(stamp_ns)` says whether a frame's detections are in."""
+    """Frames in arrival (stamp) order. `has_detections(stamp_ns)` says whether a frame's detections are settled:
+    in, or known not to come (the detector announced it skips the image, or it has detected a later one)."""
 
     def __init__(self, policy: str, has_detections: Callable[[int], bool]) -> None:
         if policy not in POLICIES:
@@ -52,11 +56,15 @@ class FrameQueue:
         return self._has_detections(frame.stamp_ns) or now_s >= frame.deadline_s
 
     def take_stale(self, now_s: float) -> list[PendingFrame]:
-        """Policy `latest`: remove and return the frames older than the newest ready one (none with `all`)."""
+        """Policy `latest`: remove and return the frames older than the newest ready one whose deadline has passed
+        (none with `all`). Deadlines follow arrival order, so the dropped ones are a prefix."""
         if self.policy != "latest" or len(self._frames) < 2:
             return []
         newest = max((i for i, f in enumerate(self._frames) if self._ready(f, now_s)), default=0)
-        return [self._frames.popleft() for _ in range(newest)]
+        old = 0
+        while old < newest and self._frames[old].deadline_s <= now_s:
+            old += 1
+        return [self._frames.popleft() for _ in range(old)]
 
     def pop_ready(self, now_s: float) -> PendingFrame | None:
         """The head frame when it is ready (removed), else None (it waits, and so do the ones behind it)."""

@@ -18,10 +18,12 @@ semantic map itself. `slam:=false`: frames are paired, converted and acknowledge
 
 Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour
 stamp for at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is
-there, or `detections_required:=true`), then goes through the system with them (or with none: the object EKFs
-then predict). `frame_policy:=latest` (real time; `nodes/frame_queue.py`): when several paired frames wait, the
-newest ready one (its detections in, or its wait over) is tracked and the older ones are dropped
-(`frames_dropped_stale`), so no queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
+there, or `detections_required:=true`) or until it is clear that none will come (the detector announced on
+/detection/skipped that it will not detect that image, its rate cap, or it published detections of a later image),
+then goes through the system with them (or with the newest earlier ones
+carried forward, or none: the object EKFs then predict). `frame_policy:=latest` (real time; `nodes/frame_queue.py`): when several paired frames wait, the
+newest ready one (its detections in, or its wait over) is tracked and the older ones whose wait is over are
+dropped (`frames_dropped_stale`), so no queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
 only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window` detections
 all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once instead of
 waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again.
@@ -42,7 +44,7 @@ With `dynamic.movers` on in the config: ~/moving_objects (MovingObjectArray) and
 Inputs (defaults are the TUM bag names; remap with --ros-args -r):
   /camera/rgb/image_color (Image, sensor-data QoS), /camera/depth/image (Image 32FC1 m or 16UC1 mm), or with
   `compressed:=true` their /compressed CompressedImage topics (JPEG/PNG colour, PNG or compressedDepth depth),
-  /camera/rgb/camera_info, /detection/detections, /local_mapping/map_updates,
+  /camera/rgb/camera_info, /detection/detections, /detection/skipped, /local_mapping/map_updates,
   /loop_closing/loop_corrections, /object_map/object_states
 Outputs (`nodes/tracking_outputs.py`; odometry, path, TF and debug image only while subscribed): ~/pose
   (PoseStamped, map frame), ~/odometry, ~/path (the online poses; rebuilt from the optimised
@@ -130,7 +132,11 @@ class TrackingNode(QuietQosEvents, Node):
         self._processed_received_s: dict[int, float] = {}  # stamp -> colour received, of frames already tracked
         self._warned: set[str] = set()
         self._received_s: dict[int, float] = {}
-        self.queue = FrameQueue(p["frame_policy"], self.detections.__contains__)  # frames waiting for detections
+        self._skipped: dict[int, None] = {}  # stamps the detector announced it will not detect (insertion order)
+        self.detections_skipped_in = 0
+        # frames waiting for their detections: ready when they are in or announced skipped
+        self._last_detected_ns: int | None = None  # stamp of the last detections received
+        self.queue = FrameQueue(p["frame_policy"], self._detections_settled)
         self._detections_seen = False
         self._acked_early: set[int] = set()  # frames acked while held for the first camera_info
         self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
@@ -205,6 +211,7 @@ class TrackingNode(QuietQosEvents, Node):
         self.create_subscription(image_type, self.colour_topic, self.on_colour, image_qos, event_callbacks=warn())
         self.create_subscription(image_type, self.depth_topic, self.on_depth, image_qos, event_callbacks=warn())
         self.create_subscription(DetectionArray, "/detection/detections", self.on_detections, 10)
+        self.create_subscription(Header, "/detection/skipped", self.on_detections_skipped, 10)
         self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
@@ -295,6 +302,7 @@ class TrackingNode(QuietQosEvents, Node):
             self.detection_delay_ms.append(delay_ms)
             self._recent_delays_ms.append(delay_ms)
         self.detections[ds.stamp_ns] = ds
+        self._last_detected_ns = ds.stamp_ns
         if self._newest_detections is None or ds.stamp_ns > self._newest_detections.stamp_ns:
             self._previous_detections, self._newest_detections = self._newest_detections, ds
         while len(self.detections) > 30:
@@ -303,6 +311,20 @@ class TrackingNode(QuietQosEvents, Node):
             # tracking.deferred_refinement: the frames tracked before these detections came get their final pose
             # refined (core.deferred_refinement); the published poses stay
             self.backend.system.refine_with_detections(ds)
+        self._drain()
+
+    def _detections_settled(self, stamp_ns: int) -> bool:
+        """A frame's detections are in, or none will come: the detector announced it skips the image, or it has
+        published detections of a later image (it works through images in order and never goes back)."""
+        last = self._last_detected_ns
+        return stamp_ns in self.detections or stamp_ns in self._skipped or (last is not None and stamp_ns < last)
+
+    def on_detections_skipped(self, msg: Header) -> None:
+        """The detector will not detect this image (its rate cap, or it rejected it): its frame stops waiting."""
+        self.detections_skipped_in += 1
+        self._skipped[stamp_to_ns(msg.stamp)] = None
+        while len(self._skipped) > 30:
+            del self._skipped[next(iter(self._skipped))]
         self._drain()
 
     def _carried_detections(self, stamp_ns: int) -> Any:
@@ -635,6 +657,7 @@ class TrackingNode(QuietQosEvents, Node):
             "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
             "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
             "frames_without_detections": self.frames_without_detections,
+            "detections_skipped_received": self.detections_skipped_in,
             "frames_with_carried_detections": self.frames_with_carried_detections,
             "carry_cpu_ms_mean": float(np.mean(self.carry_cpu_ms)) if self.carry_cpu_ms else None,
             "deferred_refinement": None if self.backend is None or self.backend.system.refinement is None

@@ -80,7 +80,8 @@ def test_the_model_parameter_picks_a_shipped_detector_and_model_path_still_wins(
 def test_max_rate_hz_detects_every_other_frame_of_a_30_hz_stream_by_stamp_and_a_busy_node_takes_what_comes(ros_context):
     """max_rate_hz 15 on 30 Hz images: frames 0, 2, 4, ... are detected, the others skipped before decoding; when
     the node was busy and the next image it sees is already two periods on, that one is detected (no catching
-    up), and a stamp that goes back (a looping bag) is detected at once."""
+    up), and a stamp that goes back (a looping bag) is detected at once. Every image skipped (and one rejected)
+    is announced on ~/skipped with its own header, so a tracker stops waiting for its detections."""
     from changing_slam_ros.core.detector import DetectionSet
 
     node = DetectionNode(context=ros_context, parameter_overrides=[Parameter("max_rate_hz", value=15.0)])
@@ -96,7 +97,13 @@ def test_max_rate_hz_detects_every_other_frame_of_a_30_hz_stream_by_stamp_and_a_
         def publish(self, msg):  # noqa: ANN001, ANN202
             decoded.append(stamp_to_ns(msg.header.stamp))
 
-    node.detector, node._pub = Stub(), Sink()
+    skipped: list[int] = []
+
+    class SkipSink:
+        def publish(self, header):  # noqa: ANN001, ANN202
+            skipped.append(stamp_to_ns(header.stamp))
+
+    node.detector, node._pub, node._skipped_pub = Stub(), Sink(), SkipSink()
     rgb = np.zeros((24, 32, 3), np.uint8)
     period_ns = 33_333_333
     t0 = STAMP_NS
@@ -105,5 +112,10 @@ def test_max_rate_hz_detects_every_other_frame_of_a_30_hz_stream_by_stamp_and_a_
     assert [(s - t0) // period_ns for s in detected] == [0, 2, 4, 7, 9, 0]
     assert decoded == detected and node.images_skipped_rate == 5
     assert node.diagnostic_values()["images_skipped_rate"] == 5
+    assert [(s - t0) // period_ns for s in skipped] == [1, 3, 8, 10, 1]  # each skipped image, none detected
+    bad = rgb_to_image(rgb, t0 + 40 * period_ns, "camera")
+    bad.encoding = "yuv422_weird"
+    node.on_image(bad)  # rejected: no detections will come for it either
+    assert skipped[-1] == t0 + 40 * period_ns and len(detected) == 6
     node.detector = None
     node.destroy_node()

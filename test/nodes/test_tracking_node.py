@@ -192,39 +192,56 @@ def test_tracking_node_rejects_malformed_images_and_survives_nan_depth(ros_conte
 
 
 @pytest.mark.parametrize("policy", ["latest", "all"])
-def test_frame_policy_latest_tracks_the_newest_ready_frame_and_drops_the_older_ones(ros_context, policy):
-    """Three fr1 frames wait for their detections; those of the third come first. `latest` tracks the third at
-    once and drops the two older ones (real time: no queue behind them); `all` keeps waiting for the first."""
+def test_frames_whose_detections_will_not_come_are_tracked_at_once_and_latest_drops_those_past_their_wait(ros_context, policy):
+    """Four fr1 frames wait (60 s) for their detections. The detector announces it skips frame 0 (its rate cap):
+    frame 0 is tracked at once with no detections. Frame 3's detections come next: the detector works in order,
+    so none will come for frames 1 and 2, and all three are tracked in order, with both policies, since none is
+    past its wait. With a short wait (50 ms) that is over, `latest` tracks the newest frame and drops the older
+    ones (real time: no queue behind them); `all` tracks every one."""
     import itertools
+    import time
 
     from helpers import FR1_XYZ_10, require
+    from std_msgs.msg import Header
 
     src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
-    frames = list(itertools.islice(iter(src), 3))
-    node = TrackingNode(context=ros_context, parameter_overrides=[
-        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
-        Parameter("detections_required", value=True), Parameter("detections_wait_s", value=60.0),
-        Parameter("frame_policy", value=policy), Parameter("debug_image", value=False),
-    ])  # fmt: skip
-    node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
-    for f in frames:
-        node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
-        node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
-    assert node.frames_in == 0 and len(node.queue) == 3  # all wait for their detections
+    frames = list(itertools.islice(iter(src), 7))
 
-    def detections_for(k: int) -> None:
-        node.on_detections(DetectionArray(header=cv.make_header(frames[k].stamp_ns, "camera"), detections=[]))
+    def node_waiting(wait_s: float) -> TrackingNode:
+        node = TrackingNode(context=ros_context, parameter_overrides=[
+            Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+            Parameter("detections_required", value=True), Parameter("detections_wait_s", value=wait_s),
+            Parameter("frame_policy", value=policy), Parameter("debug_image", value=False),
+        ])  # fmt: skip
+        node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, frames[0].stamp_ns, "camera"))
+        return node
 
-    detections_for(2)
+    def frame(node: TrackingNode, k: int) -> None:
+        node.on_colour(cv.rgb_to_image(frames[k].rgb, frames[k].stamp_ns, "camera"))
+        node.on_depth(cv.depth_to_image(frames[k].depth_m, frames[k].stamp_ns, "camera"))
+
+    node = node_waiting(60.0)
+    for k in range(4):
+        frame(node, k)
+    assert node.frames_in == 0 and len(node.queue) == 4  # all wait for their detections
+    node.on_detections_skipped(cv.make_header(frames[0].stamp_ns, "camera"))
+    assert node.frames_in == 1 and node.detections_skipped_in == 1 and len(node.queue) == 3
+    node.on_detections(DetectionArray(header=cv.make_header(frames[3].stamp_ns, "camera"), detections=[]))
+    assert (node.frames_in, node.frames_dropped_stale, node.published_poses) == (4, 0, 4)
+    assert [r.stamp_ns for r in node.backend.system.records] == [f.stamp_ns for f in frames[:4]]
+    assert node.frames_without_detections == 3 and node.stats()["detections_skipped_received"] == 1
+    node.destroy_node()
+
+    node = node_waiting(0.05)
+    for k in range(4, 7):
+        frame(node, k)
+    time.sleep(0.08)
+    node._drain()  # noqa: SLF001 - the drain timer's call: every wait is over
     if policy == "latest":
-        assert (node.frames_in, node.frames_dropped_stale, node.published_poses) == (1, 2, 1)
-        assert node.backend.system.records[0].stamp_ns == frames[2].stamp_ns
-        detections_for(0)  # late detections of a dropped frame change nothing
-        assert node.frames_in == 1
+        assert (node.frames_in, node.frames_dropped_stale) == (1, 2)
+        assert node.backend.system.records[0].stamp_ns == frames[6].stamp_ns
     else:
-        assert (node.frames_in, node.frames_dropped_stale) == (0, 0)
-        detections_for(0)
-        assert node.frames_in == 1 and node.backend.system.records[0].stamp_ns == frames[0].stamp_ns
+        assert (node.frames_in, node.frames_dropped_stale) == (3, 0)
     assert node.stats()["frames_dropped_stale"] == node.frames_dropped_stale
     node.destroy_node()
 
