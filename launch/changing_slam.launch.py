@@ -11,8 +11,9 @@ ssd_mobilenet_v2_coco_int8, the static INT8 SSD at ~0.4x the CPU that `changing-
 empty = the config's), detection_max_hz (real time: detect at most this often; 0 = as often as the detector is
 free), ba_solver (local BA: gtsam or schur, the numpy
 Schur-complement LM at ~0.35x the CPU that `changing-slam graph` uses in real time; empty = the config's). Out of lossless mode tracking
-runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest) and no waiting for
-detections that keep arriving late.
+runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest), each frame the
+detector detects waiting at most detections_wait_s (default 0.05 s) for its boxes (the detector announces the frames
+it skips, which do not wait), and no waiting while detections keep arriving later than that.
 Without ROS 2 launch, `changing-slam graph BAG` (issue 7) starts the same processes.
 """
 
@@ -37,12 +38,13 @@ def generate_launch_description() -> LaunchDescription:
     ba_solver = LaunchConfiguration("ba_solver")
     detector_model = LaunchConfiguration("detector_model")
     detection_max_hz = LaunchConfiguration("detection_max_hz")
+    real_time_wait = LaunchConfiguration("detections_wait_s")
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
     sim_time = {"use_sim_time": use_sim_time}
     ack_topic = PythonExpression(["'/bag_player/ack' if '", lossless, "' == 'true' else ''"])
-    detections_wait = PythonExpression(["10.0 if '", lossless, "' == 'true' else 0.0"])
+    detections_wait = PythonExpression(["10.0 if '", lossless, "' == 'true' else float('", real_time_wait, "')"])
 
     return LaunchDescription([
         DeclareLaunchArgument("bag", default_value="", description="bag or mcap to replay; empty = live input"),
@@ -61,6 +63,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("detection_max_hz", default_value="0.0",
                               description="real time: detect at most this often by image stamp (0: as often as "
                                           "the detector is free; keep 0 with lossless)"),
+        DeclareLaunchArgument("detections_wait_s", default_value="0.05",
+                              description="real time: longest wait of tracking for a detected frame's boxes "
+                                          "(0: track at once with the earlier boxes carried forward)"),
         DeclareLaunchArgument("ba_solver", default_value="",
                               description="local BA solver of local_mapping: gtsam or schur (empty: the config's)"),
         Node(

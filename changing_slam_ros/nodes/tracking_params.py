@@ -34,8 +34,10 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("loop_closing", True, "in-process backend: loop closing on (unless the config's loop.enabled is false)"),
     ("dynamic", "config", "dynamic-scene filter: config (the dynamic section's enabled), on, off"),
     ("objects", "config", "object layer (MapObjects, beliefs): config, on, off"),
-    ("detections_wait_s", 0.0, "longest wait for a frame's detections once detections are flowing (0: real "
-                                  "time, track at once with what is in; lossless replay: long)"),
+    ("detections_wait_s", 0.0, "longest wait for a frame's detections once detections are flowing; a frame "
+                               "the detector announces it skips (/detection/skipped) or has passed does not wait "
+                               "(0: track at once with what is in; real time with a capped detector: ~0.05; "
+                               "lossless replay: long)"),
     ("detections_carry_max_age_s", 0.5, "a frame without its own detections uses the newest earlier ones "
                                         "up to this old, boxes grown with their age (0 = never)"),
     ("detections_carry_grow_widths_per_s", 0.5, "... each box grown per side by this many of its widths "

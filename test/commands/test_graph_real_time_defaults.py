@@ -59,3 +59,11 @@ def test_real_time_caps_detection_at_15_hz_and_lossless_refuses_a_cap(tmp_path: 
     assert _param(tmp_path / "ll", "detection", "max_rate_hz", "--lossless") == "0.0"
     with pytest.raises(ConfigError, match="--detection-max-hz 15.0: must be >= 0, and 0 with --lossless"):
         _param(tmp_path / "bad", "detection", "max_rate_hz", "--lossless", "--detection-max-hz", "15")
+
+
+def test_real_time_tracking_waits_50_ms_for_a_detected_frames_boxes_and_lossless_10_s(tmp_path: Path) -> None:
+    """The detector announces the frames its cap skips, so only the detected ones wait (docs/architecture.md,
+    "Session 11: detected frames wait for their own boxes")."""
+    assert _param(tmp_path / "rt", "tracking", "detections_wait_s") == "0.05"
+    assert _param(tmp_path / "rt0", "tracking", "detections_wait_s", "--detections-wait", "0") == "0.0"
+    assert _param(tmp_path / "ll", "tracking", "detections_wait_s", "--lossless") == "10.0"
