@@ -93,9 +93,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "frames the detector detects wait for their boxes, ~17 ms with INT8, the ones it skips "
                              "(its rate cap) are tracked at once with the earlier boxes carried forward; 0: never "
                              "wait; lossless 10 s)")
-    parser.add_argument("--queue-depth", type=int, default=1, metavar="N",
-                        help="colour/depth frames the middleware keeps for tracking while it is busy (default 1: "
-                             "the newest only; real time tracks the newest frame, frame_policy latest)")
+    parser.add_argument("--queue-depth", type=int, default=2, metavar="N",
+                        help="colour/depth frames the middleware keeps for tracking while it is busy (default 2; "
+                             "real time then tracks them in order while they are within their detection wait and "
+                             "drops the older ones past it, frame_policy latest; 1: the middleware keeps the newest only)")
     parser.add_argument("--detector-threads", type=int, default=None, metavar="N",
                         help="onnxruntime threads of the detection node (default: 1 in real time, where the graph's "
                              "six processes share the cores and one thread costs ~10 %% less CPU per detection; "
