@@ -29,6 +29,7 @@ owner's points are always in before tracking needs them.
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -65,6 +66,26 @@ class HeldRows:
     def creators(self) -> I64:
         """(R,) the keyframe that created each row."""
         return np.asarray(self.columns["first_kf"], np.int64)
+
+    def moved(self, T_into_from: F64, into_map_id: int) -> HeldRows:
+        """The same rows expressed in another map's world frame (a map merge: positions moved, viewing
+        directions rotated by `T_into_from` (4, 4); the other columns do not depend on the frame)."""
+        T = np.asarray(T_into_from, np.float64)
+        cols = dict(self.columns)
+        cols["positions"] = np.asarray(self.columns["positions"], np.float64) @ T[:3, :3].T + T[:3, 3]
+        cols["normals"] = np.asarray(self.columns["normals"], np.float64) @ T[:3, :3].T
+        return dataclasses.replace(self, map_id=into_map_id, columns=cols)
+
+    @staticmethod
+    def join(a: HeldRows | None, b: HeldRows | None) -> HeldRows | None:
+        """Rows of `a`, then those of `b`, as one block (of `a`'s map and first id; `b`'s rows follow)."""
+        if a is None or b is None:
+            return a if b is None else b
+        cols = {name: np.concatenate([a.columns[name], b.columns[name]]) for name in a.columns}
+        return HeldRows(a.map_id, a.first, cols, a.observations + b.observations,
+                        np.concatenate([a.ref_kf_ids, b.ref_kf_ids]),
+                        np.concatenate([a.ref_kp_indices, b.ref_kp_indices]),
+                        np.concatenate([a.ref_rows, b.ref_rows + len(a)]))  # fmt: skip
 
 
 class ProvisionalPoints:
