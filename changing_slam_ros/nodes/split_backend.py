@@ -62,7 +62,8 @@ from changing_slam_ros.core.map_replication import (
     restore,
     snapshot,
 )
-from changing_slam_ros.core.provisional_points import ProvisionalPoints
+from changing_slam_ros.core.merge_in_flight import MergeLog, combine_counters, move_counters, move_keyframe, move_packet
+from changing_slam_ros.core.provisional_points import HeldRows, ProvisionalPoints
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.system import FrameOutput, SlamSystem
@@ -113,6 +114,8 @@ class TrackingSide:
     waiting_for_map: int = -1  # the first keyframe of a new map, until its update brings the map's first points
     n_skipped: int = 0  # frames not tracked while waiting for it (real time only; lossless never waits here)
     unacked: dict[int, KeyframePacket] = field(default_factory=dict)  # sent, its map update not in yet
+    n_moved_keyframes: int = 0  # keyframes without their update yet when a merge came, moved into the merged map
+    n_moved_provisional: int = 0  # provisional points of those keyframes, moved with them
 
     ship_objects: bool = True  # the map owner runs the object layer: packets carry depth and objects
     # Real time only: tracking's own points for keyframes not mapped yet (None = wait for the owner's points)
@@ -257,20 +260,75 @@ class TrackingSide:
             return self.counters.take(m)
 
     def _apply_merge(self, update: MapUpdate) -> None:
-        """The owner merged two maps: the replica takes the merged map (`apply_merge`), then what `SlamSystem`
-        moves offline: frame records, the last frame and the relocalisation index (`SlamSystem.follow_merge`).
-        Tracking's counter increments are counted from the merged map as the owner sent it (increments made
-        since the last packet are lost: none in lossless order, where the merge comes before the next frame)."""
+        """The owner merged map A into map B: the replica takes the merged map (`apply_merge`), then what
+        `SlamSystem` moves offline: frame records, the last frame and the relocalisation index
+        (`SlamSystem.follow_merge`).
+
+        In real time the owner merged without the keyframes tracking made since (sent or held, no update yet)
+        and without tracking's provisional points. Those keyframes are expressed in B (`move_keyframe`: pose by
+        `T_into_from`, point ids shifted) and inserted into the merged map again, as a new keyframe is, so the
+        owner's update for each (it moves the late packet the same way: `MergeLog`) applies here; their
+        provisional points move with them and go back above the owner's rows (`reattach`), and the ids the last
+        frame holds follow. Tracking's counter increments since its last packet are kept (renamed into B) and go
+        with the next packet; the packets held or kept for a resend are moved too."""
         r = update.merge
-        if self.provisional is not None and self.provisional.count(self.system.atlas.maps[r.from_map_id]) > 0:
-            raise ReplicationError(f"map merge {r.from_map_id} -> {r.into_map_id}: not supported with provisional "
-                                   "points held in the merged-away map")  # fmt: skip
-        m = apply_merge(self.system.atlas, r.from_map_id, update.delta)
+        atlas = self.system.atlas
+        src, dst = ensure_map(atlas, r.from_map_id), ensure_map(atlas, r.into_map_id)
+        tracked_in = atlas.current.id
+        waiting = set(self.unacked) | {p.keyframe.id for p in self.outbox}
+        late = sorted((kf for mm in (dst, src) for k, kf in mm.keyframes.items() if k in waiting), key=lambda kf: kf.id)
+        # 1. Provisional points out of both maps (keyframe entries naming them set to -1), ids noted.
+        held_src = held_dst = None
+        if self.provisional is not None:
+            held_dst = self.provisional.strip(dst)
+            held_src = self.provisional.strip(src)
+        last = self.system.tracker.last_frame
+        last_ids = last.point_ids.copy() if last is not None else None
+        # 2. Tracking's counter increments since its last packet (owner rows only now), to be kept.
+        inc_src = self.counters.take(src) if src.points.size else PointCounters()
+        inc_dst = self.counters.take(dst) if dst.points.size else PointCounters()
+        # 3. Packets not mapped yet (held, or kept for a resend) into B; held ones share the replica's keyframes.
+        for p in [*self.outbox, *self.unacked.values()]:
+            move_packet(p, r)
+        # 4. The owner's merged map, with tracking's increments on top of its counters.
+        m = apply_merge(atlas, r.from_map_id, update.delta)
         self.counters.bases.pop(r.from_map_id, None)
         self.counters.rebase(m)
+        inc = combine_counters(inc_dst, move_counters(inc_src, r))
+        pts = m.points
+        np.add.at(pts.n_visible, inc.ids, inc.n_visible)
+        np.add.at(pts.n_found, inc.ids, inc.n_found)
+        pts.last_seen_frame[inc.ids] = np.maximum(pts.last_seen_frame[inc.ids], inc.last_seen_frame)
+        # 5. The waiting keyframes into the merged map again, in the order they were made (the owner's order).
+        for kf in late:
+            if kf.map_id == r.from_map_id:
+                move_keyframe(kf, r)
+            check_keyframe(m, kf)
+            m.add_keyframe(kf)
+        self.n_moved_keyframes += len(late)
+        self.n_moved_provisional += sum(len(h) for h in (held_src, held_dst) if h is not None)
+        # 6. Their provisional points, B's rows first, then A's moved into B's frame.
+        remap = np.zeros(0, np.int64)
+        n_dst = 0 if held_dst is None else len(held_dst)
+        if self.provisional is not None:
+            moved_src = held_src.moved(r.T_into_from, m.id) if held_src is not None else None
+            remap = self.provisional.reattach(m, HeldRows.join(held_dst, moved_src), waiting)
         if self.index is not None:
             self.index.maps_merged(r.moved_keyframes, r.into_map_id)
-        self.system.follow_merge(r)
+        # 7. Records, last frame and last good pose, as offline; provisional ids of the last frame remapped.
+        if tracked_in == r.from_map_id:
+            self.system.follow_merge(r)
+        else:  # tracking is in B (or a newer map): only the records of A move
+            for rec in self.system.records:
+                if rec.map_id == r.from_map_id:
+                    rec.map_id = r.into_map_id
+            self.system.merges.append(r)
+        if last is not None and last_ids is not None and len(remap):
+            held = held_src if tracked_in == r.from_map_id else held_dst if tracked_in == r.into_map_id else None
+            if held is not None:
+                base = n_dst if held is held_src else 0
+                sel = last_ids >= held.first
+                last.point_ids[sel] = remap[base + last_ids[sel] - held.first]
         self.n_updates += 1
         self.n_merges += 1
         if self.system.records:
@@ -316,6 +374,8 @@ class MapOwner:
     timings_ms: dict[str, list[float]] = field(default_factory=lambda: {"mapping": [], "objects": [], "diff": []})
     last_objects: Any | None = None
     merges: list[Any] = field(default_factory=list)  # core.map_merging.MergeResult, in order
+    log: MergeLog = field(default_factory=MergeLog)  # to move packets that name a merged-away map (real time)
+    n_loops_dropped: int = 0  # closed loops on a map merged away before their verdict came (real time)
 
     @staticmethod
     def build(cfg: BackendConfig, objects: str = "config") -> MapOwner:
@@ -331,6 +391,9 @@ class MapOwner:
         self.backend.system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
 
     def on_keyframe(self, packet: KeyframePacket) -> MapUpdate:
+        """Map one keyframe; returns the update for the replicas. A packet tracking made before a merge this
+        owner applied (real time) is first expressed in the merged map (`MergeLog.resolve`)."""
+        self.log.resolve(packet)
         kf = packet.keyframe
         m = ensure_map(self.atlas, kf.map_id)
         check_keyframe(m, kf)
@@ -372,6 +435,9 @@ class MapOwner:
             return self.on_merge(result.merge)
         if not result.closed or result.delta is None:
             return None
+        if result.delta.map_id in self.atlas.merged_into:  # real time: found on a map merged away meanwhile
+            self.n_loops_dropped += 1
+            return None
         m = ensure_map(self.atlas, result.delta.map_id)
         before = snapshot(m)
         if result.query_kf_id == self.last_kf_id:
@@ -403,6 +469,8 @@ class MapOwner:
             return None
         result = self.backend.system.apply_merge(merge)
         self.merges.append(result)
+        self.log.record(result)
+        self.last_kf_id = -1  # a loop verdict computed before the merge is no delta of this map any more
         light = dataclasses.replace(result, ba=None)
         return MapUpdate(-1, full_delta(atlas.maps[result.into_map_id]), loop_query_kf_id=merge.query_kf_id, merge=light)
 
@@ -416,6 +484,8 @@ class LoopSide:
     atlas: Atlas = field(default_factory=Atlas)
     pending: dict[int, Keyframe] = field(default_factory=dict)
     n_loops: int = 0
+    log: MergeLog = field(default_factory=MergeLog)  # merges taken, to move packets made before them
+    n_moved_keyframes: int = 0  # keyframes without their update yet when a merge came, moved into the merged map
     timings_ms: list[float] = field(default_factory=list)
 
     @staticmethod
@@ -452,6 +522,7 @@ class LoopSide:
         kf = packet.keyframe
         if self.knows(kf.id) or kf.id in self.pending:
             return  # in the map restored from tracking's replica, or sent again after a restart
+        self.log.resolve(packet)  # made before a merge this replica took (real time): into the merged map
         insert_keyframe(self.atlas, kf)
         self.pending[kf.id] = kf
 
@@ -459,8 +530,7 @@ class LoopSide:
         """Apply the owner's delta; for a mapped keyframe, run loop closing on it (as `SlamSystem` does after
         local mapping and the object layer) and return the verdict."""
         if update.merge is not None:  # the owner merged two maps: take the merged map, the database follows
-            apply_merge(self.atlas, update.merge.from_map_id, update.delta)
-            self.closing.maps_merged(update.merge.moved_keyframes, update.merge.into_map_id)
+            self._apply_merge(update)
             return None
         restored = update.keyframe_id >= 0 and self.knows(update.keyframe_id)
         m = apply_delta(self.atlas, update.delta)
@@ -477,6 +547,22 @@ class LoopSide:
         if kf.id not in m.keyframes:
             return LoopResult(kf.id, False)
         return self._close(kf, m)
+
+    def _apply_merge(self, update: MapUpdate) -> None:
+        """The owner's merged map; keyframes inserted here whose update has not come (real time: the owner maps
+        their late packets in the merged map, moved the same way) go into it again, expressed in it."""
+        r = update.merge
+        late = [kf for mm in (ensure_map(self.atlas, r.from_map_id), ensure_map(self.atlas, r.into_map_id))
+                for k, kf in mm.keyframes.items() if k in self.pending]  # fmt: skip
+        m = apply_merge(self.atlas, r.from_map_id, update.delta)
+        for kf in sorted(late, key=lambda kf: kf.id):
+            if kf.map_id == r.from_map_id:
+                move_keyframe(kf, r)
+            check_keyframe(m, kf)
+            m.add_keyframe(kf)
+        self.n_moved_keyframes += len(late)
+        self.log.record(r)
+        self.closing.maps_merged(r.moved_keyframes, r.into_map_id)
 
     def _close(self, kf: Keyframe, m: SlamMap) -> LoopResult:
         t0 = time.perf_counter()
@@ -545,31 +631,61 @@ class ChainedGraph:
 class DelayedChain:
     """Tracking and the map owner in one process in real-time order, deterministically (tests, benchmarks): the
     owner maps one keyframe at a time and its update reaches tracking `delay_frames` frames after it started
-    mapping it, as a map owner that needs that long per keyframe would. Tracking never waits for it. No loop
-    closing (its verdicts are what the lossless order waits for)."""
+    mapping it, as a map owner that needs that long per keyframe would. Tracking never waits for it.
+
+    With a loop side (`loop`): it gets every packet when tracking sends it and every update when tracking does,
+    and gives its verdict at once; the owner takes verdicts before its next keyframe, and the update of applying
+    a closed loop or a map merge (the relay) reaches tracking and the loop side `delay_frames` frames later,
+    like a keyframe's. Keyframes tracking made meanwhile are in flight across the merge, as in the real-time
+    graph. Without it, no loop closing (its verdicts are what the lossless order waits for)."""
 
     tracking: TrackingSide
     owner: MapOwner
     delay_frames: int
+    loop: LoopSide | None = None
     frame: int = 0
     queue: deque[KeyframePacket] = field(default_factory=deque)  # sent, not mapped yet
     in_flight: tuple[int, MapUpdate] | None = None  # (frame it arrives before, update)
+    verdicts: deque[LoopResult] = field(default_factory=deque)  # the loop side's, not taken by the owner yet
+    sent: list[int] = field(default_factory=list)  # keyframe ids tracking sent, in order
+    mapped: list[int] = field(default_factory=list)  # keyframe ids the owner mapped, in order
 
     @staticmethod
     def build(cfg: BackendConfig, delay_frames: int, provisional: bool, dynamic: str = "config",
-              objects: str = "config") -> DelayedChain:
-        return DelayedChain(TrackingSide.build(cfg, loop=False, dynamic=dynamic, objects=objects,
+              objects: str = "config", loop: bool = False) -> DelayedChain:
+        """`loop`: with the loop side (and tracking's relocalisation index, as `ChainedGraph` has it)."""
+        return DelayedChain(TrackingSide.build(cfg, loop=loop, dynamic=dynamic, objects=objects,
                                                provisional=provisional),
-                            MapOwner.build(cfg, objects), delay_frames)  # fmt: skip
+                            MapOwner.build(cfg, objects), delay_frames,
+                            LoopSide.build(cfg) if loop else None)  # fmt: skip
+
+    def _send(self, packets: list[KeyframePacket]) -> None:
+        for packet in packets:  # each receiver gets its copy when it is sent, as over the wire
+            self.sent.append(packet.keyframe.id)
+            self.queue.append(copy_packet(packet))
+            if self.loop is not None:
+                self.loop.on_keyframe(copy_packet(packet))
 
     def _owner_step(self) -> None:
-        """Deliver an update that is due, start mapping the next packet when the owner is free."""
+        """Deliver an update that is due, start the owner's next job when it is free (verdicts first)."""
         if self.in_flight is not None and self.in_flight[0] <= self.frame:
             update = self.in_flight[1]
             self.in_flight = None
-            self.queue.extend(self.tracking.apply_update(copy.deepcopy(update)))
+            released = self.tracking.apply_update(copy.deepcopy(update))
+            if self.loop is not None:  # before the packets this releases, which may name the update's points
+                result = self.loop.on_update(copy.deepcopy(update))
+                if result is not None:
+                    self.verdicts.append(result)
+            self._send(released)
+        while self.in_flight is None and self.verdicts:
+            relay = self.owner.on_loop(copy.deepcopy(self.verdicts.popleft()))
+            if relay is not None:
+                self.in_flight = (self.frame + self.delay_frames, relay)
+                self.tracking.n_loops += int(relay.merge is None)
         if self.in_flight is None and self.queue:
-            update = self.owner.on_keyframe(copy_packet(self.queue.popleft()))
+            packet = self.queue.popleft()
+            self.mapped.append(packet.keyframe.id)
+            update = self.owner.on_keyframe(packet)
             self.in_flight = (self.frame + self.delay_frames, update)
 
     def process(self, rgbd: RgbdFrame, detections: Any = None) -> FrameOutput | None:
@@ -578,12 +694,12 @@ class DelayedChain:
         self._owner_step()  # an update delivered may free the owner for the next packet at once
         out, packet = self.tracking.process(rgbd, detections)
         if packet is not None:
-            self.queue.append(packet)
+            self._send([packet])
         self.frame += 1
         return out
 
     def finish(self) -> None:
         """Map and deliver everything still pending (the end of a replay)."""
-        while self.queue or self.in_flight is not None:
+        while self.queue or self.in_flight is not None or self.verdicts:
             self.frame = max(self.frame, self.in_flight[0] if self.in_flight is not None else self.frame)
             self._owner_step()
