@@ -121,7 +121,9 @@ class LocalMappingNode(Node):
         self.keyframes_rejected = 0
         self.loops_applied = 0
         self.merges_applied = 0  # Atlas map merges found by loop_closing and applied here
-        self.merges_skipped = 0  # found, not applied (real time, see apply_loop)
+        # found, not applied: the merge no longer fits the map (its maps merged already, a seam keyframe culled
+        # meanwhile: real time, MapOwner.on_merge)
+        self.merges_skipped = 0
         self.awaiting_loop_for = -1  # keyframe id whose loop verdict the next keyframe waits for
         self.queue: deque[KeyframePacket] = deque()
         self.process_ms: list[float] = []
@@ -351,19 +353,19 @@ class LocalMappingNode(Node):
         self.queue_ms.append((t0 - getattr(packet, "received_s", t0)) * 1e3)
 
     def apply_loop(self, result: LoopResult, stamp: Any) -> None:
-        if result.merge is not None and not self.params["wait_for_loop_results"]:
-            # Real time: tracking's replica holds keyframes and provisional points the merged map would not
-            # carry (docs/loop_closing.md, "Map merging in the split graph"); the merge is not applied.
-            self.merges_skipped += 1
-            self.get_logger().warning(f"local_mapping: map merge at keyframe {result.query_kf_id} not applied "
-                                      "(real time: merges are applied in lossless mode only)", throttle_duration_sec=5.0)
-            return
+        # In real time too: keyframe packets of the merged-away map that arrive later are moved into the merged
+        # map (MapOwner.on_keyframe), and tracking and loop_closing move what they hold of it that is not mapped
+        # yet (docs/loop_closing.md, "Map merging in the split graph").
         try:
             relay = self.owner.on_loop(result)
         except SlamError as err:
             self.get_logger().warning(f"local_mapping: loop correction not applied: {err}")
             return
         if relay is None:
+            if result.merge is not None:
+                self.merges_skipped += 1
+                self.get_logger().warning(f"local_mapping: map merge at keyframe {result.query_kf_id} not applied: it "
+                                          "no longer fits the map (maps merged already or a seam keyframe culled)")  # fmt: skip
             return
         from changing_slam_ros.nodes.conversions import stamp_to_ns
 
@@ -396,6 +398,8 @@ class LocalMappingNode(Node):
             "keyframes_duplicate": self.keyframes_duplicate,
             "keyframes_mapped": len(t["mapping"]), "keyframes_queued": len(self.queue), "loops_applied": self.loops_applied,
             "merges_applied": self.merges_applied, "merges_skipped": self.merges_skipped,
+            "late_keyframes_moved_by_merges": self.owner.log.n_moved,
+            "loops_dropped_merged_map": self.owner.n_loops_dropped,
             "map_points": int(self.owner.atlas.current.points.usable().sum()),
             "keyframes_in_map": self.owner.atlas.n_keyframes, "restored_keyframes": self.resync.restored_keyframes,
             "map_loads": self.loads, "dropped_before_load": self.epochs.dropped, "ba_stopped_early": self.ba_stops,

@@ -203,6 +203,8 @@ class LoopClosingNode(Node):
                                "updates_waiting": len(self.updates), "rejected": self.rejected, "loops_closed": self.loops, "merges_found": self.merges,
                                "restored_keyframes": self.resync.restored_keyframes, "map_loads": self.loads,
                                "dropped_before_load": self.epochs.dropped}  # fmt: skip
+        if self.side is not None:
+            out["keyframes_moved_by_merges"] = self.side.n_moved_keyframes + self.side.log.n_moved
         out.update(summarise_ms(self.process_ms, "keyframe"))
         return out
 

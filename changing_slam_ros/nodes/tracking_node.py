@@ -676,6 +676,8 @@ class TrackingNode(QuietQosEvents, Node):
             "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "maps_merged_split": self.split.n_merges if self.split is not None else None,
+            "keyframes_moved_by_merges": self.split.n_moved_keyframes if self.split is not None else None,
+            "provisional_points_moved_by_merges": self.split.n_moved_provisional if self.split is not None else None,
             "frames_skipped_waiting_for_map": self.split.n_skipped if self.split is not None else None,
             "provisional_points_created": prov.n_created if prov is not None else None,
             "provisional_points_replaced": prov.n_replaced if prov is not None else None,
