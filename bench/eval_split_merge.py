@@ -25,7 +25,7 @@ import numpy as np
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.nodes.slam_backend import BackendConfig, build_backend, load_backend_config
-from changing_slam_ros.nodes.split_backend import ChainedGraph, DelayedChain
+from changing_slam_ros.nodes.split_chains import ChainedGraph, DelayedChain
 
 REDKITCHEN = "../shared/data/7scenes_redkitchen"
 

@@ -23,7 +23,7 @@ from changing_slam_ros.core.system import SlamSystem
 from changing_slam_ros.core.tracking import TrackingState
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.nodes.slam_backend import build_backend, load_backend_config
-from changing_slam_ros.nodes.split_backend import ChainedGraph
+from changing_slam_ros.nodes.split_chains import ChainedGraph
 
 
 def _assert_maps_equal(a: SlamMap, b: SlamMap) -> None:
@@ -250,7 +250,8 @@ def test_a_map_owner_restarted_empty_is_restored_from_tracking_and_maps_what_it_
     """7-Scenes redkitchen: the owner dies after 30 frames; tracking goes on and sends a keyframe nobody maps. A
     new owner restored from tracking's snapshot has the old owner's map exactly, then maps the re-sent keyframe,
     and tracking's replica follows it."""
-    from changing_slam_ros.nodes.split_backend import MapOwner, copy_packet
+    from changing_slam_ros.nodes.split_backend import MapOwner
+    from changing_slam_ros.nodes.split_chains import copy_packet
 
     source = open_dataset(require(REDKITCHEN), "7scenes")
     cfg = load_backend_config("7scenes")

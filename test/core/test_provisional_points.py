@@ -17,7 +17,7 @@ from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 from changing_slam_ros.nodes.slam_backend import load_backend_config
-from changing_slam_ros.nodes.split_backend import ChainedGraph, DelayedChain
+from changing_slam_ros.nodes.split_chains import ChainedGraph, DelayedChain
 
 BAG = REPO / "bags" / "sim_walking_changing.mcap"
 GT = REPO / "bags" / "sim_walking_changing_gt" / "groundtruth.txt"

@@ -13,7 +13,7 @@ from helpers import REDKITCHEN, require
 from changing_slam_ros.core.map_replication import ReplicationError, apply_merge, full_delta
 from changing_slam_ros.core.slam_map import Atlas, SlamMap
 from changing_slam_ros.nodes.slam_backend import BackendConfig, build_backend, load_backend_config
-from changing_slam_ros.nodes.split_backend import ChainedGraph
+from changing_slam_ros.nodes.split_chains import ChainedGraph
 
 
 def _lost_and_revisit_config() -> BackendConfig:

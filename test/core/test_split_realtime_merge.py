@@ -19,7 +19,7 @@ from helpers import REDKITCHEN, require
 
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.nodes.slam_backend import BackendConfig, load_backend_config
-from changing_slam_ros.nodes.split_backend import ChainedGraph, DelayedChain
+from changing_slam_ros.nodes.split_chains import ChainedGraph, DelayedChain
 
 DELAYS = (3, 10, 30)
 

@@ -51,7 +51,7 @@ def test_the_split_sides_started_from_a_saved_map_track_as_the_offline_system(se
     from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file
     from changing_slam_ros.io.map_file import load_map
     from changing_slam_ros.nodes.slam_backend import build_backend, load_backend_config
-    from changing_slam_ros.nodes.split_backend import ChainedGraph
+    from changing_slam_ros.nodes.split_chains import ChainedGraph
 
     cfg = load_backend_config("sim")
     map_file = sessions / "first_oracle" / "map.npz"

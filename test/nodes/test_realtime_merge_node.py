@@ -39,7 +39,7 @@ def owner_jobs():
     verdicts that change the map (a merge or a closed loop); and the chain itself after the run."""
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.nodes.slam_backend import BackendConfig, load_backend_config
-    from changing_slam_ros.nodes.split_backend import DelayedChain
+    from changing_slam_ros.nodes.split_chains import DelayedChain
 
     base = load_backend_config("7scenes")
     data = copy.deepcopy(base.data)

@@ -43,7 +43,7 @@ def kitchen_packets():
     owner built from them (ChainedGraph)."""
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.nodes.slam_backend import load_backend_config
-    from changing_slam_ros.nodes.split_backend import ChainedGraph
+    from changing_slam_ros.nodes.split_chains import ChainedGraph
 
     source = open_dataset(require(REDKITCHEN), "7scenes")
     chained = ChainedGraph.build(load_backend_config("7scenes"), loop=False, objects="off")
