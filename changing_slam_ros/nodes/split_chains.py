@@ -18,7 +18,7 @@ from changing_slam_ros.core.map_replication import KeyframePacket, LoopResult, M
 from changing_slam_ros.core.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import FrameOutput
 from changing_slam_ros.nodes.slam_backend import BackendConfig
-from changing_slam_ros.nodes.split_backend import LoopSide, MapOwner, TrackingSide
+from changing_slam_ros.nodes.split_backend import LoopSide, MapOwner, TrackingSide, object_layer_for
 
 
 def copy_packet(packet: KeyframePacket) -> KeyframePacket:
