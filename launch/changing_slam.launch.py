@@ -4,16 +4,22 @@
 
 Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_player waits for tracking's
 per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock), map_file (multi-session:
-start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz), detector_threads (onnxruntime
-threads of the detection node; -1 = the config's; 1 costs ~10 % less CPU per detection where the nodes share few
-cores, as `changing-slam graph` does in real time), detector_model (a shipped detector by name, e.g.
-ssd_mobilenet_v2_coco_int8, the static INT8 SSD at ~0.4x the CPU that `changing-slam graph` uses in real time;
-empty = the config's), detection_max_hz (real time: detect at most this often; 0 = as often as the detector is
-free), ba_solver (local BA: gtsam or schur, the numpy
-Schur-complement LM at ~0.35x the CPU that `changing-slam graph` uses in real time; empty = the config's). Out of lossless mode tracking
-runs as `changing-slam graph` does in real time: the newest frame first (frame_policy latest), each frame the
-detector detects waiting at most detections_wait_s (default 0.05 s) for its boxes (the detector announces the frames
-it skips, which do not wait), and no waiting while detections keep arriving later than that.
+start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz), map_out, and five arguments whose
+default `auto` is what `changing-slam graph` gives the nodes (the constants of `changing_slam_ros.commands.graph`):
+in real time its measured real-time settings, with lossless:=true the config's, so that the graph repeats
+`changing-slam run`:
+- detector_threads: onnxruntime threads of the detection node (auto: 1 in real time, ~10 % less CPU per detection
+  where the nodes share few cores; -1 = the config's);
+- detector_model: a shipped detector by name (auto: ssd_mobilenet_v2_coco_int8 in real time, the static INT8 SSD at
+  ~0.4x the CPU; empty = the config's);
+- detection_max_hz: detect at most this often by image stamp (auto: 15 in real time; 0 = as often as the detector is
+  free; keep 0 with lossless);
+- detections_wait_s: longest wait of tracking for a detected frame's boxes (auto: 0.05 s in real time; the detector
+  announces the frames it skips, which do not wait; 10 s with lossless);
+- ba_solver: local BA of local_mapping, gtsam or schur (auto: schur in real time, the numpy Schur-complement LM at
+  ~0.35x the CPU; empty = the config's).
+Out of lossless mode tracking runs the newest frame first (frame_policy latest) and does not wait while detections
+keep arriving later than detections_wait_s.
 Without ROS 2 launch, `changing-slam graph BAG` (issue 7) starts the same processes.
 """
 
@@ -23,7 +29,23 @@ from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
+from changing_slam_ros.commands.graph import (
+    REAL_TIME_BA_SOLVER,
+    REAL_TIME_DETECTION_MAX_HZ,
+    REAL_TIME_DETECTIONS_WAIT_S,
+    REAL_TIME_DETECTOR,
+    REAL_TIME_DETECTOR_THREADS,
+)
+
 PACKAGE = "changing_slam_ros"
+
+
+def _auto(arg: LaunchConfiguration, lossless: LaunchConfiguration, real_time: str, in_lossless: str,
+          cast: str) -> PythonExpression:
+    """`arg` as given, or when it is 'auto' the real-time default of `changing-slam graph` (`real_time`, a Python
+    literal) or, with lossless:=true, `in_lossless` (the config's); `cast` (float, int, str) the given value."""
+    return PythonExpression(["(", in_lossless, " if '", lossless, "' == 'true' else ", real_time, ") if '", arg,
+                             "' == 'auto' else ", cast, "('", arg, "')"])  # fmt: skip
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -39,12 +61,17 @@ def generate_launch_description() -> LaunchDescription:
     detector_model = LaunchConfiguration("detector_model")
     detection_max_hz = LaunchConfiguration("detection_max_hz")
     real_time_wait = LaunchConfiguration("detections_wait_s")
+    # 'auto': what `changing-slam graph` gives the node in real time, the config's in lossless mode
+    threads = _auto(detector_threads, lossless, str(REAL_TIME_DETECTOR_THREADS), "-1", "int")
+    model = _auto(detector_model, lossless, repr(REAL_TIME_DETECTOR), "''", "str")
+    max_hz = _auto(detection_max_hz, lossless, repr(REAL_TIME_DETECTION_MAX_HZ), "0.0", "float")
+    solver = _auto(ba_solver, lossless, repr(REAL_TIME_BA_SOLVER), "''", "str")
+    wait = _auto(real_time_wait, lossless, repr(REAL_TIME_DETECTIONS_WAIT_S), "10.0", "float")
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
     sim_time = {"use_sim_time": use_sim_time}
     ack_topic = PythonExpression(["'/bag_player/ack' if '", lossless, "' == 'true' else ''"])
-    detections_wait = PythonExpression(["10.0 if '", lossless, "' == 'true' else float('", real_time_wait, "')"])
 
     return LaunchDescription([
         DeclareLaunchArgument("bag", default_value="", description="bag or mcap to replay; empty = live input"),
@@ -55,36 +82,39 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("map_file", default_value="", description="start from this map.npz (multi-session)"),
         DeclareLaunchArgument("map_out", default_value="", description="local_mapping saves the map here at shutdown "
                               "(and on ~/save_map); start the next session from it with map_file"),
-        DeclareLaunchArgument("detector_threads", default_value="-1",
-                              description="onnxruntime threads of the detection node (-1: the config's)"),
-        DeclareLaunchArgument("detector_model", default_value="",
+        DeclareLaunchArgument("detector_threads", default_value="auto",
+                              description="onnxruntime threads of the detection node (-1: the config's; auto: 1 "
+                                          "in real time, the config's with lossless)"),
+        DeclareLaunchArgument("detector_model", default_value="auto",
                               description="shipped detector of the detection node, e.g. ssd_mobilenet_v2_coco_int8 "
-                                          "(empty: the config's)"),
-        DeclareLaunchArgument("detection_max_hz", default_value="0.0",
+                                          "(empty: the config's; auto: INT8 in real time, the config's with lossless)"),
+        DeclareLaunchArgument("detection_max_hz", default_value="auto",
                               description="real time: detect at most this often by image stamp (0: as often as "
-                                          "the detector is free; keep 0 with lossless)"),
-        DeclareLaunchArgument("detections_wait_s", default_value="0.05",
-                              description="real time: longest wait of tracking for a detected frame's boxes "
-                                          "(0: track at once with the earlier boxes carried forward)"),
-        DeclareLaunchArgument("ba_solver", default_value="",
-                              description="local BA solver of local_mapping: gtsam or schur (empty: the config's)"),
+                                          "the detector is free; auto: 15 in real time, 0 with lossless)"),
+        DeclareLaunchArgument("detections_wait_s", default_value="auto",
+                              description="longest wait of tracking for a detected frame's boxes (0: track at "
+                                          "once with the earlier boxes carried forward; auto: 0.05 in real time, "
+                                          "10 with lossless)"),
+        DeclareLaunchArgument("ba_solver", default_value="auto",
+                              description="local BA solver of local_mapping: gtsam or schur (empty: the config's; "
+                                          "auto: schur in real time, the config's with lossless)"),
         Node(
             package=PACKAGE, executable="bag_player", name="bag_player", output="screen", condition=IfCondition(has_bag),
             parameters=[{"bag": bag, "rate": rate, "lossless": lossless,
                          "ack_topics": ["/camera/rgb/image_color"], "confirm_topics": ["/camera/rgb/camera_info"]}],
         ),
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
-             parameters=[{"config": config, "intra_op_threads": detector_threads, "model": detector_model,
-                         "max_rate_hz": detection_max_hz}, sim_time],
+             parameters=[{"config": config, "intra_op_threads": threads, "model": model,
+                         "max_rate_hz": max_hz}, sim_time],
              remappings=[("image", "/camera/rgb/image_color")]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
                           "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
                           "detections_skip_late": real_time,
-                          "detections_wait_s": detections_wait}, sim_time]),
+                          "detections_wait_s": wait}, sim_time]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
              parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file,
-                         "map_out": map_out, "ba_solver": ba_solver}, sim_time]),
+                         "map_out": map_out, "ba_solver": solver}, sim_time]),
         Node(package=PACKAGE, executable="loop_closing", name="loop_closing", output="screen",
              parameters=[{"config": config, "map_file": map_file}, sim_time]),
         Node(package=PACKAGE, executable="object_map", name="object_map", output="screen",

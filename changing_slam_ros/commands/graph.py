@@ -74,6 +74,9 @@ REAL_TIME_DETECTION_MAX_HZ = 15.0  # the detection node's rate cap in real time 
 # Real time: tracking waits at most this long for a frame's own detections (--detections-wait). The detector
 # announces the frames it skips (its rate cap), so only the frames it detects wait, ~17 ms with INT8.
 REAL_TIME_DETECTIONS_WAIT_S = 0.05
+REAL_TIME_DETECTOR_THREADS = 1  # onnxruntime threads of the detection node in real time (--detector-threads)
+REAL_TIME_BA_SOLVER = "schur"  # local_mapping's local BA solver in real time (--ba-solver)
+# (launch/changing_slam.launch.py takes these as its 'auto' defaults)
 PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
 
 
@@ -324,7 +327,7 @@ class Graph:
                 "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
         if split:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
-            solver = a.ba_solver or ("config" if a.lossless else "schur")
+            solver = a.ba_solver or ("config" if a.lossless else REAL_TIME_BA_SOLVER)
             mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
                        "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
                        "ba_solver": "" if solver == "config" else solver}  # fmt: skip
@@ -336,7 +339,7 @@ class Graph:
                 self.logs, restart_argv=_node_argv("loop_closing_node", {"config": self.config, "map_file": ""}))  # fmt: skip
         if self.detection:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
-            threads = a.detector_threads if a.detector_threads is not None else (-1 if a.lossless else 1)
+            threads = a.detector_threads if a.detector_threads is not None else (-1 if a.lossless else REAL_TIME_DETECTOR_THREADS)
             model = getattr(a, "detector_model", None) or ("config" if a.lossless else REAL_TIME_DETECTOR)
             from changing_slam_ros.core.detector import SHIPPED_MODELS
 
