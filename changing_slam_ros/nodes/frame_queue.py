@@ -1,12 +1,12 @@
 """The tracking node's paired colour/depth frames waiting for their detections: order, deadlines, frame policy.
 
-ROS-free (the messages are carried, never read). A frame is *ready* when its detections are settled (in, or
-known not to come) or its deadline (steady-clock seconds) has passed. The node tracks ready frames from the head, in stamp order; with policy
-`latest` (real time) the frames older than the newest ready one are dropped first, so no queue builds up
-behind a slow frame, except those whose deadline has not passed yet: a frame still within its wait for its own
-detections is not given up for a later frame that is ready at once (one the detector announced it skips), so
-no frame waits past its deadline. `next_deadline_s` tells the node when to wake up for a frame whose detections
-do not come.
+ROS-free (the messages are carried, never read). A frame is *ready* when its detections are settled (in, or known not
+to come) or its deadline (steady-clock seconds) has passed. The node tracks ready frames from the head, in stamp
+order; with policy `latest` (real time) the frames older than the newest ready one are dropped first, so no queue
+builds up behind a slow frame, except those whose deadline has not passed yet: a frame still within its wait for its
+own detections is not given up for a later frame that is ready at once (one the detector announced it skips), so no
+frame waits past its deadline. `next_deadline_s` tells the node when to wake up for a frame whose detections do not
+come.
 """
 
 from __future__ import annotations

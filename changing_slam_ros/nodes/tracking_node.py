@@ -16,17 +16,18 @@ while local_mapping maps the keyframe; the owner's update replaces them.
 loop closing) runs in this process (deterministic, `nodes/slam_backend.py`), and this node publishes the
 semantic map itself. `slam:=false`: frames are paired, converted and acknowledged only (plumbing tests).
 
-Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour
-stamp for at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is
-there, or `detections_required:=true`) or until it is clear that none will come (the detector announced on
-/detection/skipped that it will not detect that image, its rate cap, or it published detections of a later image),
-then goes through the system with them (or with the newest earlier ones
-carried forward, or none: the object EKFs then predict). `frame_policy:=latest` (real time; `nodes/frame_queue.py`): when several paired frames wait, the
-newest ready one (its detections in, or its wait over) is tracked and the older ones whose wait is over are
-dropped (`frames_dropped_stale`), so no queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1` the middleware keeps
-only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window` detections
-all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once instead of
-waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time again.
+Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour stamp for
+at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is there, or
+`detections_required:=true`) or until it is clear that none will come (the detector announced on /detection/skipped
+that it will not detect that image, its rate cap, or it published detections of a later image), then goes through the
+system with them (or with the newest earlier ones carried forward, or none: the object EKFs then predict).
+`frame_policy:=latest` (real time; `nodes/frame_queue.py`): when several paired frames wait, the newest ready one (its
+detections in, or its wait over) is tracked and the older ones whose wait is over are dropped
+(`frames_dropped_stale`), so no queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1`
+the middleware keeps only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window`
+detections all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once
+instead of waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time
+again.
 A frame tracked without its own detections takes the newest earlier person boxes carried forward
 (`core.late_detections`, `detections_carry_*`: grown with their age; with `detections_carry_flow` first moved by
 their image motion since the detections' image, from a ring of the recent frames' grey and depth images).
