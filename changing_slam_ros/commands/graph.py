@@ -536,6 +536,7 @@ class Graph:
             "frames_without_detections": stats.get("frames_without_detections"),
             "frames_with_carried_detections": stats.get("frames_with_carried_detections"),
             "frames_dropped_stale": stats.get("frames_dropped_stale"),
+            "detections_skipped_received": stats.get("detections_skipped_received"),
             "frames_not_waited_for_late_detections": stats.get("frames_not_waited_for_late_detections"),
             "restarts": dict(self.restarts), "exit_codes": codes, "map_loads": self.map_loads,
             "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
