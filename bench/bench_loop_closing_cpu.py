@@ -20,7 +20,7 @@ as in the graph. Time is exclusive (a stage inside another counts in the innermo
 - `reloc`: `candidates` (tracking's relocalisation query on its own index), reported apart.
 
 With `--split` the run is the split graph's three sides chained in the lossless order in one process
-(`nodes.split_backend.ChainedGraph`, the same config and detections as `changing-slam run`), and what is timed is
+(`nodes.split_chains.ChainedGraph`, the same config and detections as `changing-slam run`), and what is timed is
 the loop_closing node's work per keyframe: the stages above on its replica plus `msg_in` (CDR deserialisation and
 `packet_from_msg` / `update_from_msg` of the keyframe packet and the map updates: each is serialised by the
 sender's conversion first, untimed), `replica` (`LoopSide.on_keyframe` / `on_update` around the core),

@@ -2,7 +2,7 @@
 
 7-Scenes redkitchen frames 0-319 then 400-699 (tracking is lost at the jump, a new map starts, the camera later
 revisits the first map), config `7scenes` with `tracking.lost_frames_new_map` 5: the three sides of the split
-graph chained in the lossless order (`nodes.split_backend.ChainedGraph`: loop closing finds the merge, the map
+graph chained in the lossless order (`nodes.split_chains.ChainedGraph`: loop closing finds the merge, the map
 owner applies it, the replicas take the merged map) and `SlamSystem` offline, frame by frame.
 
 With `--delays N [N ...]`, the same sequence also in real-time order, once per delay (`DelayedChain` with its

@@ -1,6 +1,6 @@
 """Map merging in the split graph in real time: the owner's updates (and the merge's) reach tracking and the
 loop side N frames late, tracking keeps tracking on provisional points meanwhile, so keyframes of the
-merged-away map are in flight when the merge is applied (`split_backend.DelayedChain` with its loop side).
+merged-away map are in flight when the merge is applied (`split_chains.DelayedChain` with its loop side).
 
 7-Scenes redkitchen frames 0-319 then 400-699 (as test_split_map_merge: tracking is lost at the jump, a new map
 starts, the camera later revisits the first one), config `7scenes` with `tracking.lost_frames_new_map` 5.
