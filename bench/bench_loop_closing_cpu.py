@@ -200,7 +200,11 @@ def _run_split(clock: _GatedClock, argv: list[str], out: Path) -> int:
     cfg = load_backend_config(args.config)
     dynamic = dynamic_setup(args, cfg.data, cfg.where)
     source = open_dataset(args.source, settings_from_mapping(cfg.data, cfg.where))
-    chain = sb.ChainedGraph.build(cfg)
+    try:
+        from changing_slam_ros.nodes.split_chains import ChainedGraph
+    except ImportError:  # a baseline tree from before session 11, where it lived in split_backend
+        ChainedGraph = sb.ChainedGraph  # noqa: N806
+    chain = ChainedGraph.build(cfg)
     assert chain.loop is not None
     loop = chain.loop
     clock.patch(loop, "on_keyframe", "replica")
