@@ -5,7 +5,7 @@
 Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_player waits for tracking's
 per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock), map_file (multi-session:
 start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz), map_out, and five arguments whose
-default `auto` is what `changing-slam graph` gives the nodes (the constants of `changing_slam_ros.commands.graph`):
+default `auto` is what `changing-slam graph` gives the nodes (`changing_slam_ros.commands.graph.MODE_DEFAULTS`):
 in real time its measured real-time settings, with lossless:=true the config's, so that the graph repeats
 `changing-slam run`:
 - detector_threads: onnxruntime threads of the detection node (auto: 1 in real time, ~10 % less CPU per detection
@@ -29,23 +29,18 @@ from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
-from changing_slam_ros.commands.graph import (
-    REAL_TIME_BA_SOLVER,
-    REAL_TIME_DETECTION_MAX_HZ,
-    REAL_TIME_DETECTIONS_WAIT_S,
-    REAL_TIME_DETECTOR,
-    REAL_TIME_DETECTOR_THREADS,
-)
+from changing_slam_ros.commands.graph import MODE_DEFAULTS
 
 PACKAGE = "changing_slam_ros"
 
 
-def _auto(arg: LaunchConfiguration, lossless: LaunchConfiguration, real_time: str, in_lossless: str,
-          cast: str) -> PythonExpression:
-    """`arg` as given, or when it is 'auto' the real-time default of `changing-slam graph` (`real_time`, a Python
-    literal) or, with lossless:=true, `in_lossless` (the config's); `cast` (float, int, str) the given value."""
-    return PythonExpression(["(", in_lossless, " if '", lossless, "' == 'true' else ", real_time, ") if '", arg,
-                             "' == 'auto' else ", cast, "('", arg, "')"])  # fmt: skip
+def _auto(name: str, lossless: LaunchConfiguration) -> PythonExpression:
+    """Launch argument `name` as given (cast to its default's type), or when it is 'auto' what `changing-slam graph`
+    gives the node: `MODE_DEFAULTS[name]` for real time or lossless:=true."""
+    real_time, in_lossless = MODE_DEFAULTS[name]
+    arg = LaunchConfiguration(name)
+    return PythonExpression(["(", repr(in_lossless), " if '", lossless, "' == 'true' else ", repr(real_time), ") if '",
+                             arg, "' == 'auto' else ", type(real_time).__name__, "('", arg, "')"])  # fmt: skip
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -56,17 +51,8 @@ def generate_launch_description() -> LaunchDescription:
     use_sim_time = LaunchConfiguration("use_sim_time")
     map_file = LaunchConfiguration("map_file")
     map_out = LaunchConfiguration("map_out")
-    detector_threads = LaunchConfiguration("detector_threads")
-    ba_solver = LaunchConfiguration("ba_solver")
-    detector_model = LaunchConfiguration("detector_model")
-    detection_max_hz = LaunchConfiguration("detection_max_hz")
-    real_time_wait = LaunchConfiguration("detections_wait_s")
     # 'auto': what `changing-slam graph` gives the node in real time, the config's in lossless mode
-    threads = _auto(detector_threads, lossless, str(REAL_TIME_DETECTOR_THREADS), "-1", "int")
-    model = _auto(detector_model, lossless, repr(REAL_TIME_DETECTOR), "''", "str")
-    max_hz = _auto(detection_max_hz, lossless, repr(REAL_TIME_DETECTION_MAX_HZ), "0.0", "float")
-    solver = _auto(ba_solver, lossless, repr(REAL_TIME_BA_SOLVER), "''", "str")
-    wait = _auto(real_time_wait, lossless, repr(REAL_TIME_DETECTIONS_WAIT_S), "10.0", "float")
+    auto = {name: _auto(name, lossless) for name in MODE_DEFAULTS}
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
     frame_policy = PythonExpression(["'all' if '", lossless, "' == 'true' else 'latest'"])
     has_bag = PythonExpression(["'", bag, "' != ''"])
@@ -104,17 +90,17 @@ def generate_launch_description() -> LaunchDescription:
                          "ack_topics": ["/camera/rgb/image_color"], "confirm_topics": ["/camera/rgb/camera_info"]}],
         ),
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
-             parameters=[{"config": config, "intra_op_threads": threads, "model": model,
-                         "max_rate_hz": max_hz}, sim_time],
+             parameters=[{"config": config, "intra_op_threads": auto["detector_threads"],
+                          "model": auto["detector_model"], "max_rate_hz": auto["detection_max_hz"]}, sim_time],
              remappings=[("image", "/camera/rgb/image_color")]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
                           "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
                           "detections_skip_late": real_time,
-                          "detections_wait_s": wait}, sim_time]),
+                          "detections_wait_s": auto["detections_wait_s"]}, sim_time]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
              parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file,
-                         "map_out": map_out, "ba_solver": solver}, sim_time]),
+                         "map_out": map_out, "ba_solver": auto["ba_solver"]}, sim_time]),
         Node(package=PACKAGE, executable="loop_closing", name="loop_closing", output="screen",
              parameters=[{"config": config, "map_file": map_file}, sim_time]),
         Node(package=PACKAGE, executable="object_map", name="object_map", output="screen",

@@ -69,14 +69,26 @@ RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
-REAL_TIME_DETECTOR = "ssd_mobilenet_v2_coco_int8"  # the detection node's model in real time (--detector-model)
-REAL_TIME_DETECTION_MAX_HZ = 15.0  # the detection node's rate cap in real time (--detection-max-hz; 0 = none)
-# Real time: tracking waits at most this long for a frame's own detections (--detections-wait). The detector
-# announces the frames it skips (its rate cap), so only the frames it detects wait, ~17 ms with INT8.
-REAL_TIME_DETECTIONS_WAIT_S = 0.05
-REAL_TIME_DETECTOR_THREADS = 1  # onnxruntime threads of the detection node in real time (--detector-threads)
-REAL_TIME_BA_SOLVER = "schur"  # local_mapping's local BA solver in real time (--ba-solver)
-# (launch/changing_slam.launch.py takes these as its 'auto' defaults)
+# What the graph gives its nodes unless an option says otherwise, as node parameter values: (in real time, with
+# --lossless). Real time: measured settings for six processes on few cores (docs/architecture.md, sessions 9-11):
+# one onnxruntime thread, the static INT8 SSD capped at 15 Hz by image stamp, tracking waiting up to 50 ms for a
+# detected frame's boxes (the detector announces the frames it skips), the numpy Schur-complement BA solver.
+# Lossless: the config's (-1, '' = the config's; every frame detected and waited for), so that the graph repeats
+# `changing-slam run`. launch/changing_slam.launch.py takes the same as its 'auto' arguments.
+MODE_DEFAULTS: dict[str, tuple[Any, Any]] = {
+    "detector_threads": (1, -1),  # detection: intra_op_threads (--detector-threads)
+    "detector_model": ("ssd_mobilenet_v2_coco_int8", ""),  # detection: model (--detector-model)
+    "detection_max_hz": (15.0, 0.0),  # detection: max_rate_hz (--detection-max-hz; 0 = none)
+    "detections_wait_s": (0.05, 10.0),  # tracking: detections_wait_s (--detections-wait)
+    "ba_solver": ("schur", ""),  # local_mapping: ba_solver (--ba-solver)
+}
+
+
+def mode_default(name: str, lossless: bool) -> Any:
+    """`MODE_DEFAULTS[name]` for real time or lossless."""
+    return MODE_DEFAULTS[name][1 if lossless else 0]
+
+
 PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
 
 
@@ -319,7 +331,7 @@ class Graph:
 
     def _build(self) -> None:
         a, info = self.args, self.info
-        wait = a.detections_wait if a.detections_wait is not None else (10.0 if a.lossless else REAL_TIME_DETECTIONS_WAIT_S)
+        wait = a.detections_wait if a.detections_wait is not None else mode_default("detections_wait_s", a.lossless)
         split = a.backend == "split"
         if a.object_map:
             remaps = {"/tracking/semantic_map": "/local_mapping/semantic_map"} if split else None
@@ -327,7 +339,7 @@ class Graph:
                 "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
         if split:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
-            solver = a.ba_solver or ("config" if a.lossless else REAL_TIME_BA_SOLVER)
+            solver = a.ba_solver or mode_default("ba_solver", a.lossless)
             mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
                        "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
                        "ba_solver": "" if solver == "config" else solver}  # fmt: skip
@@ -339,15 +351,14 @@ class Graph:
                 self.logs, restart_argv=_node_argv("loop_closing_node", {"config": self.config, "map_file": ""}))  # fmt: skip
         if self.detection:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
-            threads = a.detector_threads if a.detector_threads is not None else (-1 if a.lossless else REAL_TIME_DETECTOR_THREADS)
-            model = getattr(a, "detector_model", None) or ("config" if a.lossless else REAL_TIME_DETECTOR)
+            threads = a.detector_threads if a.detector_threads is not None else mode_default("detector_threads", a.lossless)
+            model = a.detector_model or mode_default("detector_model", a.lossless)
             from changing_slam_ros.core.detector import SHIPPED_MODELS
 
-            if model != "config" and model not in SHIPPED_MODELS:
+            if model not in ("config", "") and model not in SHIPPED_MODELS:
                 raise ConfigError(f"--detector-model {model}: not a shipped detector (shipped: "
                                   f"{', '.join(SHIPPED_MODELS)}; config: the config's)")  # fmt: skip
-            max_hz = getattr(a, "detection_max_hz", None)
-            max_hz = REAL_TIME_DETECTION_MAX_HZ if max_hz is None and not a.lossless else (max_hz or 0.0)
+            max_hz = a.detection_max_hz if a.detection_max_hz is not None else mode_default("detection_max_hz", a.lossless)
             if max_hz < 0 or (max_hz > 0 and a.lossless):
                 raise ConfigError(f"--detection-max-hz {max_hz}: must be >= 0, and 0 with --lossless (tracking waits "
                                   "for every frame's detections there)")  # fmt: skip
