@@ -103,6 +103,12 @@ from changing_slam_ros.nodes.tracking_params import TRACKING_PARAMETERS
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def _keep_newest(by_stamp: dict[int, Any], n: int) -> None:
+    """Drop the oldest entries (insertion order) of a per-stamp dict until at most `n` are left."""
+    while len(by_stamp) > n:
+        del by_stamp[next(iter(by_stamp))]
+
+
 class TrackingNode(QuietQosEvents, Node):
     def __init__(
         self,
@@ -135,8 +141,8 @@ class TrackingNode(QuietQosEvents, Node):
         self._received_s: dict[int, float] = {}
         self._skipped: dict[int, None] = {}  # stamps the detector announced it will not detect (insertion order)
         self.detections_skipped_in = 0
-        # frames waiting for their detections: ready when they are in or announced skipped
         self._last_detected_ns: int | None = None  # stamp of the last detections received
+        # frames waiting for their detections: ready once those are settled (`_detections_settled`) or at the deadline
         self.queue = FrameQueue(p["frame_policy"], self._detections_settled)
         self._detections_seen = False
         self._acked_early: set[int] = set()  # frames acked while held for the first camera_info
@@ -269,8 +275,7 @@ class TrackingNode(QuietQosEvents, Node):
         self.colour_in += 1
         stamp_ns = stamp_to_ns(msg.header.stamp)
         self._received_s[stamp_ns] = time.monotonic()
-        while len(self._received_s) > 200:
-            del self._received_s[next(iter(self._received_s))]
+        _keep_newest(self._received_s, 200)
         for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_first(stamp_ns, msg):
             self.on_frame(t_rgb, rgb_msg, depth_msg)
         self._warn_if_unpaired()
@@ -306,8 +311,7 @@ class TrackingNode(QuietQosEvents, Node):
         self._last_detected_ns = ds.stamp_ns
         if self._newest_detections is None or ds.stamp_ns > self._newest_detections.stamp_ns:
             self._previous_detections, self._newest_detections = self._newest_detections, ds
-        while len(self.detections) > 30:
-            del self.detections[next(iter(self.detections))]
+        _keep_newest(self.detections, 30)
         if self.backend is not None and self.backend.system.refinement is not None:
             # tracking.deferred_refinement: the frames tracked before these detections came get their final pose
             # refined (core.deferred_refinement); the published poses stay
@@ -324,8 +328,7 @@ class TrackingNode(QuietQosEvents, Node):
         """The detector will not detect this image (its rate cap, or it rejected it): its frame stops waiting."""
         self.detections_skipped_in += 1
         self._skipped[stamp_to_ns(msg.stamp)] = None
-        while len(self._skipped) > 30:
-            del self._skipped[next(iter(self._skipped))]
+        _keep_newest(self._skipped, 30)
         self._drain()
 
     def _carried_detections(self, stamp_ns: int) -> Any:
@@ -472,8 +475,7 @@ class TrackingNode(QuietQosEvents, Node):
             wait = 0.0
             self.frames_not_waited += 1
         self._processed_received_s[stamp_ns] = received
-        while len(self._processed_received_s) > 200:
-            del self._processed_received_s[next(iter(self._processed_received_s))]
+        _keep_newest(self._processed_received_s, 200)
         self.queue.push(PendingFrame(stamp_ns, rgb_msg, depth_msg, received, now + wait))
         self._drain()
 
