@@ -30,8 +30,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from changing_slam_ros.core.detector import Detection, Detector, DetectorConfig  # noqa: E402
-from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter  # noqa: E402
+from changing_slam_ros.core.dynamic.detector import Detection, Detector, DetectorConfig  # noqa: E402
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter  # noqa: E402
 from changing_slam_ros.core.system import SlamSystem  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402

@@ -30,7 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from changing_slam_ros.core.detector import Detector, DetectorConfig, class_name, iou_matrix
+from changing_slam_ros.core.dynamic.detector import Detector, DetectorConfig, class_name, iou_matrix
 
 FRAMES_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "tum_fr3_walking_frames"
 

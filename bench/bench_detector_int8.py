@@ -33,7 +33,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from changing_slam_ros.core.detector import Detection, Detector, DetectorConfig, iou_matrix  # noqa: E402
+from changing_slam_ros.core.dynamic.detector import Detection, Detector, DetectorConfig, iou_matrix  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data"

@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.detector import Detection
-from changing_slam_ros.core.dynamic_objects import DynamicObjectTracker
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.detector import Detection
+from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectTracker
+from changing_slam_ros.core.geometry.se3 import make_pose
 
 CAM = CameraIntrinsics(640, 480, 535.4, 539.2, 320.1, 247.6)
 # class id, centre (x, y, z) m, size (w, h) m, velocity (vx, vy, vz) m/s

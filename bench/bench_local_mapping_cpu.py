@@ -62,8 +62,10 @@ def _instrument(clock: StageClock) -> None:
     """Wrap the stages in this (child) process: class attributes and module-level names."""
     import types
 
-    from changing_slam_ros.core import local_mapping as lm
-    from changing_slam_ros.core import map_fusion, slam_map, system
+    from changing_slam_ros.core.slam import local_mapping as lm
+    from changing_slam_ros.core.slam import map_fusion
+    from changing_slam_ros.core.map import slam_map
+    from changing_slam_ros.core import system
     from changing_slam_ros.core.backend import local_ba
 
     wrap = clock.patch

@@ -85,9 +85,9 @@ def _instrument(clock: StageClock, digests: _Digests) -> None:
     """Wrap the stages in this (child) process: class attributes and module-level names."""
     import numpy as np
 
-    from changing_slam_ros.core import keyframe_database as kdb
-    from changing_slam_ros.core import loop_closing as lc
-    from changing_slam_ros.core import vocabulary as voc
+    from changing_slam_ros.core.map import keyframe_database as kdb
+    from changing_slam_ros.core.slam import loop_closing as lc
+    from changing_slam_ros.core.features import vocabulary as voc
 
     wrap = clock.patch
     wrap(lc.SlamMapLoopClosing, "add", "add")
@@ -202,7 +202,7 @@ def _run_split(clock: _GatedClock, argv: list[str], out: Path) -> int:
     source = open_dataset(args.source, settings_from_mapping(cfg.data, cfg.where))
     try:
         from changing_slam_ros.nodes.split_chains import ChainedGraph
-    except ImportError:  # a baseline tree from before session 11, where it lived in split_backend
+    except ImportError:  # a baseline tree where it lives in split_backend
         ChainedGraph = sb.ChainedGraph  # noqa: N806
     chain = ChainedGraph.build(cfg)
     assert chain.loop is not None

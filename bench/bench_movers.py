@@ -35,7 +35,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from changing_slam_ros.core.orb_features import Features  # noqa: E402
+from changing_slam_ros.core.features.orb_features import Features  # noqa: E402
 from git_tree import archive_tree  # noqa: E402
 
 
@@ -43,7 +43,7 @@ def record_inputs(sim_dir: Path, frames: int, out: Path) -> None:
     """Run the system with movers on and save the mover stage's per-frame inputs to `out` (npz)."""
     from changing_slam_ros.commands.run import system_config_from_mapping
     from changing_slam_ros.config import load_yaml, section
-    from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
     from changing_slam_ros.core.system import SlamSystem
     from changing_slam_ros.io.atomic import atomic_open
     from changing_slam_ros.io.dataset import open_dataset
@@ -109,7 +109,7 @@ def features_of(kp: np.ndarray, desc: np.ndarray, depth: np.ndarray) -> Features
 def score(sim_dir: Path, rec: Any, n: int, flags: list[np.ndarray], tracker: Any) -> str:
     """Moving-keypoint precision / recall over the carried frames and each exported track's ATE against the
     simulated mover (the counting of `bench/eval_movers_sim.py`, on the replayed flags and the recorded poses)."""
-    from changing_slam_ros.core.trajectory import Trajectory
+    from changing_slam_ros.core.geometry.trajectory import Trajectory
     from changing_slam_ros.eval.moving_objects import camera_alignment, object_errors_m, read_sim_movers
     from changing_slam_ros.io.dataset import open_dataset
 
@@ -161,6 +161,14 @@ def merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _import_core(package: str, module: str) -> Any:
+    """`package.core.<group>.<name>`, or `package.core.<name>` in a baseline tree whose core/ is flat."""
+    try:
+        return importlib.import_module(f"{package}.core.{module}")
+    except ModuleNotFoundError:
+        return importlib.import_module(f"{package}.core.{module.rsplit('.', 1)[-1]}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sim_dir", help="a simulated folder with a mover, e.g. unknown_mover")
@@ -174,8 +182,8 @@ def main() -> int:
     cv2.setNumThreads(1)  # as SlamSystem does
 
     from changing_slam_ros.config import section
-    from changing_slam_ros.core.camera import CameraIntrinsics
-    from changing_slam_ros.core.mover_tracking import MoverConfig, MoverTracker
+    from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+    from changing_slam_ros.core.movers.mover_tracking import MoverConfig, MoverTracker
 
     # Overrides go onto the default MoverConfig's values, nested sections included: a YAML-style section
     # alone would rebuild e.g. `segmentation` from SegmentationConfig's class defaults, not the stage's.
@@ -195,8 +203,8 @@ def main() -> int:
         runs: dict[str, tuple[Any, Any]] = {}
         if args.baseline != "none":
             base_name = baseline_package(args.baseline, tmp)
-            base_mod = importlib.import_module(f"{base_name}.core.mover_tracking")
-            base_cam_mod = importlib.import_module(f"{base_name}.core.camera")
+            base_mod = _import_core(base_name, "movers.mover_tracking")
+            base_cam_mod = _import_core(base_name, "geometry.camera")
             base_camera = base_cam_mod.CameraIntrinsics(int(w), int(h), float(fx), float(fy), float(cx), float(cy))
             runs[f"baseline {args.baseline}"] = (base_mod.MoverTracker(base_mod.MoverConfig(enabled=True)), base_camera)
         runs["this checkout"] = (MoverTracker(MoverConfig(enabled=True)), camera)

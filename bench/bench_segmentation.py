@@ -26,10 +26,10 @@ sys.path[:0] = [str(REPO), str(REPO / "test" / "core")]
 from test_object_tracking import CAMERA, object_sequence  # noqa: E402  (scene builders of the tests)
 from test_point_correlation import make_scene, precision_recall  # noqa: E402
 
-from changing_slam_ros.core.object_merging import MergeConfig, overlapping_groups  # noqa: E402
-from changing_slam_ros.core.object_tracking import MovingObject, ObjectTracker, ObjectTrackingConfig  # noqa: E402
-from changing_slam_ros.core.point_correlation import SegmentationConfig, segment  # noqa: E402
-from changing_slam_ros.core.se3 import invert, transform_points  # noqa: E402
+from changing_slam_ros.core.movers.object_merging import MergeConfig, overlapping_groups  # noqa: E402
+from changing_slam_ros.core.movers.object_tracking import MovingObject, ObjectTracker, ObjectTrackingConfig  # noqa: E402
+from changing_slam_ros.core.movers.point_correlation import SegmentationConfig, segment  # noqa: E402
+from changing_slam_ros.core.geometry.se3 import invert, transform_points  # noqa: E402
 
 
 def timed(fn: Callable[[], object], runs: int) -> tuple[object, float, float]:
@@ -152,7 +152,7 @@ def bench_unknown_mover(args: argparse.Namespace) -> None:
 
 def bench_dai_loop(args: argparse.Namespace) -> None:
     """The whole Dai loop on unknown_mover, the prototype of session 1 (the system's loop is now
-    `core/mover_tracking.py`, scored by `bench/eval_movers_sim.py`): ORB tracks at
+    `core/movers/mover_tracking.py`, scored by `bench/eval_movers_sim.py`): ORB tracks at
     30 Hz (ground-truth camera poses), a 5-keyframe segmentation every 0.1 s whose targets become objects,
     eq. 12 merging into the objects tracked at that stamp, eq. 7 every frame and eq. 11 at keyposes.
 
@@ -162,9 +162,9 @@ def bench_dai_loop(args: argparse.Namespace) -> None:
     import cv2
     from test_point_correlation_sim import render_at
 
-    from changing_slam_ros.core.object_merging import merge_objects
-    from changing_slam_ros.core.object_tracking import FrameObjectMeasurements, objects_from_segmentation
-    from changing_slam_ros.core.point_correlation import CorrelationWindow
+    from changing_slam_ros.core.movers.object_merging import merge_objects
+    from changing_slam_ros.core.movers.object_tracking import FrameObjectMeasurements, objects_from_segmentation
+    from changing_slam_ros.core.movers.point_correlation import CorrelationWindow
     from changing_slam_ros.sim.renderer import SimRenderer
     from changing_slam_ros.sim.scenarios import build_scenario
     from changing_slam_ros.sim.scene import SceneSpec

@@ -86,7 +86,7 @@ def run_once(data: str, frames: int, cprofile: int = 0) -> dict[str, Any]:
     """One run in this process (the package imported from sys.path); per-frame CPU ms per stage."""
     from changing_slam_ros.commands.run import _loop_closing, system_config_from_mapping
     from changing_slam_ros.config import find_config, load_yaml, section
-    from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
     from changing_slam_ros.core.system import SlamSystem
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.dataset_config import settings_from_mapping

@@ -20,7 +20,7 @@ box with candidate estimators, each a property a robot would want for any object
 - `own`: points within `--own-dist` of the points of another object with a smaller box are that object's (the
   teddy bear on a chair);
 - combinations (`plane+vox` etc., filters first, then the aggregate);
-- `core`: what the object layer now computes (core/object_point_weights.py with the `objects:` defaults; the
+- `core`: what the object layer now computes (core/objects/object_point_weights.py with the `objects:` defaults; the
   same rule as `own+plane+vox`, its box over the kept points rather than over the voxel means).
 
 Each object is then compared with its visible-surface centroid (bench/changing_scenes.py's cache
@@ -144,14 +144,14 @@ ESTIMATORS = ["core", "mean", "vox", "med", "trim", "plane", "clu", "own", "plan
 def study(root: Path, scenario: str, tag: str, names: list[str], p: Params, plane_args: dict[str, Any],
           per_object: bool) -> dict[str, dict[str, Any]]:
     from changing_slam_ros.commands.objects_options import trajectory_alignment
-    from changing_slam_ros.core.map_object import ObjectMapConfig
-    from changing_slam_ros.core.semantic_map import build_semantic_map
+    from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+    from changing_slam_ros.core.objects.semantic_map import build_semantic_map
     from changing_slam_ros.eval.object_metrics import evaluate_objects, load_ground_truth_objects
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.semantic_map_file import read_object_map
     from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
-    from changing_slam_ros.core.object_point_weights import fit_structure_planes as fit_core, reweight_objects
+    from changing_slam_ros.core.objects.object_point_weights import fit_structure_planes as fit_core, reweight_objects
 
     def fit_structure_planes_core(points: F64, c: Any) -> Any:
         return fit_core(points, c.structure_plane_dist_m, c.structure_plane_min_fraction, c.structure_max_planes,
@@ -176,7 +176,7 @@ def study(root: Path, scenario: str, tag: str, names: list[str], p: Params, plan
     cfg = ObjectMapConfig()
     out: dict[str, dict[str, Any]] = {}
     for name in names:
-        if name == "core":  # what the layer computes (core/object_point_weights.py, objects config defaults)
+        if name == "core":  # what the layer computes (core/objects/object_point_weights.py, objects config defaults)
             cp = fit_structure_planes_core(z[f"m{mid}_pt_positions"][static] @ R.T + t, cfg)
             reweight_objects_core(objs, cp, cfg)
         for o in objs:
@@ -213,7 +213,7 @@ def _kept(name: str, pts: F64, planes: list[tuple[F64, float]], p: Params, small
 
 
 def _box(name: str, kept: F64, p: Params) -> tuple[F64, F64]:
-    from changing_slam_ros.core.map_object import box_extent
+    from changing_slam_ros.core.objects.map_object import box_extent
 
     return box_extent(voxel_means(kept, p.voxel_m) if name.split("+")[-1] == "vox" else kept)
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from changing_slam_ros.core.detector import Detector, DetectorConfig
+from changing_slam_ros.core.dynamic.detector import Detector, DetectorConfig
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "tum_fr3_walking_frames"
 SIM = [

@@ -67,7 +67,7 @@ def _angle_deg(T: np.ndarray) -> float:
 
 def chair_hypothesis_error(scenario: Any, t_match: float, t_query: float, actor: str = "chair") -> tuple[float, float]:
     """Error (m, deg) against the ground truth of the relative pose that a match on `actor` alone would give."""
-    from changing_slam_ros.core.se3 import invert
+    from changing_slam_ros.core.geometry.se3 import invert
 
     cam_m, cam_q = scenario.camera.pose_at(t_match), scenario.camera.pose_at(t_query)
     track = scenario.actors[scenario.actor_index(actor)].track

@@ -26,9 +26,9 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from changing_slam_ros.core.detector import Detection, Detector, DetectorConfig, iou_matrix
-from changing_slam_ros.core.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker
-from changing_slam_ros.core.keypoint_classification import KeypointClassificationConfig
+from changing_slam_ros.core.dynamic.detector import Detection, Detector, DetectorConfig, iou_matrix
+from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker
+from changing_slam_ros.core.dynamic.keypoint_classification import KeypointClassificationConfig
 from changing_slam_ros.sim.oracle import oracle_detections
 from changing_slam_ros.sim.renderer import SimRenderer
 from changing_slam_ros.sim.scenarios import build_scenario

@@ -35,7 +35,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from changing_slam_ros.core.object_tracking import MovingObjectTrack  # noqa: E402
+from changing_slam_ros.core.movers.object_tracking import MovingObjectTrack  # noqa: E402
 from changing_slam_ros.eval.moving_objects import (  # noqa: E402
     ObjectTruth, camera_alignment, object_errors_m, read_sim_movers,
 )
@@ -63,7 +63,7 @@ def score_objects(tracks: list[MovingObjectTrack], S: np.ndarray, sim_dir: Path)
 def run_system(args: argparse.Namespace) -> None:
     from changing_slam_ros.commands.run import system_config_from_mapping
     from changing_slam_ros.config import load_yaml, section
-    from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
     from changing_slam_ros.core.system import SlamSystem
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.dataset_config import settings_from_mapping

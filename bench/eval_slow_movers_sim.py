@@ -33,7 +33,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-import changing_slam_ros.core.local_mapping as local_mapping  # noqa: E402
+import changing_slam_ros.core.slam.local_mapping as local_mapping  # noqa: E402
 from changing_slam_ros.eval.moving_objects import ObjectTruth, camera_alignment, read_sim_movers  # noqa: E402
 
 
@@ -50,9 +50,9 @@ def main() -> int:
 
     from changing_slam_ros.commands.run import system_config_from_mapping
     from changing_slam_ros.config import load_yaml, section
-    from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
     from changing_slam_ros.core.system import SlamSystem
-    from changing_slam_ros.core.tracking import TrackingState
+    from changing_slam_ros.core.slam.tracking import TrackingState
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.dataset_config import settings_from_mapping
 
@@ -91,7 +91,7 @@ def main() -> int:
     real = local_mapping.segment_keyframe_window
 
     def wrapped(slam_map, kf_id, cfg):  # type: ignore[no-untyped-def]
-        from changing_slam_ros.core.keyframe_segmentation import window_keyframes
+        from changing_slam_ros.core.movers.keyframe_segmentation import window_keyframes
 
         kf_ids = window_keyframes(slam_map, kf_id, cfg.window_keyframes)
         before = {k: slam_map.keyframes[k].point_ids.copy() for k in kf_ids}

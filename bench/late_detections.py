@@ -41,10 +41,10 @@ sys.path.insert(0, str(REPO))
 from changing_slam_ros.commands import run as run_command  # noqa: E402
 from changing_slam_ros.commands.dynamic_options import dynamic_setup  # noqa: E402
 from changing_slam_ros.commands.objects_options import object_layer_setup  # noqa: E402
-from changing_slam_ros.core.box_flow import FlowImage  # noqa: E402
-from changing_slam_ros.core.detector import Detection, DetectionSet  # noqa: E402
-from changing_slam_ros.core.deferred_refinement import RefinementConfig  # noqa: E402
-from changing_slam_ros.core.late_detections import CarryConfig, carried_forward  # noqa: E402
+from changing_slam_ros.core.dynamic.box_flow import FlowImage  # noqa: E402
+from changing_slam_ros.core.dynamic.detector import Detection, DetectionSet  # noqa: E402
+from changing_slam_ros.core.dynamic.deferred_refinement import RefinementConfig  # noqa: E402
+from changing_slam_ros.core.dynamic.late_detections import CarryConfig, carried_forward  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 from changing_slam_ros.io.dataset_config import settings_from_mapping  # noqa: E402

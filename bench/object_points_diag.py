@@ -29,8 +29,8 @@ def main() -> int:
     import cv2
 
     from changing_slam_ros.commands.objects_options import aligned_objects, trajectory_alignment
-    from changing_slam_ros.core.map_object import ObjectMapConfig
-    from changing_slam_ros.core.semantic_map import build_semantic_map
+    from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+    from changing_slam_ros.core.objects.semantic_map import build_semantic_map
     from changing_slam_ros.eval.object_metrics import evaluate_objects, load_ground_truth_objects
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.semantic_map_file import read_object_map

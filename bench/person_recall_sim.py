@@ -25,7 +25,7 @@ sys.path.insert(0, str(REPO / "bench"))
 
 from ablation_dynamic import model_detections  # noqa: E402
 
-from changing_slam_ros.core.detector import Detection, Detector, DetectorConfig  # noqa: E402
+from changing_slam_ros.core.dynamic.detector import Detection, Detector, DetectorConfig  # noqa: E402
 from changing_slam_ros.io.detections_file import find_detections_file  # noqa: E402
 
 PERSON = 0

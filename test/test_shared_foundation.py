@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.config import load_yaml, section
-from changing_slam_ros.core.se3 import invert, make_pose, quat_to_rot, rot_to_quat, rotation_angle_rad
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.se3 import invert, make_pose, quat_to_rot, rot_to_quat, rotation_angle_rad
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import ConfigError, EvalError
 from changing_slam_ros.io.atomic import atomic_open, atomic_write_text
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory, write_tum_trajectory

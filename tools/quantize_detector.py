@@ -43,8 +43,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from changing_slam_ros.core.detector import COCO91_IDS, DEFAULT_MODEL_PATH  # noqa: E402
-from changing_slam_ros.core.detector_session import SSD_HEAD_OUTPUTS, cut_before_ssd_nms, slim_ssd_head  # noqa: E402
+from changing_slam_ros.core.dynamic.detector import COCO91_IDS, DEFAULT_MODEL_PATH  # noqa: E402
+from changing_slam_ros.core.dynamic.detector_session import SSD_HEAD_OUTPUTS, cut_before_ssd_nms, slim_ssd_head  # noqa: E402
 from changing_slam_ros.io.atomic import atomic_write_bytes  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 

@@ -26,7 +26,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from changing_slam_ros.core.vocabulary import train_vocabulary  # noqa: E402
+from changing_slam_ros.core.features.vocabulary import train_vocabulary  # noqa: E402
 from changing_slam_ros.io.atomic import atomic_write_bytes  # noqa: E402
 
 # name -> licence as stated in the skimage.data docstring (scikit-image 0.26)
@@ -91,8 +91,8 @@ def augmentations(grey: np.ndarray, rng: np.random.Generator) -> list[np.ndarray
 
 def describe(grey: np.ndarray, n_features: int) -> np.ndarray:
     """Descriptors as SLAM computes them: the project's grid-bucketed ORB extractor (no distortion, no depth)."""
-    from changing_slam_ros.core.camera import CameraIntrinsics
-    from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
+    from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+    from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
 
     h, w = grey.shape
     camera = CameraIntrinsics(w, h, 500.0, 500.0, w / 2, h / 2)

@@ -9,7 +9,7 @@
                                        issue 5's ablation switches (default: the `dynamic:` config section)
 
 Config sections read: `dynamic:` (`core.dynamic_filter.DynamicConfig`) and `detector:`
-(`core.detector.DetectorConfig`).
+(`core.dynamic.detector.DetectorConfig`).
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 from changing_slam_ros.config import section
-from changing_slam_ros.core.detector import Detection, Detector, DetectorConfig
-from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.dynamic.detector import Detection, Detector, DetectorConfig
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.io.detections_file import DetectionsFile, find_detections_file, read_detections_file
 
 DETECTION_SOURCES = ("none", "model", "oracle")

@@ -244,7 +244,7 @@ def inspect_bag(path: str) -> BagInfo:
 
 def _uses_detections(config: str) -> bool:
     from changing_slam_ros.config import section
-    from changing_slam_ros.core.dynamic_filter import DynamicConfig
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig
     from changing_slam_ros.nodes.slam_backend import load_backend_config
 
     cfg = load_backend_config(config)
@@ -353,7 +353,7 @@ class Graph:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
             threads = a.detector_threads if a.detector_threads is not None else mode_default("detector_threads", a.lossless)
             model = a.detector_model or mode_default("detector_model", a.lossless)
-            from changing_slam_ros.core.detector import SHIPPED_MODELS
+            from changing_slam_ros.core.dynamic.detector import SHIPPED_MODELS
 
             if model not in ("config", "") and model not in SHIPPED_MODELS:
                 raise ConfigError(f"--detector-model {model}: not a shipped detector (shipped: "
@@ -594,7 +594,7 @@ def _write_outputs_mcap(bag: str, config: str, out: Path) -> str | None:
     """outputs.mcap: /tracking/pose (final), /tracking/pose_online (PoseStamped, `map`) and the bag's ground truth
     (/ground_truth/pose, `world`), written from the trajectory files after the run (not a live recording), so
     that `evo_ape bag2 outputs.mcap /ground_truth/pose /tracking/pose -a` and Foxglove read them."""
-    from changing_slam_ros.core.se3 import rot_to_quat
+    from changing_slam_ros.core.geometry.se3 import rot_to_quat
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
     from changing_slam_ros.io.tum_trajectory import read_tum_trajectory

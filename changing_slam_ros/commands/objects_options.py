@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.map_object import MapObject
-from changing_slam_ros.core.object_layer import ObjectLayer, object_layer_config
-from changing_slam_ros.core.object_point_weights import Plane
-from changing_slam_ros.core.se3 import invert, quat_to_rot, rotation_angle_rad
-from changing_slam_ros.core.semantic_map import build_semantic_map
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.objects.map_object import MapObject
+from changing_slam_ros.core.objects.object_layer import ObjectLayer, object_layer_config
+from changing_slam_ros.core.objects.object_point_weights import Plane
+from changing_slam_ros.core.geometry.se3 import invert, quat_to_rot, rotation_angle_rad
+from changing_slam_ros.core.objects.semantic_map import build_semantic_map
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 
 F64 = npt.NDArray[np.float64]
 # the map frame is the first camera's optical frame (x right, y down, z forward); the top view looks down its -y

@@ -42,11 +42,11 @@ from changing_slam_ros.commands.objects_options import (
     LoopLog, add_object_arguments, object_layer_setup, write_object_outputs,
 )
 from changing_slam_ros.config import find_config, load_yaml, section
-from changing_slam_ros.core.local_mapping import MappingConfig
-from changing_slam_ros.core.orb_features import FeatureConfig
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.slam.local_mapping import MappingConfig
+from changing_slam_ros.core.features.orb_features import FeatureConfig
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.tracking import TrackingConfig
+from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.map_file import load_map, save_map
@@ -167,8 +167,8 @@ def system_config_from_mapping(data: dict[str, Any], where: str) -> SystemConfig
 
 
 def _loop_closing(data: dict[str, Any], where: str) -> Any:
-    from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+    from changing_slam_ros.core.features.vocabulary import Vocabulary
 
     cfg = section(LoopConfig, data.get("loop"), f"{where}: loop")
     if not cfg.enabled:

@@ -22,23 +22,23 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.deferred_refinement import DeferredRefinement, RefinedPose, TrackedFrameMatches
-from changing_slam_ros.core.detector import Detection, DetectionSet
-from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
-from changing_slam_ros.core.frame import Frame
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig, MappingStats
-from changing_slam_ros.core.loop_closing import MapMerge
-from changing_slam_ros.core.map_merging import MergeResult, merge_maps, move_frame
-from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
-from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
-from changing_slam_ros.core.pose_optimizer import PinholeStereo
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.se3 import invert
-from changing_slam_ros.core.slam_map import Atlas, SlamMap
-from changing_slam_ros.core.tracking import KeyframeCandidates, Tracker, TrackingConfig, TrackingState, TrackResult
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.deferred_refinement import DeferredRefinement, RefinedPose, TrackedFrameMatches
+from changing_slam_ros.core.dynamic.detector import Detection, DetectionSet
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter, DynamicFrame
+from changing_slam_ros.core.features.frame import Frame
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.local_mapping import LocalMapper, MappingConfig, MappingStats
+from changing_slam_ros.core.slam.loop_closing import MapMerge
+from changing_slam_ros.core.slam.map_merging import MergeResult, merge_maps, move_frame
+from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
+from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.geometry.se3 import invert
+from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.slam.tracking import KeyframeCandidates, Tracker, TrackingConfig, TrackingState, TrackResult
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 
 F64 = npt.NDArray[np.float64]
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.eval.alignment import Alignment, align_trajectories
 from changing_slam_ros.eval.association import DEFAULT_MAX_DIFF_S, Association, associate
 from changing_slam_ros.eval.statistics import ErrorStatistics

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.object_tracking import MovingObjectTrack
-from changing_slam_ros.core.se3 import make_pose, quat_to_rot
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.movers.object_tracking import MovingObjectTrack
+from changing_slam_ros.core.geometry.se3 import make_pose, quat_to_rot
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import EvalError
 
 F64 = npt.NDArray[np.float64]

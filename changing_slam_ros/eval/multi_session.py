@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.map_object import MapObject
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.objects.map_object import MapObject
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.eval.object_metrics import GroundTruthObjects
 
 F64 = npt.NDArray[np.float64]

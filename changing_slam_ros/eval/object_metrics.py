@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.se3 import quat_to_rot
-from changing_slam_ros.core.semantic_map import SemanticObject
+from changing_slam_ros.core.geometry.se3 import quat_to_rot
+from changing_slam_ros.core.objects.semantic_map import SemanticObject
 from changing_slam_ros.errors import EvalError
 
 F64 = npt.NDArray[np.float64]
@@ -229,7 +229,7 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
 
 def default_structure_class_ids() -> tuple[int, ...]:
     """The dynamic stage's default fixed-background classes (`DynamicConfig.fixed_class_ids`)."""
-    from changing_slam_ros.core.dynamic_filter import DynamicConfig
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig
 
     return tuple(DynamicConfig().fixed_class_ids)
 

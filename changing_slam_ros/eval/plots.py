@@ -10,7 +10,7 @@ import io
 import os
 from typing import TYPE_CHECKING
 
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.ate import AteResult
 from changing_slam_ros.eval.rpe import RpeResult

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.association import DEFAULT_MAX_DIFF_S, associate
 from changing_slam_ros.eval.ate import ate_associated

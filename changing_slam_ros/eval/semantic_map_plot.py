@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.semantic_map import SemanticMap
+from changing_slam_ros.core.objects.semantic_map import SemanticMap
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.io.atomic import atomic_write_bytes
 

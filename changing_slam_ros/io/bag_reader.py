@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.errors import BagError, SlamError
 from changing_slam_ros.io.bag_messages import BagConnection, BagMessages, RawMessage
 from changing_slam_ros.io.camera_info import intrinsics_from_camera_info

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.errors import BagError, DatasetError
 from changing_slam_ros.io.atomic import atomic_write_text
 

@@ -14,9 +14,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import DatasetError
 from changing_slam_ros.io.groundtruth import GroundTruth
 from changing_slam_ros.io.dataset_config import (

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from changing_slam_ros.config import find_config, load_yaml, section
-from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.errors import ConfigError
 
 

@@ -5,7 +5,7 @@ Format (`changing_slam_ros sim oracle detections v1`, written by `sim/writer.py`
     {"format": ..., "frames": [{"stamp_ns": int, "detections": [{"box_xyxy": [x0, y0, x1, y1],
       "class_id": int, "score": float, ...}, ...]}, ...]}
 
-Boxes are pixels with the max exclusive; class ids are 0-based COCO, as `core.detector.Detection` has them.
+Boxes are pixels with the max exclusive; class ids are 0-based COCO, as `core.dynamic.detector.Detection` has them.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from changing_slam_ros.core.detector import Detection
+from changing_slam_ros.core.dynamic.detector import Detection
 from changing_slam_ros.errors import DatasetError
 
 DETECTIONS_FILE_NAME = "detections.json"

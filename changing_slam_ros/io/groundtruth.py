@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.se3 import rot_to_quat
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.se3 import rot_to_quat
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 
 F64 = npt.NDArray[np.float64]
 

@@ -42,11 +42,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.map_point import PointStore
-from changing_slam_ros.core.object_layer import ObjectLayer, SavedObjectMap
-from changing_slam_ros.core.slam_map import Atlas, RemovedKeyframe, SlamMap
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.objects.object_layer import ObjectLayer, SavedObjectMap
+from changing_slam_ros.core.map.slam_map import Atlas, RemovedKeyframe, SlamMap
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.atomic import atomic_write_bytes
 

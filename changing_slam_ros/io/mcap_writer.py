@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.io.atomic import atomic_open
 from changing_slam_ros.io.camera_info import camera_info_fields
 from changing_slam_ros.io.dataset_config import TUM_TOPICS, TopicSet
@@ -157,7 +157,7 @@ class RgbdMcapWriter:
         self.frames_written += 1
 
     def write_pose(self, stamp_ns: int, T_world_cam: np.ndarray) -> None:
-        from changing_slam_ros.core.se3 import rot_to_quat
+        from changing_slam_ros.core.geometry.se3 import rot_to_quat
 
         q = rot_to_quat(np.asarray(T_world_cam)[:3, :3])
         self._write_pose_values(stamp_ns, np.concatenate([np.asarray(T_world_cam)[:3, 3], q]))

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from changing_slam_ros.core.object_tracking import MovingObjectTrack
+from changing_slam_ros.core.movers.object_tracking import MovingObjectTrack
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory, write_tum_trajectory

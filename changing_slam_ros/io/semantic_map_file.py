@@ -30,9 +30,9 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
-from changing_slam_ros.core.map_object import MapObject
-from changing_slam_ros.core.object_point_weights import Plane
-from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
+from changing_slam_ros.core.objects.map_object import MapObject
+from changing_slam_ros.core.objects.object_point_weights import Plane
+from changing_slam_ros.core.objects.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.atomic import atomic_write_text
 

@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.errors import DatasetError, SlamError
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig

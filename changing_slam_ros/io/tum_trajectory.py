@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.io.atomic import atomic_write_text
 

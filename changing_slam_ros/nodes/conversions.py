@@ -31,13 +31,13 @@ from changing_slam_msgs.msg import MovingObjectArray
 from changing_slam_msgs.msg import ObjectState as ObjectStateMsg
 from changing_slam_msgs.msg import ObjectStateArray
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.detector import Detection, DetectionSet, class_name
-from changing_slam_ros.core.dynamic_objects import ObjectState
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.loop_closing import LoopCorrection
-from changing_slam_ros.core.object_tracking import MovingObjectTrack
-from changing_slam_ros.core.se3 import make_pose, quat_to_rot, rot_to_quat
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.detector import Detection, DetectionSet, class_name
+from changing_slam_ros.core.dynamic.dynamic_objects import ObjectState
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.loop_closing import LoopCorrection
+from changing_slam_ros.core.movers.object_tracking import MovingObjectTrack
+from changing_slam_ros.core.geometry.se3 import make_pose, quat_to_rot, rot_to_quat
 from changing_slam_ros.errors import BagError
 from changing_slam_ros.io.camera_info import camera_info_fields, intrinsics_from_camera_info
 from changing_slam_ros.io.image_codec import (

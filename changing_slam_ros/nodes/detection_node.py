@@ -4,7 +4,7 @@ Every image it receives but will not detect (`max_rate_hz` skipped it, or it was
 `~/skipped` (std_msgs/Header, the image's header), so that a tracker waiting for that frame's detections
 (`detections_wait_s`) stops waiting at once and tracks it with the earlier ones carried forward.
 
-A lifecycle node: the ONNX session (core.detector.Detector) is created in `on_activate` and released in
+A lifecycle node: the ONNX session (core.dynamic.detector.Detector) is created in `on_activate` and released in
 `on_deactivate`, as yolo_ros does; `main()` configures and activates it at start (`autostart`).
 Images arrive with sensor-data QoS (best effort, shallow queue): when inference is slower than the camera,
 old frames are dropped rather than queued (tracking then propagates the last detections, issue 7).
@@ -29,7 +29,7 @@ from std_msgs.msg import Header
 
 from changing_slam_msgs.msg import DetectionArray
 from changing_slam_ros.config import find_config, load_yaml, section
-from changing_slam_ros.core.detector import Detector, DetectorConfig
+from changing_slam_ros.core.dynamic.detector import Detector, DetectorConfig
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import detections_to_msg, image_to_rgb, stamp_to_ns
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node

@@ -5,7 +5,7 @@
 Per keyframe packet from tracking: its point counters are added, `core.local_mapping.LocalMapper` maps it
 (points from depth, fusion, culling, gtsam local BA, keyframe culling), the object layer (MapObjects, beliefs,
 active flags; Changing-SLAM §4.3-4.7) runs on it with the packet's depth and short-term objects, and the diff
-of the map is published as a MapUpdate (see `nodes/split_backend.py`, `core/map_replication.py`). A closed
+of the map is published as a MapUpdate (see `nodes/split_backend.py`, `core/replication/map_replication.py`). A closed
 loop from loop_closing is applied (exactly, or as a correction when keyframes were mapped meanwhile) and the
 change published as a MapUpdate too, so tracking's and loop closing's replicas follow this map only.
 With `wait_for_loop_results:=true` (lossless graph) a keyframe waits until loop closing has answered for the
@@ -53,7 +53,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection, MapObjectArray, MapUpdate, ObjectStateArray
 from changing_slam_msgs.srv import LoadMap, SaveMap
-from changing_slam_ros.core.map_replication import KeyframePacket, LoopResult
+from changing_slam_ros.core.replication.map_replication import KeyframePacket, LoopResult
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import make_header
 from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms

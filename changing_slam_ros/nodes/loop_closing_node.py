@@ -32,7 +32,7 @@ from rclpy.qos import QoSProfile
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection as LoopCorrectionMsg
 from changing_slam_msgs.msg import MapUpdate, ObjectStateArray
-from changing_slam_ros.core.map_replication import MapUpdate as MapUpdateData
+from changing_slam_ros.core.replication.map_replication import MapUpdate as MapUpdateData
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, loop_marker, marker_of
@@ -172,7 +172,7 @@ class LoopClosingNode(Node):
             self._process(update, stamp)
 
     def _process(self, update: MapUpdateData, stamp: Any) -> None:
-        from changing_slam_ros.core.map_replication import LoopResult
+        from changing_slam_ros.core.replication.map_replication import LoopResult
         from changing_slam_ros.nodes.conversions import stamp_to_ns
 
         t0 = time.monotonic()

@@ -25,8 +25,8 @@ from std_msgs.msg import Header
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import MapUpdate
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.map_replication import MapDelta
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.replication.map_replication import MapDelta
 from changing_slam_ros.errors import SlamError
 
 REQUEST_TOPIC = "/map_resync/request"
@@ -133,7 +133,7 @@ class ResyncServer:
         node.create_subscription(Header, REQUEST_TOPIC, self._on_request, 10)
 
     def _on_request(self, msg: Header) -> None:
-        from changing_slam_ros.core.map_replication import MapUpdate as MapUpdateData
+        from changing_slam_ros.core.replication.map_replication import MapUpdate as MapUpdateData
         from changing_slam_ros.nodes.conversions import keyframe_to_msg, make_header
         from changing_slam_ros.nodes.replication_conversions import update_to_msg
 

@@ -34,7 +34,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from changing_slam_msgs.msg import MapObject, MapObjectArray, ObjectState, ObjectStateArray
 from changing_slam_msgs.srv import LoadMap, QueryObjects, SaveMap
-from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
+from changing_slam_ros.core.objects.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 
@@ -110,7 +110,7 @@ def semantic_map_to_msg(smap: SemanticMap, header: Header) -> MapObjectArray:
 
 
 def _config_belief_threshold(config: str) -> float:
-    from changing_slam_ros.core.object_layer import object_layer_config
+    from changing_slam_ros.core.objects.object_layer import object_layer_config
     from changing_slam_ros.nodes.slam_backend import load_backend_config
 
     cfg = load_backend_config(config)

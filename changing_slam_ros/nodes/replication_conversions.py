@@ -13,7 +13,7 @@ from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection as LoopCorrectionMsg
 from changing_slam_msgs.msg import MapDelta as MapDeltaMsg
 from changing_slam_msgs.msg import MapUpdate as MapUpdateMsg
-from changing_slam_ros.core.map_replication import (
+from changing_slam_ros.core.replication.map_replication import (
     POINT_COLUMNS,
     KeyframePacket,
     KeyframeRows,
@@ -200,7 +200,7 @@ def _transform(values: Any, what: str) -> npt.NDArray[np.float64]:
 def update_from_msg(msg: Any, topic: str) -> MapUpdate:
     merge = None
     if msg.merged:
-        from changing_slam_ros.core.map_merging import MergeResult
+        from changing_slam_ros.core.slam.map_merging import MergeResult
 
         if int(msg.merged_from_map_id) == int(msg.delta.map_id):
             raise BagError(f"{topic}: map merge of map {msg.delta.map_id} into itself")
@@ -238,7 +238,7 @@ def loop_result_to_msg(r: LoopResult, stamp_ns: int, frame_id: str, map_id: int)
 
 def loop_result_from_msg(msg: Any, topic: str) -> LoopResult:
     if not msg.closed and msg.merge:
-        from changing_slam_ros.core.loop_closing import MapMerge
+        from changing_slam_ros.core.slam.loop_closing import MapMerge
         from changing_slam_ros.nodes.conversions import pose_to_matrix
 
         pairs = _get(msg.merge_keypoint_matches, np.int64)

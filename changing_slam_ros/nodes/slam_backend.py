@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from changing_slam_ros.config import find_config, load_yaml, section
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
-from changing_slam_ros.core.object_layer import ObjectLayer, object_layer_config
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
+from changing_slam_ros.core.objects.object_layer import ObjectLayer, object_layer_config
 from changing_slam_ros.core.system import SlamSystem
 from changing_slam_ros.errors import ConfigError
 from changing_slam_ros.io.atomic import atomic_write_text
@@ -93,8 +93,8 @@ def build_backend(cfg: BackendConfig, loop: bool = True, dynamic: str = "config"
 
 
 def _loop_closing(data: dict[str, Any], where: str) -> Any | None:
-    from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+    from changing_slam_ros.core.features.vocabulary import Vocabulary
 
     cfg = section(LoopConfig, data.get("loop"), f"{where}: loop")
     return SlamMapLoopClosing(LoopCloser(cfg, Vocabulary.load())) if cfg.enabled else None

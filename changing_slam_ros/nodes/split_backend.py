@@ -39,10 +39,10 @@ from typing import Any
 
 import numpy as np
 
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.object_layer import ObjectLayer
-from changing_slam_ros.core.local_mapping import LocalMapper, MappingStats
-from changing_slam_ros.core.map_replication import (
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.objects.object_layer import ObjectLayer
+from changing_slam_ros.core.slam.local_mapping import LocalMapper, MappingStats
+from changing_slam_ros.core.replication.map_replication import (
     CounterTracker,
     KeyframePacket,
     LoopResult,
@@ -61,10 +61,10 @@ from changing_slam_ros.core.map_replication import (
     restore,
     snapshot,
 )
-from changing_slam_ros.core.merge_in_flight import MergeLog, combine_counters, move_counters, move_keyframe, move_packet
-from changing_slam_ros.core.provisional_points import HeldRows, ProvisionalPoints
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.replication.merge_in_flight import MergeLog, combine_counters, move_counters, move_keyframe, move_packet
+from changing_slam_ros.core.slam.provisional_points import HeldRows, ProvisionalPoints
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.system import FrameOutput, SlamSystem
 from changing_slam_ros.io.map_file import LoadedMap
 from changing_slam_ros.nodes.slam_backend import Backend, BackendConfig, build_backend
@@ -442,7 +442,7 @@ class MapOwner:
         if result.query_kf_id == self.last_kf_id:
             apply_delta(self.atlas, result.delta)  # the loop side corrected the very map we hold
         elif result.correction is not None:  # keyframes were mapped meanwhile: correct our newer map
-            from changing_slam_ros.core.loop_closing import apply_correction
+            from changing_slam_ros.core.slam.loop_closing import apply_correction
 
             corr = result.correction
             if not corr.pose_corrections:  # from a message: T_new @ T_old^-1 against our own poses

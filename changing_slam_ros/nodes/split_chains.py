@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from changing_slam_ros.core.map_replication import KeyframePacket, LoopResult, MapUpdate
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.replication.map_replication import KeyframePacket, LoopResult, MapUpdate
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import FrameOutput
 from changing_slam_ros.nodes.slam_backend import BackendConfig
 from changing_slam_ros.nodes.split_backend import LoopSide, MapOwner, TrackingSide, object_layer_for

@@ -6,11 +6,11 @@ Two backends. `in_process_backend:=false` (the split graph): features, dynamic f
 here against a replica of the map; each new keyframe goes out as a keyframe packet (~/keyframes) to
 `local_mapping` (which owns the map) and `loop_closing`; their MapUpdates (/local_mapping/map_updates) are
 applied to the replica as they arrive and the last frame is re-anchored on its moved reference keyframe
-(`nodes/split_backend.py`, `core/map_replication.py`). With `wait_for_map_updates:=true` (lossless graph) a
+(`nodes/split_backend.py`, `core/replication/map_replication.py`). With `wait_for_map_updates:=true` (lossless graph) a
 keyframe frame is acknowledged to the bag player only once local_mapping's update and loop_closing's verdict
 for it (and, after a loop, local_mapping's update applying it) are in, so the graph replays the offline order.
 In real time (`provisional_points`, on unless `wait_for_map_updates`) a new keyframe's depth keypoints become
-provisional points in the replica at once (`core/provisional_points.py`), so tracking goes on at full rate
+provisional points in the replica at once (`core/slam/provisional_points.py`), so tracking goes on at full rate
 while local_mapping maps the keyframe; the owner's update replaces them.
 `in_process_backend:=true`: the whole `core.system.SlamSystem` (tracking -> local mapping -> object layer ->
 loop closing) runs in this process (deterministic, `nodes/slam_backend.py`), and this node publishes the
@@ -79,9 +79,9 @@ from std_msgs.msg import Header
 from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArray, MapUpdate
 from changing_slam_msgs.msg import ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import (
     camera_info_to_intrinsics,
@@ -148,7 +148,7 @@ class TrackingNode(QuietQosEvents, Node):
         self._acked_early: set[int] = set()  # frames acked while held for the first camera_info
         self._newest_detections: Any | None = None  # the newest DetectionSet received (carried to later frames)
         self._previous_detections: Any | None = None  # the one before it (the carried boxes' velocities)
-        from changing_slam_ros.core.late_detections import CarryConfig, RecentImages
+        from changing_slam_ros.core.dynamic.late_detections import CarryConfig, RecentImages
 
         self._carry = CarryConfig(p["detections_carry_max_age_s"], p["detections_carry_grow_widths_per_s"],
                                   tuple(int(c) for c in p["detections_carry_class_ids"]),
@@ -333,7 +333,7 @@ class TrackingNode(QuietQosEvents, Node):
 
     def _carried_detections(self, stamp_ns: int) -> Any:
         """The newest earlier detections for a frame that has none of its own (`core.late_detections`), or None."""
-        from changing_slam_ros.core.late_detections import carried_forward
+        from changing_slam_ros.core.dynamic.late_detections import carried_forward
 
         if self._newest_detections is None or self._carry.max_age_s <= 0:
             return None
@@ -571,7 +571,7 @@ class TrackingNode(QuietQosEvents, Node):
             self._ack(item.rgb_msg.header)
             return
         if self._carry.flow and self._carry.max_age_s > 0 and self.backend.wants_detections:
-            from changing_slam_ros.core.box_flow import FlowImage  # boxes carried from or to this frame later
+            from changing_slam_ros.core.dynamic.box_flow import FlowImage  # boxes carried from or to this frame later
 
             self._recent_images.add(FlowImage.from_rgb(frame.stamp_ns, frame.rgb, frame.depth_m))
         dets = self.detections.pop(item.stamp_ns, None)

@@ -22,7 +22,7 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from changing_slam_msgs.msg import MovingObjectArray
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.nodes.conversions import (
     make_header,
     matrix_to_pose,

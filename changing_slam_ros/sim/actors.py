@@ -13,7 +13,7 @@ from enum import Enum
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.detector import COCO80_NAMES
+from changing_slam_ros.core.dynamic.detector import COCO80_NAMES
 from changing_slam_ros.sim.track import Track
 
 F64 = npt.NDArray[np.float64]

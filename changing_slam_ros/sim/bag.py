@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.errors import SimError
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.tum_folder import parse_stamp_ns

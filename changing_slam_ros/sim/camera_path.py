@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.geometry.se3 import make_pose
 from changing_slam_ros.sim.track import PoseKey, Track, pose_xyz_rpy, function_track
 
 F64 = npt.NDArray[np.float64]

@@ -21,8 +21,8 @@ from types import TracebackType
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.se3 import rot_to_quat
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.se3 import rot_to_quat
 from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim.scene import (
     CAMERA_BODY, PARK_POSITION_M, SceneSpec, actor_body_name, build_mjcf,

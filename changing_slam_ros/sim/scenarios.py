@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim import actors as cat
 from changing_slam_ros.sim.actors import Actor, Change, ChangeKind

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.se3 import make_pose, quat_to_rot, rot_to_quat
+from changing_slam_ros.core.geometry.se3 import make_pose, quat_to_rot, rot_to_quat
 
 F64 = npt.NDArray[np.float64]
 

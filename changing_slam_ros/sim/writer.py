@@ -20,9 +20,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.se3 import rot_to_quat
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.se3 import rot_to_quat
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import SimError
 from changing_slam_ros.io.atomic import atomic_write_bytes, atomic_write_text
 from changing_slam_ros.io.camera_info import write_camera_info_yaml

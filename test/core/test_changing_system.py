@@ -20,11 +20,11 @@ import pytest
 from changing_slam_ros.commands.objects_options import LoopLog, aligned_objects, trajectory_alignment
 from changing_slam_ros.commands.run import system_config_from_mapping
 from changing_slam_ros.config import find_config, load_yaml
-from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-from changing_slam_ros.core.dynamic_filter import DynamicFilter
-from changing_slam_ros.core.object_layer import ObjectLayer
+from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter
+from changing_slam_ros.core.objects.object_layer import ObjectLayer
 from changing_slam_ros.core.system import SlamSystem
-from changing_slam_ros.core.vocabulary import Vocabulary
+from changing_slam_ros.core.features.vocabulary import Vocabulary
 from changing_slam_ros.eval.object_metrics import load_ground_truth_objects
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file

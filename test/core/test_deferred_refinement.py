@@ -8,17 +8,17 @@ import cv2
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.deferred_refinement import (
+from changing_slam_ros.core.dynamic.deferred_refinement import (
     DeferredRefinement,
     RefinementConfig,
     TrackedFrameMatches,
     interpolated_boxes,
     refine_frame,
 )
-from changing_slam_ros.core.detector import Detection, DetectionSet
-from changing_slam_ros.core.keypoint_classification import KeypointClassificationConfig
-from changing_slam_ros.core.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose
-from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.dynamic.detector import Detection, DetectionSet
+from changing_slam_ros.core.dynamic.keypoint_classification import KeypointClassificationConfig
+from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose
+from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.errors import ConfigError
 
 MS = 1_000_000
@@ -250,7 +250,7 @@ def test_bad_settings_are_named():
 
 def test_the_tracking_section_parses_the_refinement_settings():
     from changing_slam_ros.config import section
-    from changing_slam_ros.core.tracking import TrackingConfig
+    from changing_slam_ros.core.slam.tracking import TrackingConfig
 
     cfg = section(TrackingConfig, {"deferred_refinement": {"enabled": True, "max_age_s": 0.4}}, "sim.yaml: tracking")
     assert cfg.deferred_refinement == RefinementConfig(enabled=True, max_age_s=0.4)
@@ -269,10 +269,10 @@ def test_the_system_refines_bracketed_frames_only_and_leaves_the_online_poses_an
     without their own: with the refinement on, the online trajectory and the keyframes are the run without it to
     the bit, frames that no two detection sets bracket keep their final pose, and bracketed frames are refined
     (1 s later, or at the end of the run)."""
-    from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
-    from changing_slam_ros.core.late_detections import CarryConfig, carried_forward
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
+    from changing_slam_ros.core.dynamic.late_detections import CarryConfig, carried_forward
     from changing_slam_ros.core.system import SlamSystem, SystemConfig
-    from changing_slam_ros.core.tracking import TrackingConfig
+    from changing_slam_ros.core.slam.tracking import TrackingConfig
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file
     from changing_slam_ros.sim.scenarios import build_scenario

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from helpers import FR3_WALKING_FRAMES, require
 
-from changing_slam_ros.core.detector import (
+from changing_slam_ros.core.dynamic.detector import (
     CHAIR_CLASS_ID,
     DEFAULT_MODEL_PATH,
     PERSON_CLASS_ID,
@@ -15,7 +15,7 @@ from changing_slam_ros.core.detector import (
     DetectorConfig,
     postprocess_ssd_head,
 )
-from changing_slam_ros.core.detector_session import SSD_HEAD_OUTPUTS
+from changing_slam_ros.core.dynamic.detector_session import SSD_HEAD_OUTPUTS
 from changing_slam_ros.errors import ConfigError
 
 
@@ -165,7 +165,7 @@ def test_the_slimmed_graph_gives_the_unslimmed_heads_detections_on_real_frames(t
 
 
 def test_slimming_leaves_a_graph_without_the_tf_od_preprocessing_loop_alone() -> None:
-    from changing_slam_ros.core.detector_session import slim_ssd_head
+    from changing_slam_ros.core.dynamic.detector_session import slim_ssd_head
 
     onnx = pytest.importorskip("onnx")
     from onnx import TensorProto, helper

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import FR3_WALKING_FRAMES, require
 
-from changing_slam_ros.core.detector import (
+from changing_slam_ros.core.dynamic.detector import (
     CHAIR_CLASS_ID,
     COCO80_NAMES,
     DEFAULT_MODEL_PATH,

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.detector import Detector, DetectorConfig, Letterbox, letterbox, postprocess_yolo
+from changing_slam_ros.core.dynamic.detector import Detector, DetectorConfig, Letterbox, letterbox, postprocess_yolo
 
 onnx = pytest.importorskip("onnx")
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402

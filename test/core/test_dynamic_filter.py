@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.config import section
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
-from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
-from changing_slam_ros.core.keyframe import KeypointClass
-from changing_slam_ros.core.orb_features import Features
-from changing_slam_ros.core.rgbd_frame import RgbdFrame
-from changing_slam_ros.core.se3 import invert, transform_points
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
+from changing_slam_ros.core.map.keyframe import KeypointClass
+from changing_slam_ros.core.features.orb_features import Features
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
+from changing_slam_ros.core.geometry.se3 import invert, transform_points
 from changing_slam_ros.errors import ConfigError
 
 CAM = CameraIntrinsics(320, 240, 300.0, 300.0, 159.5, 119.5)

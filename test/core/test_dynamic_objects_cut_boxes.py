@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.detector import CHAIR_CLASS_ID, Detection
-from changing_slam_ros.core.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.detector import CHAIR_CLASS_ID, Detection
+from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion
+from changing_slam_ros.core.geometry.se3 import make_pose
 from changing_slam_ros.errors import ConfigError
 
 CAM = CameraIntrinsics(320, 240, 267.7, 269.6, 160.0, 123.8)

@@ -21,9 +21,9 @@ import cv2
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
 from changing_slam_ros.core.system import SlamSystem
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file

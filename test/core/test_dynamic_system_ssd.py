@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.detector import PERSON_CLASS_ID, Detector, DetectorConfig, iou_matrix
-from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
+from changing_slam_ros.core.dynamic.detector import PERSON_CLASS_ID, Detector, DetectorConfig, iou_matrix
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
 from changing_slam_ros.core.system import SlamSystem
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 

@@ -7,19 +7,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.keyframe_segmentation import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.movers.keyframe_segmentation import (
     KeyframeSegmentationConfig,
     segment_keyframe_window,
     still_targets_unassigned,
     window_measurements,
 )
-from changing_slam_ros.core.local_mapping import MappingConfig
-from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationConfig, segment
-from changing_slam_ros.core.pose_optimizer import se3_exp_left
-from changing_slam_ros.core.se3 import invert, transform_points
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.slam.local_mapping import MappingConfig
+from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationConfig, segment
+from changing_slam_ros.core.geometry.pose_optimizer import se3_exp_left
+from changing_slam_ros.core.geometry.se3 import invert, transform_points
+from changing_slam_ros.core.map.slam_map import SlamMap
 from changing_slam_ros.config import section
 from changing_slam_ros.errors import ConfigError
 

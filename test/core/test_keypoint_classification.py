@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
-from changing_slam_ros.core.keyframe import KeypointClass
-from changing_slam_ros.core.keypoint_classification import (
+from changing_slam_ros.core.dynamic.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
+from changing_slam_ros.core.map.keyframe import KeypointClass
+from changing_slam_ros.core.dynamic.keypoint_classification import (
     KeypointClassificationConfig,
     box_depth_stats,
     classify_keypoints,

@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.box_flow import BoxFlowConfig, FlowImage, box_motion, grid_points
-from changing_slam_ros.core.detector import Detection, DetectionSet
-from changing_slam_ros.core.late_detections import CarryConfig, RecentImages, carried_forward
+from changing_slam_ros.core.dynamic.box_flow import BoxFlowConfig, FlowImage, box_motion, grid_points
+from changing_slam_ros.core.dynamic.detector import Detection, DetectionSet
+from changing_slam_ros.core.dynamic.late_detections import CarryConfig, RecentImages, carried_forward
 
 MS = 1_000_000
 
@@ -142,7 +142,7 @@ def test_the_recent_images_keep_max_age_and_find_the_nearest_stamp():
 
 
 def test_bad_box_flow_settings_and_image_pairs_are_rejected_with_the_field_named():
-    from changing_slam_ros.core.box_flow import box_motions
+    from changing_slam_ros.core.dynamic.box_flow import box_motions
     from changing_slam_ros.errors import ConfigError
 
     with pytest.raises(ConfigError, match="box_flow.window_px"):
@@ -155,7 +155,7 @@ def test_bad_box_flow_settings_and_image_pairs_are_rejected_with_the_field_named
 
 
 def test_a_box_cut_by_the_image_border_keeps_that_edge_on_the_border_and_moves_the_other():
-    from changing_slam_ros.core.box_flow import BoxMotion
+    from changing_slam_ros.core.dynamic.box_flow import BoxMotion
 
     leaving = BoxMotion(dx_px=-10.0, dy_px=4.0, scale=0.8, n_points=30)  # a person walking out on the left
     # Cut on the left: the left edge stays at 0, the right edge moves 10 px left, unscaled; y moves and scales.
@@ -171,7 +171,7 @@ def test_a_box_cut_by_the_image_border_keeps_that_edge_on_the_border_and_moves_t
 def test_the_scale_needs_enough_points():
     a = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [5.0, 5.0], [2.0, 8.0]])
     b = (a - 5.0) * 1.2 + 5.0  # 20 % larger about (5, 5)
-    from changing_slam_ros.core.box_flow import _median_motion
+    from changing_slam_ros.core.dynamic.box_flow import _median_motion
 
     assert _median_motion(a, b, BoxFlowConfig(min_scale_points=5)).scale == pytest.approx(1.2)
     assert _median_motion(a, b, BoxFlowConfig(min_scale_points=12)).scale == 1.0  # 6 points: not trusted

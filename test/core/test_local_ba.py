@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from changing_slam_ros.core.backend.local_ba import LocalBAConfig, local_bundle_adjust
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.pose_optimizer import se3_exp_left
-from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.geometry.pose_optimizer import se3_exp_left
+from changing_slam_ros.core.geometry.se3 import invert, make_pose, rotation_angle_rad
+from changing_slam_ros.core.map.slam_map import SlamMap
 
 CAM = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 BF = 40.0

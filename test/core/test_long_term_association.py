@@ -7,15 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.long_term_association import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.objects.long_term_association import (
     LongTermAssociation, ObjectCandidate, apply_to_point_store, box_truncated, candidates_from_keyframe, point_lookup,
 )
-from changing_slam_ros.core.map_point import PointStore
-from changing_slam_ros.core.map_object import ObjectMapConfig
-from changing_slam_ros.core.object_visibility import Visibility
-from changing_slam_ros.core.persistence_filter import update_missed, update_seen
+from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+from changing_slam_ros.core.objects.object_visibility import Visibility
+from changing_slam_ros.core.objects.persistence_filter import update_missed, update_seen
 
 CAM = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
 CFG = ObjectMapConfig(ltda_threshold_m=0.5, n_keyframes_unseen=5, belief_threshold=0.6, p_detect=0.8,

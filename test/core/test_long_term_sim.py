@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.long_term_association import LongTermAssociation, ObjectCandidate, box_truncated
-from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
-from changing_slam_ros.core.se3 import rot_to_quat
-from changing_slam_ros.core.semantic_map import build_semantic_map
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.objects.long_term_association import LongTermAssociation, ObjectCandidate, box_truncated
+from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig
+from changing_slam_ros.core.geometry.se3 import rot_to_quat
+from changing_slam_ros.core.objects.semantic_map import build_semantic_map
 from changing_slam_ros.io.semantic_map_file import read_object_map, write_object_map
 from changing_slam_ros.eval.object_metrics import GroundTruthObject, GroundTruthObjects, evaluate_objects, world_box
 

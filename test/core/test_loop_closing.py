@@ -11,13 +11,13 @@ from helpers import REDKITCHEN, require
 
 from changing_slam_ros.config import section
 from changing_slam_ros.core.backend.global_ba import GlobalBAConfig
-from changing_slam_ros.core.frame import Frame
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-from changing_slam_ros.core.orb_features import FeatureConfig, Features, OrbExtractor
-from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad
-from changing_slam_ros.core.slam_map import SlamMap
-from changing_slam_ros.core.vocabulary import Vocabulary
+from changing_slam_ros.core.features.frame import Frame
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+from changing_slam_ros.core.features.orb_features import FeatureConfig, Features, OrbExtractor
+from changing_slam_ros.core.geometry.se3 import invert, make_pose, rotation_angle_rad
+from changing_slam_ros.core.map.slam_map import SlamMap
+from changing_slam_ros.core.features.vocabulary import Vocabulary
 from changing_slam_ros.errors import ConfigError
 from changing_slam_ros.io.dataset import open_dataset
 
@@ -125,7 +125,7 @@ class SyntheticRoom:
     random ORB descriptor (observed with a few flipped bits). Deterministic; exact ground truth."""
 
     def __init__(self, seed: int = 0, n_points: int = 4000, radius_m: float = 4.0) -> None:
-        from changing_slam_ros.core.camera import CameraIntrinsics
+        from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 
         self.rng = np.random.default_rng(seed)
         a = self.rng.uniform(0, 2 * np.pi, n_points)

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, REDKITCHEN, require
 
-from changing_slam_ros.core.keyframe import Keyframe, KeypointClass
-from changing_slam_ros.core.keyframe_database import KeyframeDatabase, PlaceCandidate, loop_feature_mask
-from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
-from changing_slam_ros.core.place_recognition import ConsistencyChecker, relocalise
-from changing_slam_ros.core.se3 import invert, rotation_angle_rad
-from changing_slam_ros.core.vocabulary import Vocabulary, l1_score
+from changing_slam_ros.core.map.keyframe import Keyframe, KeypointClass
+from changing_slam_ros.core.map.keyframe_database import KeyframeDatabase, PlaceCandidate, loop_feature_mask
+from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.slam.place_recognition import ConsistencyChecker, relocalise
+from changing_slam_ros.core.geometry.se3 import invert, rotation_angle_rad
+from changing_slam_ros.core.features.vocabulary import Vocabulary, l1_score
 from changing_slam_ros.io.dataset import open_dataset
 
 

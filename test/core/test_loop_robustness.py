@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.geometric_verification import VerificationConfig, inlier_cells, verify
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.loop_closing import LoopConfig
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.slam.geometric_verification import VerificationConfig, inlier_cells, verify
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.loop_closing import LoopConfig
 from changing_slam_ros.config import section
-from changing_slam_ros.core.place_recognition import DriftGateConfig, check_drift, path_travelled
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.slam.place_recognition import DriftGateConfig, check_drift, path_travelled
+from changing_slam_ros.core.geometry.se3 import make_pose
 
 CAMERA = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
 
@@ -103,9 +103,9 @@ def test_loop_closer_measures_the_path_on_its_held_keyframes_and_refuses_a_perio
     """Five keyframes 20 cm apart along a wall; a verification one wallpaper period (0.9 m) off the estimate, as the
     frames 1508 -> 1706 of session 1's `replacing` render gave (42 inliers, every pair 0.9 m apart on the wall),
     is refused; the true relative pose with 2 cm of drift is accepted."""
-    from changing_slam_ros.core.geometric_verification import Verification
-    from changing_slam_ros.core.loop_closing import LoopCloser
-    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.core.slam.geometric_verification import Verification
+    from changing_slam_ros.core.slam.loop_closing import LoopCloser
+    from changing_slam_ros.core.features.vocabulary import Vocabulary
 
     closer = LoopCloser(LoopConfig(), Vocabulary.load())
     rng = np.random.default_rng(1)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, REDKITCHEN, require
 
-from changing_slam_ros.core.geometric_verification import kabsch, verify
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
-from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad
+from changing_slam_ros.core.slam.geometric_verification import kabsch, verify
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.geometry.se3 import invert, make_pose, rotation_angle_rad
 from changing_slam_ros.io.dataset import open_dataset
 
 

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.dynamic_filter import DynamicFilter
-from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-from changing_slam_ros.core.object_layer import ObjectLayer
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter
+from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+from changing_slam_ros.core.objects.object_layer import ObjectLayer
 from changing_slam_ros.core.system import SlamSystem
-from changing_slam_ros.core.vocabulary import Vocabulary
+from changing_slam_ros.core.features.vocabulary import Vocabulary
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.map_file import load_map, npz_bytes, read_map_arrays, save_map
 
@@ -163,7 +163,7 @@ def test_culled_keyframes_and_loop_edges_round_trip(mapped: tuple[SlamSystem, Pa
 
 def test_merged_away_maps_round_trip(mapped: tuple[SlamSystem, Path], tmp_path: Path) -> None:
     """An Atlas whose map 1 was merged into map 0 (left empty, `Atlas.merged_into`) saves and loads as it was."""
-    from changing_slam_ros.core.slam_map import SlamMap
+    from changing_slam_ros.core.map.slam_map import SlamMap
 
     _, path = mapped
     loaded = load_map(path)

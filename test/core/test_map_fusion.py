@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.map_fusion import fuse_into, refresh_points
-from changing_slam_ros.core.se3 import make_pose
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.map_fusion import fuse_into, refresh_points
+from changing_slam_ros.core.geometry.se3 import make_pose
+from changing_slam_ros.core.map.slam_map import SlamMap
 
 CAM = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 SCALES = np.array([1.2**i for i in range(8)])

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from helpers import REDKITCHEN, require
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.loop_closing import MapMerge
-from changing_slam_ros.core.map_merging import MergeConfig, merge_maps
-from changing_slam_ros.core.se3 import invert, make_pose
-from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.loop_closing import MapMerge
+from changing_slam_ros.core.slam.map_merging import MergeConfig, merge_maps
+from changing_slam_ros.core.geometry.se3 import invert, make_pose
+from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 
 CAM = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 SCALES = np.array([1.2**i for i in range(8)])
@@ -129,8 +129,8 @@ def test_merge_within_one_map_is_refused() -> None:
 
 
 def test_database_follows_the_moved_keyframes() -> None:
-    from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+    from changing_slam_ros.core.features.vocabulary import Vocabulary
 
     atlas, _, _, T = _two_maps()
     closing = SlamMapLoopClosing(LoopCloser(LoopConfig(), Vocabulary.load()))
@@ -146,11 +146,11 @@ def _lost_and_revisit(merge: bool):
     """7-Scenes redkitchen frames 0-319, then a jump to frames 400-699 (2.7 s later, another part of the
     kitchen): tracking is lost, a new map starts after 5 failed relocalisations, and from frame ~470 on the
     camera revisits what frames 130-320 mapped."""
-    from changing_slam_ros.core.local_mapping import MappingConfig
-    from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+    from changing_slam_ros.core.slam.local_mapping import MappingConfig
+    from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
     from changing_slam_ros.core.system import SlamSystem, SystemConfig
-    from changing_slam_ros.core.tracking import TrackingConfig
-    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.core.slam.tracking import TrackingConfig
+    from changing_slam_ros.core.features.vocabulary import Vocabulary
     from changing_slam_ros.io.dataset import open_dataset
 
     source = open_dataset(require(REDKITCHEN), "7scenes")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.map_object import MapObject, box_extent
+from changing_slam_ros.core.objects.map_object import MapObject, box_extent
 
 
 def _box_surface_points(rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:

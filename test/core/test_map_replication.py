@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, REDKITCHEN, require
 
-from changing_slam_ros.core.map_replication import (
+from changing_slam_ros.core.replication.map_replication import (
     CounterTracker,
     KeyframePacket,
     ReplicationError,
@@ -18,9 +18,9 @@ from changing_slam_ros.core.map_replication import (
     insert_keyframe,
     snapshot,
 )
-from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.system import SlamSystem
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.nodes.slam_backend import build_backend, load_backend_config
 from changing_slam_ros.nodes.split_chains import ChainedGraph
@@ -159,9 +159,9 @@ def drifting_room_steps(n_kf: int = 58, n_per_turn: int = 48):
     keyframes only; the step, called with the owner's map, maps the keyframe and returns the MapUpdate."""
     from core.test_loop_closing import SyntheticRoom, _rot_y
 
-    from changing_slam_ros.core.map_replication import MapUpdate
-    from changing_slam_ros.core.orb_features import FeatureConfig
-    from changing_slam_ros.core.se3 import invert, make_pose
+    from changing_slam_ros.core.replication.map_replication import MapUpdate
+    from changing_slam_ros.core.features.orb_features import FeatureConfig
+    from changing_slam_ros.core.geometry.se3 import invert, make_pose
 
     room, scales = SyntheticRoom(seed=1), FeatureConfig().level_scales()
     last_seen: dict[int, tuple[int, int]] = {}
@@ -211,8 +211,8 @@ def _owner(atlas: Atlas, last_kf_id: int):  # noqa: ANN202
 def test_a_loop_closed_on_the_replica_reaches_owner_and_tracking(stale: bool) -> None:
     """Loop closing corrects its replica; the owner applies the result (exactly, or as a correction when it
     mapped meanwhile) and its delta brings tracking's replica to the owner's map; the drift is corrected."""
-    from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+    from changing_slam_ros.core.features.vocabulary import Vocabulary
     from changing_slam_ros.nodes.split_backend import LoopSide
 
     owner_atlas, tracking = Atlas(), Atlas()

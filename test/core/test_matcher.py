@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 from helpers import FR1_XYZ_10, require
 
-from changing_slam_ros.core.frame import Frame
-from changing_slam_ros.core.matcher import ProjectionQuery, hamming, match_brute_force, search_by_projection
-from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
-from changing_slam_ros.core.se3 import invert, transform_points
+from changing_slam_ros.core.features.frame import Frame
+from changing_slam_ros.core.features.matcher import ProjectionQuery, hamming, match_brute_force, search_by_projection
+from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.geometry.se3 import invert, transform_points
 from changing_slam_ros.io.dataset import open_dataset
 
 CFG = FeatureConfig()

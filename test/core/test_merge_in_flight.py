@@ -5,15 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.dynamic_objects import ObjectMotion, ObjectState
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.map_merging import MergeResult
-from changing_slam_ros.core.map_point import PointStore
-from changing_slam_ros.core.map_replication import KeyframePacket, PointCounters
-from changing_slam_ros.core.merge_in_flight import MergeLog, combine_counters, move_packet
-from changing_slam_ros.core.provisional_points import HeldRows
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.dynamic_objects import ObjectMotion, ObjectState
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.map_merging import MergeResult
+from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.replication.map_replication import KeyframePacket, PointCounters
+from changing_slam_ros.core.replication.merge_in_flight import MergeLog, combine_counters, move_packet
+from changing_slam_ros.core.slam.provisional_points import HeldRows
+from changing_slam_ros.core.geometry.se3 import make_pose
 
 CAM = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 

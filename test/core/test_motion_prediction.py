@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.orb_features import FeatureConfig
-from changing_slam_ros.core.se3 import make_pose, scale_motion
-from changing_slam_ros.core.slam_map import Atlas
-from changing_slam_ros.core.tracking import Tracker, TrackingConfig
+from changing_slam_ros.core.features.orb_features import FeatureConfig
+from changing_slam_ros.core.geometry.se3 import make_pose, scale_motion
+from changing_slam_ros.core.map.slam_map import Atlas
+from changing_slam_ros.core.slam.tracking import Tracker, TrackingConfig
 
 PERIOD_NS = 33_333_333  # 30 Hz
 

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.cli import main as cli_main
-from changing_slam_ros.core.dynamic_filter import DynamicConfig, DynamicFilter
-from changing_slam_ros.core.mover_tracking import MoverConfig
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
+from changing_slam_ros.core.movers.mover_tracking import MoverConfig
 from changing_slam_ros.core.system import SlamSystem
 from changing_slam_ros.eval.moving_objects import camera_alignment, object_errors_m, read_sim_movers
 from changing_slam_ros.io.dataset import open_dataset

@@ -1,4 +1,4 @@
-"""Class-agnostic mover tracking (`core/mover_tracking.py`) on a constructed scene: static walls and one
+"""Class-agnostic mover tracking (`core/movers/mover_tracking.py`) on a constructed scene: static walls and one
 rigid box carried past a still camera, keypoints with unique descriptors, Kinect-like depth noise."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.mover_tracking import FeatureTracks, MoverConfig, MoverTracker
-from changing_slam_ros.core.orb_features import Features
-from changing_slam_ros.core.se3 import invert, make_pose, transform_points
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.movers.mover_tracking import FeatureTracks, MoverConfig, MoverTracker
+from changing_slam_ros.core.features.orb_features import Features
+from changing_slam_ros.core.geometry.se3 import invert, make_pose, transform_points
 from changing_slam_ros.errors import ConfigError
 
 CAMERA = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)

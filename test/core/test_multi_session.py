@@ -22,14 +22,14 @@ import pytest
 from helpers import FR1_XYZ_10, require
 
 from changing_slam_ros.commands.objects_options import trajectory_alignment
-from changing_slam_ros.core.dynamic_filter import DynamicFilter
-from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-from changing_slam_ros.core.map_object import MapObject
-from changing_slam_ros.core.map_point import PointStore
-from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerConfig, SavedObjectMap
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter
+from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+from changing_slam_ros.core.objects.map_object import MapObject
+from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerConfig, SavedObjectMap
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.tracking import TrackingConfig, TrackingState
-from changing_slam_ros.core.vocabulary import Vocabulary
+from changing_slam_ros.core.slam.tracking import TrackingConfig, TrackingState
+from changing_slam_ros.core.features.vocabulary import Vocabulary
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.eval.multi_session import map_frame_errors_m, moved_places
 from changing_slam_ros.eval.object_metrics import load_ground_truth_objects

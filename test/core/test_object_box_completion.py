@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
-from changing_slam_ros.core.object_box_completion import completed_box, depth_seen, gravity_up
-from changing_slam_ros.core.semantic_map import build_semantic_map
+from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig
+from changing_slam_ros.core.objects.object_box_completion import completed_box, depth_seen, gravity_up
+from changing_slam_ros.core.objects.semantic_map import build_semantic_map
 from changing_slam_ros.io.semantic_map_file import object_map_from_dict, object_map_to_dict
 
 PLANT = 58
@@ -111,7 +111,7 @@ def test_viewing_directions_are_saved_and_turned_with_the_map():
 
 
 def test_completion_stops_at_the_wall_behind_the_object():
-    from changing_slam_ros.core.object_point_weights import Plane
+    from changing_slam_ros.core.objects.object_point_weights import Plane
 
     obj = _seen_from(_cameras([-100, -90, -80]), np.random.default_rng(6))
     free = completed_box(obj, ObjectMapConfig(class_depth_m={PLANT: 0.8}))  # a prior far deeper than the plant
@@ -125,7 +125,7 @@ def test_completion_stops_at_the_wall_behind_the_object():
 
 
 def test_object_map_files_keep_the_room_planes(tmp_path):
-    from changing_slam_ros.core.object_point_weights import Plane
+    from changing_slam_ros.core.objects.object_point_weights import Plane
     from changing_slam_ros.io.semantic_map_file import read_object_map_file, write_object_map
 
     obj = _seen_from(_cameras([-90]), np.random.default_rng(7))

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID
-from changing_slam_ros.core.object_ekf import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID
+from changing_slam_ros.core.dynamic.object_ekf import (
     ObjectEkf,
     ObjectEkfConfig,
     centroid_measurement,
@@ -17,7 +17,7 @@ from changing_slam_ros.core.object_ekf import (
     process_noise,
     transition_matrix,
 )
-from changing_slam_ros.core.se3 import invert, make_pose
+from changing_slam_ros.core.geometry.se3 import invert, make_pose
 
 CAM = CameraIntrinsics(640, 480, 535.4, 539.2, 320.1, 247.6)
 DT_NS = 33_333_333  # 30 Hz

@@ -8,11 +8,11 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
-from changing_slam_ros.core.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion
-from changing_slam_ros.core.keyframe import KeypointClass
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
+from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion
+from changing_slam_ros.core.map.keyframe import KeypointClass
+from changing_slam_ros.core.geometry.se3 import make_pose
 
 CAM = CameraIntrinsics(640, 480, 535.4, 539.2, 320.1, 247.6)
 DT_NS = 33_333_333
@@ -135,7 +135,7 @@ def test_update_before_classify_is_an_error_and_a_second_update_uses_nothing_twi
 
 def test_every_threshold_is_read_from_a_yaml_section_with_the_papers_defaults(tmp_path) -> None:
     from changing_slam_ros.config import load_yaml, section
-    from changing_slam_ros.core.detector import DetectorConfig
+    from changing_slam_ros.core.dynamic.detector import DetectorConfig
     from changing_slam_ros.errors import ConfigError
 
     path = tmp_path / "dynamic.yaml"

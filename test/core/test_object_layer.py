@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.dynamic_objects import ObjectMotion, ObjectState
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.map_object import ObjectMapConfig
-from changing_slam_ros.core.object_layer import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.dynamic.dynamic_objects import ObjectMotion, ObjectState
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+from changing_slam_ros.core.objects.object_layer import (
     ObjectLayer, ObjectLayerConfig, box_depth_band, box_depth_samples, object_layer_config,
 )
-from changing_slam_ros.core.se3 import make_pose
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.geometry.se3 import make_pose
+from changing_slam_ros.core.map.slam_map import SlamMap
 from changing_slam_ros.errors import ConfigError
 
 CAM = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.object_merging import MergeConfig, merge_objects, overlap_m3, overlapping_groups
-from changing_slam_ros.core.object_tracking import MovingObject
-from changing_slam_ros.core.se3 import make_pose, transform_points
+from changing_slam_ros.core.movers.object_merging import MergeConfig, merge_objects, overlap_m3, overlapping_groups
+from changing_slam_ros.core.movers.object_tracking import MovingObject
+from changing_slam_ros.core.geometry.se3 import make_pose, transform_points
 from changing_slam_ros.errors import ConfigError
 
 

@@ -1,4 +1,4 @@
-"""Centroid weights of MapObjects (core/object_point_weights.py, MapObject.point_weights): constructed point sets
+"""Centroid weights of MapObjects (core/objects/object_point_weights.py, MapObject.point_weights): constructed point sets
 with a known own-surface centroid."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig, object_map_config
-from changing_slam_ros.core.object_point_weights import (
+from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig, object_map_config
+from changing_slam_ros.core.objects.object_point_weights import (
     fit_structure_planes, point_weights, reweight_objects, voxel_weights,
 )
 from changing_slam_ros.errors import ConfigError, MapFileError

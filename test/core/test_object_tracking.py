@@ -12,16 +12,16 @@ from changing_slam_ros.core.backend.object_ba import (
     full_object_ba,
     motion_only_object_ba,
 )
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.object_tracking import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.movers.object_tracking import (
     FrameObjectMeasurements,
     MovingObject,
     ObjectTracker,
     ObjectTrackingConfig,
     objects_from_segmentation,
 )
-from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationResult
-from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad, transform_points
+from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationResult
+from changing_slam_ros.core.geometry.se3 import invert, make_pose, rotation_angle_rad, transform_points
 from changing_slam_ros.errors import ConfigError
 
 CAMERA = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
@@ -194,8 +194,8 @@ def test_objects_from_segmentation_creates_one_object_per_target_in_the_newest_f
 
 def test_configs_load_from_yaml_sections() -> None:
     from changing_slam_ros.config import section
-    from changing_slam_ros.core.object_merging import MergeConfig
-    from changing_slam_ros.core.point_correlation import SegmentationConfig
+    from changing_slam_ros.core.movers.object_merging import MergeConfig
+    from changing_slam_ros.core.movers.point_correlation import SegmentationConfig
 
     seg = section(SegmentationConfig, {"inconsistent_inlier_fraction": 0.5, "static_volume": "view_cone"}, "t.yaml: seg")
     assert seg.inconsistent_inlier_fraction == 0.5 and seg.static_volume == "view_cone"
@@ -277,7 +277,7 @@ def test_tracking_config_rejects_a_bad_cadence_or_bound() -> None:
 def test_dropping_keyposes_outside_the_window_leaves_a_merged_window_unchanged() -> None:
     from copy import deepcopy
 
-    from changing_slam_ros.core.object_merging import fuse_into
+    from changing_slam_ros.core.movers.object_merging import fuse_into
 
     rng = np.random.default_rng(6)
 

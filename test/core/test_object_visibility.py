@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.map_object import ObjectMapConfig
-from changing_slam_ros.core.object_visibility import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+from changing_slam_ros.core.objects.object_visibility import (
     Visibility, check_visibility, depth_from_keypoints, min_projected_area, window_depth_m,
 )
 

@@ -10,11 +10,11 @@ import numpy as np
 from changing_slam_ros.commands.objects_options import (
     LoopRecord, aligned_objects, loop_error, object_layer_setup, trajectory_alignment,
 )
-from changing_slam_ros.core.map_object import MapObject
-from changing_slam_ros.core.object_layer import ObjectLayer
-from changing_slam_ros.core.se3 import make_pose
-from changing_slam_ros.core.slam_map import Atlas
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.objects.map_object import MapObject
+from changing_slam_ros.core.objects.object_layer import ObjectLayer
+from changing_slam_ros.core.geometry.se3 import make_pose
+from changing_slam_ros.core.map.slam_map import Atlas
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.io.map_file import load_map, save_map
 
 

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 from helpers import FR1_XYZ_10, require
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.io.dataset import open_dataset
 
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.map_object import ObjectMapConfig, object_map_config
-from changing_slam_ros.core.persistence_filter import (
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig, object_map_config
+from changing_slam_ros.core.objects.persistence_filter import (
     bayes_update, centroid_sigma_m, likelihood_missed, likelihood_seen, update_missed, update_seen,
 )
 from changing_slam_ros.errors import ConfigError

@@ -7,10 +7,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.delaunay_graph import delaunay_graph, hull_volume_m3
-from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationConfig, segment
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.movers.delaunay_graph import delaunay_graph, hull_volume_m3
+from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationConfig, segment
+from changing_slam_ros.core.geometry.se3 import make_pose
 from changing_slam_ros.errors import ConfigError
 
 CAMERA = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)

@@ -14,14 +14,14 @@ import cv2
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.object_tracking import (
+from changing_slam_ros.core.movers.object_tracking import (
     FrameObjectMeasurements,
     ObjectTracker,
     ObjectTrackingConfig,
     objects_from_segmentation,
 )
-from changing_slam_ros.core.point_correlation import CorrelationWindow, SegmentationConfig, segment
-from changing_slam_ros.core.se3 import invert, transform_points
+from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationConfig, segment
+from changing_slam_ros.core.geometry.se3 import invert, transform_points
 
 
 @dataclass(frozen=True)

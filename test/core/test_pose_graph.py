@@ -13,7 +13,7 @@ from changing_slam_ros.core.backend.pose_graph import (
     optimise_pose_graph,
     relative_edges,
 )
-from changing_slam_ros.core.se3 import invert, make_pose, rotation_angle_rad
+from changing_slam_ros.core.geometry.se3 import invert, make_pose, rotation_angle_rad
 
 
 def _rot_y(a: float) -> np.ndarray:

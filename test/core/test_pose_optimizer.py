@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from changing_slam_ros.core.pose_optimizer import (
+from changing_slam_ros.core.geometry.pose_optimizer import (
     PinholeStereo,
     PoseObservations,
     optimize_pose,
     se3_exp_left,
 )
-from changing_slam_ros.core.se3 import rotation_angle_rad
+from changing_slam_ros.core.geometry.se3 import rotation_angle_rad
 
 CAM = PinholeStereo(fx=525.0, fy=525.0, cx=319.5, cy=239.5, bf=40.0)
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from helpers import REPO, require
 
-from changing_slam_ros.core.se3 import invert, transform_points
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.geometry.se3 import invert, transform_points
+from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig, object_map_config
-from changing_slam_ros.core.semantic_map import build_semantic_map
+from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig, object_map_config
+from changing_slam_ros.core.objects.semantic_map import build_semantic_map
 from changing_slam_ros.errors import ConfigError
 
 

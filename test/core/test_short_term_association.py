@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
-from changing_slam_ros.core.short_term_association import (
+from changing_slam_ros.core.dynamic.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
+from changing_slam_ros.core.dynamic.short_term_association import (
     ShortTermAssociationConfig,
     ShortTermAssociator,
     match_boxes,

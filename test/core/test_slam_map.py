@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 from helpers import FR1_XYZ_10, require
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.pose_optimizer import se3_exp_left
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.geometry.pose_optimizer import se3_exp_left
+from changing_slam_ros.core.map.slam_map import SlamMap
 from changing_slam_ros.core.system import SlamSystem
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.io.dataset import open_dataset
 
 CAM = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)

@@ -9,7 +9,7 @@ import pytest
 from helpers import FR1_XYZ_10, REDKITCHEN, require
 
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.tracking import TrackingState
+from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 
@@ -52,8 +52,8 @@ def test_fewer_features_still_track_fr1_within_5_mm() -> None:
 
 @pytest.mark.slow
 def test_redkitchen_1000_frames_all_tracked_and_ate_within_orbslam3() -> None:
-    from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-    from changing_slam_ros.core.vocabulary import Vocabulary
+    from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+    from changing_slam_ros.core.features.vocabulary import Vocabulary
 
     closing = SlamMapLoopClosing(LoopCloser(LoopConfig(), Vocabulary.load()))
     source, system, states = _run(REDKITCHEN, "7scenes", SlamSystem(loop_closer=closing, keyframe_index=closing))

@@ -16,9 +16,9 @@ import cv2
 import numpy as np
 import pytest
 
-import changing_slam_ros.core.local_mapping as local_mapping
-from changing_slam_ros.core.keyframe_segmentation import KeyframeSegmentationConfig, window_keyframes
-from changing_slam_ros.core.local_mapping import MappingConfig
+import changing_slam_ros.core.slam.local_mapping as local_mapping
+from changing_slam_ros.core.movers.keyframe_segmentation import KeyframeSegmentationConfig, window_keyframes
+from changing_slam_ros.core.slam.local_mapping import MappingConfig
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.eval.moving_objects import camera_alignment, read_sim_movers
 from changing_slam_ros.io.dataset import open_dataset

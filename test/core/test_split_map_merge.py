@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from helpers import REDKITCHEN, require
 
-from changing_slam_ros.core.map_replication import ReplicationError, apply_merge, full_delta
-from changing_slam_ros.core.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.replication.map_replication import ReplicationError, apply_merge, full_delta
+from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.nodes.slam_backend import BackendConfig, build_backend, load_backend_config
 from changing_slam_ros.nodes.split_chains import ChainedGraph
 
@@ -83,8 +83,8 @@ def test_split_graph_applies_the_merge_and_matches_the_offline_runner() -> None:
 
 
 def _map_with(map_id: int, kf_ids: list[int]) -> tuple[SlamMap, list]:
-    from changing_slam_ros.core.camera import CameraIntrinsics
-    from changing_slam_ros.core.keyframe import Keyframe
+    from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+    from changing_slam_ros.core.map.keyframe import Keyframe
 
     cam = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
     m = SlamMap(map_id)

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, REDKITCHEN, require
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.keyframe import Keyframe
-from changing_slam_ros.core.local_mapping import LocalMapper, MappingConfig
-from changing_slam_ros.core.orb_features import FeatureConfig
-from changing_slam_ros.core.se3 import make_pose
-from changing_slam_ros.core.slam_map import Atlas
-from changing_slam_ros.core.triangulation import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.slam.local_mapping import LocalMapper, MappingConfig
+from changing_slam_ros.core.features.orb_features import FeatureConfig
+from changing_slam_ros.core.geometry.se3 import make_pose
+from changing_slam_ros.core.map.slam_map import Atlas
+from changing_slam_ros.core.slam.triangulation import (
     TriangulationConfig,
     TwoView,
     fundamental_matrix,

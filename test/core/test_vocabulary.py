@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, FR3_WALKING_FRAMES, REDKITCHEN, require
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.orb_features import FeatureConfig, OrbExtractor
-from changing_slam_ros.core.vocabulary import (
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.features.vocabulary import (
     DEFAULT_VOCABULARY_PATH,
     Vocabulary,
     hamming_distances,

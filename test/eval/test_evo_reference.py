@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from helpers import TUM_REFERENCE, require
 
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.eval.rpe import DeltaUnit, rpe
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.map_object import ObjectMapConfig
-from changing_slam_ros.core.semantic_map import SemanticMap, SemanticObject
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+from changing_slam_ros.core.objects.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.object_metrics import (
     box_iou_3d, evaluate_objects, load_ground_truth_objects, world_box,
@@ -141,7 +141,7 @@ def test_visible_surface_centroid_is_the_seen_side_and_scores_the_point_centroid
     """A camera at the origin looking along +x (optical z = world x) sees the -x face of the chair at (3, 1):
     the visible-surface centroid is on that face (x = 2.75), 25 cm from the volume centre; an estimate whose
     centroid is the mean of that face's points is 25 cm off the box centre but 0 cm off the seen surface."""
-    from changing_slam_ros.core.camera import CameraIntrinsics
+    from changing_slam_ros.core.geometry.camera import CameraIntrinsics
     from changing_slam_ros.eval.object_metrics import SurfaceView, visible_surface_centroids
 
     gt = load_ground_truth_objects(_gt_file(tmp_path))

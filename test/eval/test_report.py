@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import TUM_REFERENCE, require
 
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.report import evaluate, evaluate_files
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.se3 import make_pose, quat_to_rot
-from changing_slam_ros.core.trajectory import Trajectory
+from changing_slam_ros.core.geometry.se3 import make_pose, quat_to_rot
+from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.rpe import DeltaUnit, frame_pairs, rotation_angle_deg, rpe, time_pairs
 

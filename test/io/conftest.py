@@ -26,9 +26,9 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from changing_slam_ros.core.se3 import invert, rot_to_quat
+from changing_slam_ros.core.geometry.se3 import invert, rot_to_quat
 from changing_slam_ros.io.camera_info import camera_info_fields
-from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.io.groundtruth import GroundTruth, pose_matrix
 from changing_slam_ros.io.image_codec import depth_image_fields, encode_compressed_depth, encode_compressed_rgb, rgb_image_fields
 from changing_slam_ros.io.tum_folder import read_groundtruth

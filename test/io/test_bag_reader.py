@@ -262,7 +262,7 @@ def test_every_reader_is_an_rgbd_source(ros1_tum_bag: Path) -> None:
 
 
 def test_custom_topics_find_the_camera_info_beside_the_colour_topic(tmp_path: Path) -> None:
-    from changing_slam_ros.core.camera import CameraIntrinsics
+    from changing_slam_ros.core.geometry.camera import CameraIntrinsics
     from changing_slam_ros.io.camera_info import camera_info_fields
 
     store = get_typestore(Stores.ROS2_JAZZY)

@@ -10,7 +10,7 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from changing_slam_ros.config import PACKAGE_CONFIG_DIR
-from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.errors import BagError, ConfigError, DatasetError
 from changing_slam_ros.io.camera_info import (
     camera_info_fields,

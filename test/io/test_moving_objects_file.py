@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.object_tracking import MovingObjectTrack
-from changing_slam_ros.core.se3 import make_pose
+from changing_slam_ros.core.movers.object_tracking import MovingObjectTrack
+from changing_slam_ros.core.geometry.se3 import make_pose
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.io.moving_objects_file import read_moving_objects, write_moving_objects
 

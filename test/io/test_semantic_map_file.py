@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.map_object import MapObject, ObjectMapConfig
-from changing_slam_ros.core.semantic_map import build_semantic_map
+from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig
+from changing_slam_ros.core.objects.semantic_map import build_semantic_map
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.semantic_map_file import (
     read_object_map, read_semantic_map, write_object_map, write_semantic_map,

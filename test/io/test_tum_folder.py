@@ -20,7 +20,7 @@ from changing_slam_ros.io.tum_folder import (
     parse_stamp_ns,
     read_groundtruth,
 )
-from changing_slam_ros.core.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 
 
 def _settings(name: str):  # noqa: ANN202

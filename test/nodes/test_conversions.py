@@ -16,12 +16,12 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from sensor_msgs.msg import Image  # noqa: E402
 
 from changing_slam_msgs.msg import DetectionArray, Keyframe as KeyframeMsg, LoopCorrection as LoopMsg  # noqa: E402
-from changing_slam_ros.core.camera import CameraIntrinsics  # noqa: E402
-from changing_slam_ros.core.detector import Detection, DetectionSet  # noqa: E402
-from changing_slam_ros.core.dynamic_objects import ObjectMotion, ObjectState  # noqa: E402
-from changing_slam_ros.core.keyframe import Keyframe  # noqa: E402
-from changing_slam_ros.core.loop_closing import LoopCorrection  # noqa: E402
-from changing_slam_ros.core.se3 import make_pose  # noqa: E402
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics  # noqa: E402
+from changing_slam_ros.core.dynamic.detector import Detection, DetectionSet  # noqa: E402
+from changing_slam_ros.core.dynamic.dynamic_objects import ObjectMotion, ObjectState  # noqa: E402
+from changing_slam_ros.core.map.keyframe import Keyframe  # noqa: E402
+from changing_slam_ros.core.slam.loop_closing import LoopCorrection  # noqa: E402
+from changing_slam_ros.core.geometry.se3 import make_pose  # noqa: E402
 from changing_slam_ros.errors import BagError  # noqa: E402
 from changing_slam_ros.nodes import conversions as cv  # noqa: E402
 

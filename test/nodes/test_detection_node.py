@@ -82,7 +82,7 @@ def test_max_rate_hz_detects_every_other_frame_of_a_30_hz_stream_by_stamp_and_a_
     the node was busy and the next image it sees is already two periods on, that one is detected (no catching
     up), and a stamp that goes back (a looping bag) is detected at once. Every image skipped (and one rejected)
     is announced on ~/skipped with its own header, so a tracker stops waiting for its detections."""
-    from changing_slam_ros.core.detector import DetectionSet
+    from changing_slam_ros.core.dynamic.detector import DetectionSet
 
     node = DetectionNode(context=ros_context, parameter_overrides=[Parameter("max_rate_hz", value=15.0)])
     detected: list[int] = []

@@ -23,8 +23,8 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg, MapObject  # noqa: E402
 from changing_slam_msgs.srv import QueryObjects, SaveMap  # noqa: E402
-from changing_slam_ros.core.camera import CameraIntrinsics  # noqa: E402
-from changing_slam_ros.core.keyframe import Keyframe  # noqa: E402
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics  # noqa: E402
+from changing_slam_ros.core.map.keyframe import Keyframe  # noqa: E402
 from changing_slam_ros.nodes import conversions as cv  # noqa: E402
 from changing_slam_ros.nodes.bag_player_node import BagPlayerNode  # noqa: E402
 from changing_slam_ros.nodes.local_mapping_node import LocalMappingNode  # noqa: E402

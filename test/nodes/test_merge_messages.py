@@ -8,11 +8,11 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("changing_slam_msgs.msg", reason="interfaces not built (tools/build_interfaces.sh)")
 
-from changing_slam_ros.core.loop_closing import MapMerge  # noqa: E402
-from changing_slam_ros.core.map_merging import MergeResult  # noqa: E402
-from changing_slam_ros.core.map_replication import LoopResult, MapUpdate, full_delta  # noqa: E402
-from changing_slam_ros.core.se3 import make_pose  # noqa: E402
-from changing_slam_ros.core.slam_map import SlamMap  # noqa: E402
+from changing_slam_ros.core.slam.loop_closing import MapMerge  # noqa: E402
+from changing_slam_ros.core.slam.map_merging import MergeResult  # noqa: E402
+from changing_slam_ros.core.replication.map_replication import LoopResult, MapUpdate, full_delta  # noqa: E402
+from changing_slam_ros.core.geometry.se3 import make_pose  # noqa: E402
+from changing_slam_ros.core.map.slam_map import SlamMap  # noqa: E402
 from changing_slam_ros.errors import BagError  # noqa: E402
 from changing_slam_ros.nodes.replication_conversions import (  # noqa: E402
     loop_result_from_msg,
@@ -72,9 +72,9 @@ def test_a_merge_update_crosses_the_map_update_message_and_bad_ones_are_rejected
 
 
 def test_a_keyframe_packet_carries_the_counter_increments_of_other_maps() -> None:
-    from changing_slam_ros.core.camera import CameraIntrinsics
-    from changing_slam_ros.core.keyframe import Keyframe
-    from changing_slam_ros.core.map_replication import KeyframePacket, PointCounters
+    from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+    from changing_slam_ros.core.map.keyframe import Keyframe
+    from changing_slam_ros.core.replication.map_replication import KeyframePacket, PointCounters
     from changing_slam_ros.nodes.replication_conversions import packet_from_msg, packet_to_msg
 
     cam = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)

@@ -12,8 +12,8 @@ pytest.importorskip("changing_slam_msgs.msg", reason="interfaces not built (tool
 
 from visualization_msgs.msg import Marker  # noqa: E402
 
-from changing_slam_ros.core.object_tracking import MovingObjectTrack  # noqa: E402
-from changing_slam_ros.core.se3 import make_pose  # noqa: E402
+from changing_slam_ros.core.movers.object_tracking import MovingObjectTrack  # noqa: E402
+from changing_slam_ros.core.geometry.se3 import make_pose  # noqa: E402
 from changing_slam_ros.nodes import conversions as cv  # noqa: E402
 
 S = 1_000_000_000

@@ -22,8 +22,8 @@ from rclpy.qos import QoSProfile  # noqa: E402
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg  # noqa: E402
 from changing_slam_msgs.msg import LoopCorrection, MapUpdate  # noqa: E402
-from changing_slam_ros.core.map_replication import KeyframePacket, diff, snapshot  # noqa: E402
-from changing_slam_ros.core.map_replication import MapUpdate as MapUpdateData  # noqa: E402
+from changing_slam_ros.core.replication.map_replication import KeyframePacket, diff, snapshot  # noqa: E402
+from changing_slam_ros.core.replication.map_replication import MapUpdate as MapUpdateData  # noqa: E402
 from changing_slam_ros.nodes.local_mapping_node import LocalMappingNode  # noqa: E402
 from changing_slam_ros.nodes.loop_closing_node import LoopClosingNode  # noqa: E402
 from changing_slam_ros.nodes.replication_conversions import (  # noqa: E402
@@ -232,7 +232,7 @@ def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):
     between the start and a turn later, with the correction's delta for the owner."""
     from core.test_map_replication import drifting_room_steps
 
-    from changing_slam_ros.core.slam_map import SlamMap
+    from changing_slam_ros.core.map.slam_map import SlamMap
 
     node = LoopClosingNode(context=ros_context, parameter_overrides=[Parameter("config", value=""),
                                                                      Parameter("resync_timeout_s", value=0.0)])

@@ -22,7 +22,7 @@ from sensor_msgs.msg import Image  # noqa: E402
 
 from changing_slam_msgs.msg import Detection, DetectionArray  # noqa: E402
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg  # noqa: E402
-from changing_slam_ros.core.trajectory import Trajectory  # noqa: E402
+from changing_slam_ros.core.geometry.trajectory import Trajectory  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory  # noqa: E402
@@ -390,10 +390,10 @@ def test_real_time_carried_boxes_move_with_the_image_motion_when_detections_carr
 
     from helpers import FR1_XYZ_10, require
 
-    from changing_slam_ros.core.box_flow import FlowImage
-    from changing_slam_ros.core.detector import Detection as CoreDetection
-    from changing_slam_ros.core.detector import DetectionSet
-    from changing_slam_ros.core.late_detections import CarryConfig, carried_forward
+    from changing_slam_ros.core.dynamic.box_flow import FlowImage
+    from changing_slam_ros.core.dynamic.detector import Detection as CoreDetection
+    from changing_slam_ros.core.dynamic.detector import DetectionSet
+    from changing_slam_ros.core.dynamic.late_detections import CarryConfig, carried_forward
 
     src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
     frames = list(itertools.islice(iter(src), 8))

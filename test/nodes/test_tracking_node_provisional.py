@@ -19,7 +19,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile  # noqa: E402
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg  # noqa: E402
-from changing_slam_ros.core.trajectory import Trajectory  # noqa: E402
+from changing_slam_ros.core.geometry.trajectory import Trajectory  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
 from changing_slam_ros.nodes import conversions as cv  # noqa: E402

@@ -14,7 +14,7 @@ from nav_msgs.msg import Odometry, Path as PathMsg  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
-from changing_slam_ros.core.se3 import make_pose  # noqa: E402
+from changing_slam_ros.core.geometry.se3 import make_pose  # noqa: E402
 from changing_slam_ros.nodes.qos_events import QuietQosEvents  # noqa: E402
 from changing_slam_ros.nodes.tracking_outputs import PoseOutputs  # noqa: E402
 from helpers import spin_until  # noqa: E402

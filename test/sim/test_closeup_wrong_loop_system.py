@@ -27,16 +27,16 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.commands.objects_options import LoopLog
-from changing_slam_ros.core.dynamic_filter import DynamicFilter, DynamicFrame
-from changing_slam_ros.core.dynamic_objects import ObjectMotion
-from changing_slam_ros.core.keyframe import KeypointClass
-from changing_slam_ros.core.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
-from changing_slam_ros.core.map_object import ObjectMapConfig
-from changing_slam_ros.core.object_layer import ObjectLayer, ObjectLayerConfig
-from changing_slam_ros.core.place_recognition import DriftGateConfig
+from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter, DynamicFrame
+from changing_slam_ros.core.dynamic.dynamic_objects import ObjectMotion
+from changing_slam_ros.core.map.keyframe import KeypointClass
+from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerConfig
+from changing_slam_ros.core.slam.place_recognition import DriftGateConfig
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.tracking import TrackingConfig
-from changing_slam_ros.core.vocabulary import Vocabulary
+from changing_slam_ros.core.slam.tracking import TrackingConfig
+from changing_slam_ros.core.features.vocabulary import Vocabulary
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.se3 import invert, rotation_angle_rad
+from changing_slam_ros.core.geometry.se3 import invert, rotation_angle_rad
 from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim.actors import ChangeKind
 from changing_slam_ros.sim.oracle import oracle_detections

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from changing_slam_ros.core.se3 import invert, quat_to_rot, make_pose
+from changing_slam_ros.core.geometry.se3 import invert, quat_to_rot, make_pose
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 from changing_slam_ros.sim.scenarios import build_scenario

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.sim.scenarios import SLOW_MOVER_SPEED_M_S, build_scenario
 
 

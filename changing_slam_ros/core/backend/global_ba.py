@@ -20,7 +20,7 @@ from changing_slam_ros.core.backend.local_ba import (
     gather_observations,
     reprojection_chi2,
 )
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.map.slam_map import SlamMap
 
 F64 = npt.NDArray[np.float64]
 

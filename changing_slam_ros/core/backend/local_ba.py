@@ -24,9 +24,9 @@ import numpy.typing as npt
 from gtsam.symbol_shorthand import L, X
 
 from changing_slam_ros.core.backend import schur_lm
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.pose_optimizer import CHI2_MONO, CHI2_STEREO
-from changing_slam_ros.core.slam_map import SlamMap
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.pose_optimizer import CHI2_MONO, CHI2_STEREO
+from changing_slam_ros.core.map.slam_map import SlamMap
 
 F64 = npt.NDArray[np.float64]
 

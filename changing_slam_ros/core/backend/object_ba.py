@@ -32,8 +32,8 @@ import numpy as np
 import numpy.typing as npt
 from gtsam.symbol_shorthand import L, X
 
-from changing_slam_ros.core.camera import CameraIntrinsics
-from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.se3 import invert
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 from gtsam.symbol_shorthand import X
 
-from changing_slam_ros.core.se3 import invert
+from changing_slam_ros.core.geometry.se3 import invert
 
 F64 = npt.NDArray[np.float64]
 

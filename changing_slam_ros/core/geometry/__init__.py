@@ -1,0 +1,1 @@
+"""Rigid-body geometry: SE(3) helpers, the pinhole camera, motion-only pose optimisation, trajectories."""

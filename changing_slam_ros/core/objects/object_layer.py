@@ -1,0 +1,536 @@
+"""The object layer of the SLAM system (Changing-SLAM §4.2, §4.6-4.8): MapObjects, beliefs and active points.
+
+`ObjectLayer` wraps one `LongTermAssociation` per map of the Atlas. `SlamSystem` calls
+`after_keyframe(kf, slam_map, depth_m, short_term_objects)` once per new keyframe, after local mapping
+and before loop closing, so that loop closing already sees the points this keyframe deactivated:
+
+1. every object's points are re-read (bundle adjustment and loop correction move keyframes and points);
+2. the keyframe's candidates, one per short-term object of the dynamic stage that is not dynamic (static,
+   or not yet classified), with its class and its box in this keyframe; boxes touching the border are
+   truncated candidates (`long_term_association.box_truncated`). A candidate's points are
+   - the map points of its keypoints (`Keyframe.object_ids`, set by the dynamic filter): only the keypoints
+     tracking was allowed to use have map points, i.e. those of objects the EKF found static. With
+     `band_map_points` only those within the box's depth band (below) are kept: a box also holds keypoints
+     of the wall or the table seen past the object, which pulled a monitor's box 40 cm back to the wall;
+   - depth samples inside its box (`depth_samples` on a grid, within `depth_band_m` of the box's median
+     depth, back-projected from the keyframe; cut boxes too with `truncated_views` and `cut_only_views_join`,
+     kept only where an object known only from cut views takes them): the object's shape even while its
+     keypoints are filtered (a movable object the EKF has not yet called static has no map point at all).
+     They carry negative ids
+     (below -1) and never enter the metric map;
+3. Algorithm 1 (`LongTermAssociation.process_keyframe`) merges, creates and belief-updates objects and
+   runs the vicinity search with the keyframe's depth image;
+4. the map points take their object's id and class, and their active flag follows the object's belief
+   (`apply_to_point_store`; a point held by two objects follows the one it was last associated with): tracking, local BA, map fusion and place recognition skip inactive points
+   through `PointStore.usable()` and the loop closer's active masks.
+
+Object points outlive metric culling. Inactive points are never matched again, so ORB-SLAM's recent-point
+culling removes most of them two keyframes after their creation; a MapObject that lost its points would
+fall under `min_points` and could never be associated again. Every object point is therefore anchored in
+the keyframe that first gave it to the object (position in that camera's frame); depth samples, and map
+points once the map culled them, are re-expressed from that keyframe's current pose (culled keyframes
+through their parents, `SlamMap.pose_of`). Live map points are read from the map.
+
+`enabled=False` (YAML `objects: {enabled: false}`, CLI `--no-objects`) turns the layer into a no-op:
+every map point stays active, as in the plain engine; this is the "what the layer prevents" baseline.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.dynamic.dynamic_objects import ObjectState
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.objects.long_term_association import (
+    AssociationResult, LongTermAssociation, ObjectCandidate, apply_to_point_store, box_truncated,
+)
+from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
+from changing_slam_ros.core.objects.object_box_completion import gravity_up
+from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
+from changing_slam_ros.core.geometry.se3 import invert
+from changing_slam_ros.core.objects.semantic_map import SemanticMap, build_semantic_map
+from changing_slam_ros.core.map.slam_map import SlamMap
+from changing_slam_ros.errors import ConfigError
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+MIN_DEPTH_BAND_M = 0.05
+
+
+@dataclass(frozen=True)
+class ObjectLayerConfig:
+    """YAML section `objects:`: the layer's own keys plus every `ObjectMapConfig` field.
+
+    - `enabled`: the layer's switch (off = every map point stays active).
+    - `depth_samples`: depth pixels sampled per candidate box (on a regular grid); 0 = map points only.
+    - `depth_band_m`: samples farther than this from the box's median depth are background and left out
+      (smaller boxes use a narrower band, see `box_depth_samples`).
+    - `depth_band_near_quantile`: the band's near end reaches at least this quantile of the box's depths (0: the
+      band stays centred on the median): the nearest depths in a whole box are its object's, and a chair seen at
+      a slant, its frame seen through, has its median depth at its far part (`box_depth_band`).
+    - `band_map_points`: apply the same band to the map points of the box's keypoints (camera-frame depth).
+    - `cut_min_side_m`: a box cut by the image border gives depth samples (`cut_only_views_join`) only when its
+      smaller side spans at least this many metres at its median depth: a sliver at the image edge is mostly
+      what lies behind the object (shift: a 2-pixel-wide chair box, 1.5 cm at 2 m, gave 25 samples of the
+      wall and a spurious chair 1 m from the real one). Whole boxes are not concerned (a cup is small).
+    - `session_belief_decay`: a map loaded for a new session (multi-session) pulls every object's belief this
+      fraction of the way back to 0.5 (0 = keep, 1 = forget): time has passed and the room may have changed, so
+      what the last session saw counts less than what this one sees (a one-step stand-in for a survival-time
+      prior). An object that falls below `belief_threshold` starts the session inactive.
+    """
+
+    enabled: bool = True
+    depth_samples: int = 100
+    depth_band_m: float = 0.35
+    depth_band_near_quantile: float = 0.05
+    band_map_points: bool = True
+    session_belief_decay: float = 0.5
+    cut_min_side_m: float = 0.1
+    association: ObjectMapConfig = field(default_factory=ObjectMapConfig)
+
+    def __post_init__(self) -> None:
+        if self.depth_samples < 0:
+            raise ConfigError(f"objects.depth_samples: expected >= 0, got {self.depth_samples}")
+        if self.depth_band_m <= 0.0:
+            raise ConfigError(f"objects.depth_band_m: expected > 0, got {self.depth_band_m}")
+        if not 0.0 <= self.depth_band_near_quantile < 0.5:
+            raise ConfigError(f"objects.depth_band_near_quantile: expected within [0, 0.5), got "
+                              f"{self.depth_band_near_quantile}")
+        if self.cut_min_side_m < 0.0:
+            raise ConfigError(f"objects.cut_min_side_m: expected >= 0, got {self.cut_min_side_m}")
+        if not 0.0 <= self.session_belief_decay <= 1.0:
+            raise ConfigError(f"objects.session_belief_decay: expected within [0, 1], got {self.session_belief_decay}")
+
+
+_OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "depth_band_near_quantile": float,
+             "band_map_points": bool,
+             "session_belief_decay": float, "cut_min_side_m": float}
+
+
+def object_layer_config(data: dict[str, Any] | None, where: str = "objects") -> ObjectLayerConfig:
+    """Parse the `objects:` mapping (None = defaults); the layer's keys are read here, the rest by `ObjectMapConfig`."""
+    if data is None:
+        return ObjectLayerConfig()
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    rest = dict(data)
+    own: dict[str, Any] = {}
+    for key, kind in _OWN_KEYS.items():
+        if key not in rest:
+            continue
+        v = rest.pop(key)
+        ok = isinstance(v, bool) if kind is bool else (isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                       and (kind is float or isinstance(v, int)))
+        if not ok:
+            raise ConfigError(f"{where}.{key}: expected {kind.__name__}, got {v!r}")
+        own[key] = kind(v)
+    return ObjectLayerConfig(**own, association=object_map_config(rest, where))
+
+
+@dataclass(frozen=True)
+class ObjectLayerResult:
+    """What one keyframe did to the object map of its map: `association` (None when the layer is off),
+    `candidates` (the keyframe's object candidates, in association order), map points whose active flag was
+    set (`n_activated`, `n_deactivated`) and the milliseconds spent."""
+
+    map_id: int
+    association: AssociationResult | None
+    candidates: tuple[ObjectCandidate, ...]
+    n_activated: int
+    n_deactivated: int
+    ms: float
+
+    @property
+    def active_flags_changed(self) -> bool:
+        return self.n_activated + self.n_deactivated > 0
+
+
+class _Anchors:
+    """Object points anchored in keyframes: point id -> (keyframe id, position (3,) in that camera's frame)."""
+
+    def __init__(self) -> None:
+        self._ids: list[I64] = []
+        self._kfs: list[I64] = []
+        self._pts: list[F64] = []
+        self._cache: tuple[I64, I64, F64] | None = None
+
+    def add(self, kf_id: int, ids: I64, points_cam: F64) -> None:
+        self._ids.append(np.asarray(ids, np.int64))
+        self._kfs.append(np.full(len(ids), kf_id, np.int64))
+        self._pts.append(np.asarray(points_cam, float).reshape(-1, 3))
+        self._cache = None
+
+    def arrays(self) -> tuple[I64, I64, F64]:
+        """(ids (M,) sorted, keyframe ids (M,), camera-frame positions (M, 3)); the first anchor of an id wins."""
+        if self._cache is None:
+            if not self._ids:
+                self._cache = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
+            else:
+                ids, kfs, pts = np.concatenate(self._ids), np.concatenate(self._kfs), np.vstack(self._pts)
+                uniq, first = np.unique(ids, return_index=True)
+                self._cache = (uniq, kfs[first], pts[first])
+                self._ids, self._kfs, self._pts = [uniq], [kfs[first]], [pts[first]]
+        return self._cache
+
+
+@dataclass
+class _MapObjects:
+    """The object map of one SlamMap: the association, the anchors, the next depth-sample id (negative)."""
+
+    lta: LongTermAssociation
+    anchors: _Anchors = field(default_factory=_Anchors)
+    next_sample_id: int = -2
+    planes: list[Plane] = field(default_factory=list)  # the room's large planes (`object_point_weights`)
+    keyframes_since_planes: int = -1  # keyframes since the planes were fitted (-1: never)
+
+
+@dataclass
+class SavedObjectMap:
+    """The object map of one SlamMap as a saved map holds it (multi-session): the MapObjects with beliefs, the
+    anchors of their points (ids (M,), keyframe ids (M,), camera-frame positions (M, 3)) and the next
+    depth-sample id (negative)."""
+
+    objects: list[MapObject]
+    anchor_ids: I64
+    anchor_kf_ids: I64
+    anchor_points_cam: F64
+    next_sample_id: int = -2
+
+
+class ObjectLayer:
+    """MapObjects and persistence beliefs for every map of the Atlas; one instance per run."""
+
+    def __init__(self, config: ObjectLayerConfig | None = None) -> None:
+        self.config = config or ObjectLayerConfig()
+        self._maps: dict[int, _MapObjects] = {}
+        self.keyframe_ms: list[float] = []
+
+    @property
+    def enabled(self) -> bool:
+        return self.config.enabled
+
+    @property
+    def map_ids(self) -> list[int]:
+        """Maps that have an object map, ascending."""
+        return sorted(self._maps)
+
+    def association(self, map_id: int) -> LongTermAssociation:
+        """The object map of `map_id` (created empty on first use)."""
+        return self._for(map_id).lta
+
+    def objects(self, map_id: int | None = None) -> list[MapObject]:
+        """The MapObjects of one map, or of every map (ordered by map, then id)."""
+        ids = sorted(self._maps) if map_id is None else [map_id]
+        return [o for m in ids if m in self._maps for _, o in sorted(self._maps[m].lta.objects.items())]
+
+    def planes(self, map_id: int) -> list[Plane]:
+        """The room's large planes of one map as last fitted (`object_point_weights`), map frame; [] before."""
+        return list(self._maps[map_id].planes) if map_id in self._maps else []
+
+    def _for(self, map_id: int) -> _MapObjects:
+        if map_id not in self._maps:
+            self._maps[map_id] = _MapObjects(LongTermAssociation(self.config.association))
+        return self._maps[map_id]
+
+    # --- saved maps (multi-session) ---
+    def saved_objects(self, map_id: int) -> SavedObjectMap:
+        """The object map of `map_id` in the form a map file stores."""
+        mo = self._for(map_id)
+        ids, kfs, pts = mo.anchors.arrays()
+        return SavedObjectMap(self.objects(map_id), ids.copy(), kfs.copy(), pts.copy(), mo.next_sample_id)
+
+    def load_objects(self, map_id: int, saved: SavedObjectMap, first_keyframe_id: int,
+                     points: PointStore | None = None) -> None:
+        """Start `map_id`'s object map from a loaded one; beliefs are pulled toward 0.5 by `session_belief_decay`
+        and the active flags of the objects and of their map points in `points` (the loaded map's) follow. The
+        new session's keyframes start at `first_keyframe_id`, and every object counts as long unseen
+        (`LongTermAssociation.new_session`): its first sighting, or expected miss, updates its belief."""
+        mo = _MapObjects(LongTermAssociation(self.config.association), next_sample_id=saved.next_sample_id)
+        keep = 1.0 - self.config.session_belief_decay
+        for obj in saved.objects:
+            obj.belief = 0.5 + (obj.belief - 0.5) * keep
+            obj.active = obj.belief >= self.config.association.belief_threshold
+            mo.lta.add_object(obj)
+            if points is not None:
+                ids = obj.point_ids[(obj.point_ids >= 0) & (obj.point_ids < points.size)]
+                ids = ids[points.object_id[ids] == obj.id]  # a shared point follows its last object
+                points.active[ids] = obj.active
+        for kf_id in np.unique(saved.anchor_kf_ids).tolist():
+            sel = saved.anchor_kf_ids == kf_id
+            mo.anchors.add(int(kf_id), saved.anchor_ids[sel], saved.anchor_points_cam[sel])
+        mo.lta.new_session(first_keyframe_id)
+        self._maps[map_id] = mo
+
+    # --- per keyframe ---
+    def after_keyframe(self, kf: Keyframe, slam_map: SlamMap, depth_m: npt.NDArray[np.floating] | None,
+                       short_term_objects: Sequence[ObjectState]) -> ObjectLayerResult:
+        """Run the layer on a mapped keyframe. depth_m (H, W) metres (0 invalid) of the keyframe, or None;
+        `short_term_objects`: the dynamic stage's objects in the keyframe's frame (dynamic ones are ignored)."""
+        t0 = time.perf_counter()
+        if not self.config.enabled:
+            return ObjectLayerResult(slam_map.id, None, (), 0, 0, 0.0)
+        mo = self._for(slam_map.id)
+        mo.lta.refresh_points(lambda ids: self._positions(mo, slam_map, ids))
+        cands = self._candidates(mo, kf, slam_map, depth_m, short_term_objects)
+        # every detection of the keyframe explains a miss away, also those that gave no candidate (flagged dynamic,
+        # or a cut box without map points)
+        flagged = [(int(o.class_id), tuple(float(v) for v in o.box_xyxy)) for o in short_term_objects]
+        was_active = {oid: obj.active for oid, obj in mo.lta.objects.items()}
+        up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])  # the camera's -y is its up
+        res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
+                                      detected_boxes=flagged, up_w=up)  # type: ignore[arg-type]
+        self._anchor(mo, kf, cands, res)
+        self._reweight(mo, slam_map, kf.id)
+        apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
+        self._settle_shared(mo, slam_map, res)
+        self._flip_labelled(mo, slam_map, was_active)
+        ms = (time.perf_counter() - t0) * 1e3
+        self.keyframe_ms.append(ms)
+        return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands), int((res.activated_point_ids >= 0).sum()),
+                                 int((res.deactivated_point_ids >= 0).sum()), ms)
+
+    def _candidates(self, mo: _MapObjects, kf: Keyframe, slam_map: SlamMap,
+                    depth_m: npt.NDArray[np.floating] | None,
+                    short_term_objects: Sequence[ObjectState]) -> list[tuple[ObjectCandidate, F64]]:
+        """(candidate, camera-frame positions (N, 3) of its points) per non-dynamic short-term object."""
+        out = []
+        has_ids = len(kf.object_ids) == len(kf.point_ids)
+        T_cam_world = invert(kf.T_world_cam)
+        for o in sorted(short_term_objects, key=lambda o: o.object_id):
+            if o.is_dynamic:
+                continue
+            ids = np.zeros(0, np.int64)
+            if has_ids:
+                sel = (kf.object_ids == o.object_id) & (kf.point_ids >= 0)
+                ids = np.unique(kf.point_ids[sel])
+                ids = ids[~slam_map.points.bad[ids]]
+            pts_w = slam_map.points.positions[ids].reshape(-1, 3)
+            pts_c = pts_w @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+            band = None if depth_m is None else box_depth_band(depth_m, o.box_xyxy, kf.camera, self.config.depth_band_m,
+                                                               near_quantile=self.config.depth_band_near_quantile)
+            if self.config.band_map_points and band is not None:
+                near = band.contains(pts_c[:, 2])
+                ids, pts_w, pts_c = ids[near], pts_w[near], pts_c[near]
+            box = tuple(float(v) for v in o.box_xyxy)
+            truncated = box_truncated(box, kf.camera)  # type: ignore[arg-type]
+            assoc = self.config.association
+            # a cut box's samples are for objects known only from cut views; a sliver at the edge gives none
+            cut_samples = (assoc.truncated_views and assoc.cut_only_views_join and band is not None
+                           and min(box[2] - box[0], box[3] - box[1]) * band.median_m / kf.camera.fx
+                           >= self.config.cut_min_side_m)
+            if depth_m is not None and self.config.depth_samples > 0 and (cut_samples or not truncated):
+                sample_c = box_depth_samples(depth_m, o.box_xyxy, kf.camera, self.config.depth_samples,
+                                             self.config.depth_band_m, self.config.depth_band_near_quantile)
+                sample_ids = np.arange(mo.next_sample_id, mo.next_sample_id - len(sample_c), -1, dtype=np.int64)
+                mo.next_sample_id -= len(sample_c)
+                ids = np.concatenate([ids, sample_ids])
+                pts_c = np.vstack([pts_c, sample_c])
+                pts_w = np.vstack([pts_w, sample_c @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3]])
+            if len(ids) == 0:
+                continue
+            cand = ObjectCandidate(int(o.class_id), box, ids, pts_w, truncated)  # type: ignore[arg-type]
+            out.append((cand, pts_c))
+        return out
+
+    def _reweight(self, mo: _MapObjects, slam_map: SlamMap, kf_id: int) -> None:
+        """Point weights of every object (`object_point_weights`): the room's planes are refitted to the static
+        map points every `structure_refit_keyframes` keyframes."""
+        cfg = self.config.association
+        if cfg.centroid_voxel_m <= 0.0 and cfg.structure_plane_dist_m <= 0.0 and cfg.shared_point_dist_m <= 0.0:
+            return  # the paper's plain mean
+        if cfg.structure_plane_dist_m > 0.0 and (mo.keyframes_since_planes < 0
+                                                 or mo.keyframes_since_planes + 1 >= cfg.structure_refit_keyframes):
+            pts = slam_map.points
+            n = pts.size
+            static = (pts.object_id[:n] < 0) & ~pts.bad[:n]
+            mo.planes = fit_structure_planes(pts.positions[:n][static], cfg.structure_plane_dist_m,
+                                             cfg.structure_plane_min_fraction, cfg.structure_max_planes,
+                                             cfg.structure_plane_iterations, cfg.structure_plane_max_points, seed=kf_id)
+            mo.keyframes_since_planes = 0
+        else:
+            mo.keyframes_since_planes += 1
+        reweight_objects(list(mo.lta.objects.values()), mo.planes, cfg)
+
+    @staticmethod
+    def _settle_shared(mo: _MapObjects, slam_map: SlamMap, res: AssociationResult) -> None:
+        """A map point seen inside the boxes of two objects (a wall point behind both places of a moved chair)
+        belongs to both; its flag follows the object it was last associated with (`PointStore.object_id`),
+        not whichever object changed state last."""
+        ids = np.concatenate([res.activated_point_ids, res.deactivated_point_ids])
+        pts = slam_map.points
+        ids = ids[(ids >= 0) & (ids < pts.size)]
+        if len(ids) == 0:
+            return
+        owner = pts.object_id[ids]
+        objects = mo.lta.objects
+        known = np.array([int(o) in objects for o in owner.tolist()], bool)
+        pts.active[ids[known]] = [objects[int(o)].active for o in owner[known].tolist()]
+
+    @staticmethod
+    def _flip_labelled(mo: _MapObjects, slam_map: SlamMap, was_active: dict[int, bool]) -> None:
+        """Every live map point labelled with an object that changed state takes its flag, also the points of its
+        cut views that are not in its point set (`long_term_association`: truncated candidates)."""
+        flipped = [oid for oid, obj in mo.lta.objects.items() if oid in was_active and was_active[oid] != obj.active]
+        if not flipped:
+            return
+        pts = slam_map.points
+        n = pts.size
+        for oid in flipped:
+            sel = np.flatnonzero((pts.object_id[:n] == oid) & ~pts.bad[:n])
+            pts.active[sel] = mo.lta.objects[oid].active
+
+    @staticmethod
+    def _anchor(mo: _MapObjects, kf: Keyframe, cands: Sequence[tuple[ObjectCandidate, F64]],
+                res: AssociationResult) -> None:
+        for (cand, pts_c), oid in zip(cands, res.assignments):
+            if oid < 0:
+                continue
+            ids = cand.point_ids
+            if cand.truncated:  # a cut view's depth samples count only where the object took them
+                keep = (ids >= 0) | np.isin(ids, mo.lta.objects[oid].point_ids)
+                ids, pts_c = ids[keep], pts_c[keep]
+            mo.anchors.add(kf.id, ids, pts_c)
+
+    @staticmethod
+    def _positions(mo: _MapObjects, slam_map: SlamMap, ids: I64) -> tuple[F64, npt.NDArray[np.bool_]]:
+        """World positions (N, 3) of object points: live map points from the map, the others from their anchor."""
+        pts = slam_map.points
+        ids = np.asarray(ids, np.int64)
+        live = (ids >= 0) & (ids < pts.size)
+        safe = np.where(live, ids, 0)
+        live &= ~pts.bad[safe]
+        pos: F64 = pts.positions[safe].copy()
+        usable = live.copy()
+        need = np.flatnonzero(~live)
+        if len(need) == 0:
+            return pos, usable
+        a_ids, a_kfs, a_pts = mo.anchors.arrays()
+        if len(a_ids) == 0:
+            return pos, usable
+        j = np.searchsorted(a_ids, ids[need]).clip(0, len(a_ids) - 1)
+        found = a_ids[j] == ids[need]
+        need, j = need[found], j[found]
+        for kf_id in np.unique(a_kfs[j]).tolist():
+            if kf_id not in slam_map.keyframes and kf_id not in slam_map.removed:
+                continue
+            sel = a_kfs[j] == kf_id
+            T = slam_map.pose_of(kf_id)
+            pos[need[sel]] = a_pts[j[sel]] @ T[:3, :3].T + T[:3, 3]
+            usable[need[sel]] = True
+        return pos, usable
+
+    # --- results ---
+    def semantic_map(self, map_id: int, min_belief: float | None = None, include_inactive: bool = False) -> SemanticMap:
+        """§4.8 semantic map of one map: objects with belief >= min_belief (default `semantic_min_belief`,
+        0.5; each flagged `confirmed` at `belief_threshold`)."""
+        return build_semantic_map(self.objects(map_id), self.config.association, include_inactive=include_inactive,
+                                  planes=self.planes(map_id),
+                                  min_belief=min_belief)
+
+    def summary(self) -> dict[str, Any]:
+        """Counts for metrics.json: objects, active ones, milliseconds per keyframe."""
+        objs = self.objects()
+        ms = np.asarray(self.keyframe_ms) if self.keyframe_ms else np.zeros(1)
+        min_points = self.config.association.min_points
+        return {
+            "enabled": self.config.enabled,
+            "objects": len(objs),
+            "objects_active": sum(1 for o in objs if o.active),
+            "objects_inactive_with_points": sum(1 for o in objs if not o.active and o.n_points >= min_points),
+            "keyframes": len(self.keyframe_ms),
+            "ms_per_keyframe_mean": float(ms.mean()),
+            "ms_per_keyframe_p90": float(np.percentile(ms, 90)),
+        }
+
+
+@dataclass(frozen=True)
+class DepthBand:
+    """The camera-frame depths (metres) taken as a box's object: within `half_m` of `median_m`, the box's median
+    depth, and from `near_m` (<= median_m - half_m) up to that."""
+
+    median_m: float
+    half_m: float
+    near_m: float
+
+    def contains(self, depth_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """Which depths (any shape) lie inside the band."""
+        d = np.asarray(depth_m, float)
+        centred = np.abs(d - self.median_m) < self.half_m
+        return centred | ((d > self.near_m) & (d <= self.median_m - self.half_m))  # type: ignore[no-any-return]
+
+
+def _box_grid(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy,
+              n_samples: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], F64, int] | None:
+    """Pixel columns, rows and depths (metres, 0 invalid) of a regular grid of about `n_samples` pixels of the
+    box, and its smaller side in pixels inside the image; None for a box under 2 pixels a side."""
+    h, w = depth_m.shape[:2]
+    x0, y0 = max(0, int(np.floor(box_xyxy[0]))), max(0, int(np.floor(box_xyxy[1])))
+    x1, y1 = min(w, int(np.ceil(box_xyxy[2]))), min(h, int(np.ceil(box_xyxy[3])))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    step = max(1, int(np.ceil(np.sqrt((x1 - x0) * (y1 - y0) / max(n_samples, 1)))))
+    vv, uu = np.mgrid[y0 + step // 2:y1:step, x0 + step // 2:x1:step]
+    return uu, vv, np.asarray(depth_m[vv, uu], float), min(x1 - x0, y1 - y0)
+
+
+def _band(d_valid: F64, side_px: int, camera: CameraIntrinsics, depth_band_m: float,
+          near_quantile: float) -> DepthBand:
+    """The band of a box from its valid grid depths and its smaller side in pixels (see `box_depth_band`)."""
+    median_m = float(np.median(d_valid))
+    width_m = side_px * median_m / camera.fx
+    half_m = float(np.clip(0.5 * width_m, MIN_DEPTH_BAND_M, depth_band_m))
+    near_m = median_m - half_m
+    if near_quantile > 0.0:  # toward the nearest depths, but at most one band width (the box's side) in front
+        near_m = min(near_m, max(float(np.quantile(d_valid, near_quantile)) - 1e-6, median_m - 2.0 * half_m))
+    return DepthBand(median_m, half_m, near_m)
+
+
+def box_depth_band(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
+                   depth_band_m: float, n_samples: int = 100, near_quantile: float = 0.0) -> DepthBand | None:
+    """The depths of a box's object, as `box_depth_samples` keeps them; None without depth (under 3 valid grid
+    pixels).
+
+    The band is centred on the median depth of the box's pixels, half the box's smaller side in metres at that
+    depth wide on each side, within [MIN_DEPTH_BAND_M, depth_band_m]: a cup keeps 5 cm, not the table top behind
+    it; a monitor keeps its screen, not the wall 30 cm behind. With `near_quantile` > 0 its near end reaches at
+    least the box's `near_quantile` depth: a box holds its object and what is seen past and around it, seldom in
+    front of it (a whole view), so its nearest depths are the object's. An open object seen at a slant (a chair
+    from the side: 0.5 m of depth, its frame seen through) has a median depth at its far part or behind it, and
+    the centred band cut its near half off (vanishing's moved chair: 40 % of its pixels kept in three of its five
+    views, docs/changing_scenes.md, session 8). The near end moves at most one band width (2 `half_m`, the box's
+    smaller side in metres) in front of the median: an object's depth span is about its width, since a footprint
+    seen from any side spans in depth about what it spans across; what is nearer is something else in the box (a
+    table's front edge below a cup seen from the table's height). The far end stays: behind is the background."""
+    grid = _box_grid(depth_m, box_xyxy, n_samples)
+    if grid is None:
+        return None
+    d = grid[2][grid[2] > 0]
+    if len(d) < 3:
+        return None
+    return _band(d, grid[3], camera, depth_band_m, near_quantile)
+
+
+def box_depth_samples(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
+                      n_samples: int, depth_band_m: float, near_quantile: float = 0.0) -> F64:
+    """Camera-frame points (M, 3), M <= about n_samples: the box's pixels on a regular grid with valid depth
+    inside its depth band (`box_depth_band`: the object, not the background seen past it)."""
+    grid = _box_grid(depth_m, box_xyxy, n_samples)
+    if grid is None:
+        return np.zeros((0, 3))
+    uu, vv, d, side_px = grid
+    ok = d > 0
+    if ok.sum() < 3:
+        return np.zeros((0, 3))
+    band = _band(d[ok], side_px, camera, depth_band_m, near_quantile)
+    ok &= band.contains(d)
+    px = np.c_[uu[ok], vv[ok]].astype(float)
+    pts: F64 = camera.backproject(px, d[ok])
+    return pts

@@ -1,0 +1,458 @@
+"""Tracking (ORB-SLAM3 `Tracking` for RGB-D): pose of every frame against the map, keyframe decision.
+
+Per frame: 1. predict the pose with a constant-velocity model (or keep the last pose after a gap);
+2. match the last frame's points by projection (fallback: brute-force matching against the
+reference keyframe); 3. optimise the pose; 4. track the local map (points of covisible keyframes)
+by projection and optimise again; 5. decide whether the frame becomes a keyframe. When tracking
+fails the state is LOST and every following frame tries relocalisation against candidate keyframes
+(`KeyframeCandidates`, e.g. the loop engineer's bag-of-words database); after
+`lost_frames_new_map` failures a new map is started in the Atlas.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import Counter
+from dataclasses import dataclass, field
+from itertools import chain
+from typing import Protocol
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.dynamic.deferred_refinement import RefinementConfig
+from changing_slam_ros.core.features.frame import Frame
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.features.matcher import ProjectionQuery, match_brute_force, search_by_projection
+from changing_slam_ros.core.features.orb_features import FeatureConfig
+from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose, orthonormalised
+from changing_slam_ros.core.geometry.se3 import invert, scale_motion
+from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
+from changing_slam_ros.errors import ConfigError
+
+F64 = npt.NDArray[np.float64]
+
+
+class TrackingState(enum.Enum):
+    NOT_INITIALISED = 0
+    OK = 1
+    LOST = 2
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """YAML section `tracking:`.
+
+    - `min_init_points`: keypoints with depth needed to start a map.
+    - `radius_motion_px`, `radius_local_px`, `radius_reloc_px`: projection search windows at level 0.
+    - `min_motion_inliers`, `min_local_inliers`, `min_reloc_inliers`: acceptance thresholds (ORB-SLAM: -, 30, 50).
+    - `n_local_keyframes`: keyframes whose points form the local map.
+    - `keyframe_ratio`: new keyframe when inliers < ratio * well-observed points of the reference (0.75).
+    - `min_frames_between_keyframes`, `max_frames_between_keyframes`: keyframe spacing bounds.
+    - `close_tracked_min`, `close_untracked_min`: ORB-SLAM's "need close points" rule (100 / 70).
+    - `max_time_gap_s`: a larger (or negative) stamp step invalidates the motion model.
+    - `velocity_rescale_tolerance`: the constant-velocity prediction is the last frame-to-frame motion, scaled
+      by the ratio of this frame's stamp step to that motion's when the two differ by more than this fraction
+      (frames dropped in real time, gaps in a recording); within it the motion is used as is (ORB-SLAM). A
+      negative value never scales.
+    - `n_reloc_candidates`: keyframes tried per relocalisation; `lost_frames_new_map`: failures before a new map.
+    - `loaded_map_grace_s`: a session started from a saved map (`Tracker.start_from_map`) tries relocalisation
+      against it on every frame for this long (seconds from the first frame) before it starts a new map.
+    - `pose_iterations_per_round`: Gauss-Newton iterations at most in each of the pose optimisation's four
+      rounds (each round also stops when the step is negligible). 2 saves ~20 % of the pose optimisation's CPU
+      with the ATE unchanged on six sequences, but test_changing_system's moved chair then gets no map object at
+      its new place, so it stays 6 (docs/architecture.md, "Session 9").
+    - `motion_pose_rounds`: rounds of the frame-to-frame pose optimisation (the local-map one that follows always
+      runs four, ORB-SLAM's count); the first two use the Huber kernel. 2 was ATE-neutral on the same six
+      sequences but saved only ~0.25 ms per frame (within the benchmark's noise), so it stays 4.
+    - `busy_mapping_weak_ratio`: ORB-SLAM's keyframe rule when local mapping is busy (`Tracker.mapping_idle`
+      False, set by a caller whose mapping runs elsewhere: the real-time graph): a keyframe then needs
+      `max_frames_between_keyframes` frames since the last one, or tracking weak (inliers under this fraction of
+      the reference keyframe's points) or short of close points, as ORB-SLAM's c1a / c1c; an idle mapper takes one
+      whenever the ratio rule holds (c1b). 0 = insert as if idle. Offline and lossless, mapping is always idle.
+    - `deferred_refinement`: real time with late detections, a tracked frame's pose in the final trajectory is
+      optimised again once the detection sets before and after it are in (`core.deferred_refinement`; on, inert
+      offline and lossless where every frame has its own detections).
+    """
+
+    min_init_points: int = 300
+    radius_motion_px: float = 12.0
+    radius_local_px: float = 7.0
+    radius_reloc_px: float = 10.0
+    min_motion_inliers: int = 20
+    min_local_inliers: int = 30
+    min_reloc_inliers: int = 50
+    n_local_keyframes: int = 20
+    keyframe_ratio: float = 0.75
+    min_frames_between_keyframes: int = 0
+    max_frames_between_keyframes: int = 30
+    close_tracked_min: int = 100
+    close_untracked_min: int = 70
+    max_time_gap_s: float = 0.5
+    velocity_rescale_tolerance: float = 0.25
+    n_reloc_candidates: int = 6
+    lost_frames_new_map: int = 30
+    loaded_map_grace_s: float = 2.0
+    busy_mapping_weak_ratio: float = 0.25
+    pose_iterations_per_round: int = 6
+    motion_pose_rounds: int = 4
+    deferred_refinement: RefinementConfig = field(default_factory=RefinementConfig)
+
+    def __post_init__(self) -> None:
+        if self.pose_iterations_per_round < 1:
+            raise ConfigError(f"tracking.pose_iterations_per_round: expected >= 1, got {self.pose_iterations_per_round}")
+        if self.motion_pose_rounds < 1:
+            raise ConfigError(f"tracking.motion_pose_rounds: expected >= 1, got {self.motion_pose_rounds}")
+
+
+class KeyframeCandidates(Protocol):
+    """Where relocalisation looks: keyframe ids of `slam_map` that may show what `frame` sees, best first."""
+
+    def candidates(self, frame: Frame, slam_map: SlamMap) -> list[int]: ...
+
+
+class RecentKeyframes:
+    """Fallback candidate source: the most recent keyframes of the map (no appearance index)."""
+
+    def __init__(self, n: int = 6) -> None:
+        self.n = n
+
+    def candidates(self, frame: Frame, slam_map: SlamMap) -> list[int]:
+        return sorted(slam_map.keyframes, reverse=True)[: self.n]
+
+
+@dataclass
+class TrackResult:
+    """What tracking reports for one frame."""
+
+    state: TrackingState
+    T_world_cam: F64 | None
+    n_inliers: int
+    new_keyframe: Keyframe | None
+    relocalised: bool = False
+    new_map: bool = False
+
+
+class Tracker:
+    """Tracks frames against `atlas.current`; creates keyframes (the caller hands them to local mapping)."""
+
+    def __init__(
+        self,
+        atlas: Atlas,
+        features: FeatureConfig,
+        config: TrackingConfig | None = None,
+        candidates: KeyframeCandidates | None = None,
+    ) -> None:
+        self.atlas = atlas
+        self.fcfg = features
+        self.cfg = config or TrackingConfig()
+        self.candidates = candidates or RecentKeyframes(self.cfg.n_reloc_candidates)
+        self.state = TrackingState.NOT_INITIALISED
+        self.scales = features.level_scales()
+        self.inv_sigma2 = 1.0 / features.level_sigma2()
+        self.last_frame: Frame | None = None
+        self.velocity: F64 | None = None  # T_last_current as camera motion, (4, 4)
+        self.velocity_dt_s = 0.0  # the stamp step `velocity` was measured over
+        self.ref_kf_id = -1
+        self.last_kf_index = -(10**9)
+        self.last_reloc_index = -(10**9)
+        self.n_lost = 0
+        self.next_kf_id = 0
+        self.mapping_idle = True  # False while local mapping has keyframes to map (real-time graph: set per frame)
+        self.last_good_pose: F64 = np.eye(4)
+        self.awaiting_loaded_map = False  # a loaded map: relocalise against it before starting a new one
+        self._grace_start_ns: int | None = None
+        self.loaded_map_relocalised_index = -1  # the frame that relocalised in the loaded map, -1 = not (yet)
+
+    @property
+    def map(self) -> SlamMap:
+        return self.atlas.current
+
+    def start_from_map(self, next_keyframe_id: int) -> None:
+        """Begin a session on a loaded Atlas (multi-session): every frame tries relocalisation against
+        `atlas.current` for `loaded_map_grace_s` seconds before a new map is started; new keyframes take ids
+        from `next_keyframe_id` on."""
+        self.state = TrackingState.LOST
+        self.n_lost = 0
+        self.next_kf_id = max(self.next_kf_id, int(next_keyframe_id))
+        self.awaiting_loaded_map = True
+        self._grace_start_ns = None
+
+    def _within_grace(self, frame: Frame) -> bool:
+        """Still waiting to relocalise in the loaded map (False once the grace period is over)."""
+        if self._grace_start_ns is None:
+            self._grace_start_ns = frame.stamp_ns
+        if (frame.stamp_ns - self._grace_start_ns) * 1e-9 < self.cfg.loaded_map_grace_s:
+            return True
+        self.awaiting_loaded_map = False
+        return False
+
+    # 0. Entry point -------------------------------------------------------------------------------
+    def track(self, frame: Frame) -> TrackResult:
+        gap = self._time_gap(frame)
+        if self.state == TrackingState.NOT_INITIALISED:
+            return self._initialise(frame, self.last_good_pose)
+        if self.state == TrackingState.OK:
+            ok = self._track_frame_to_frame(frame, gap)
+            if ok:
+                ok = self._track_local_map(frame, self.cfg.min_local_inliers)
+            if ok:
+                return self._accept(frame)
+            self.state = TrackingState.LOST
+            self.n_lost = 0
+        # LOST: relocalise, or start a new map after too many failures.
+        if self._relocalise(frame):
+            self.state = TrackingState.OK
+            self.n_lost = 0
+            self.last_reloc_index = frame.index
+            if self.awaiting_loaded_map:
+                self.awaiting_loaded_map = False
+                self.loaded_map_relocalised_index = frame.index
+            res = self._accept(frame)
+            res.relocalised = True
+            return res
+        self.n_lost += 1
+        self.last_frame = frame
+        self.velocity = None
+        if self.awaiting_loaded_map:
+            if self._within_grace(frame):
+                return TrackResult(TrackingState.LOST, None, 0, None)
+            return self._initialise(frame, self.last_good_pose, new_map=True)
+        if self.n_lost >= self.cfg.lost_frames_new_map:
+            res = self._initialise(frame, self.last_good_pose, new_map=True)
+            return res
+        return TrackResult(TrackingState.LOST, None, 0, None)
+
+    def _time_gap(self, frame: Frame) -> bool:
+        if self.last_frame is None:
+            return False
+        dt = (frame.stamp_ns - self.last_frame.stamp_ns) * 1e-9
+        if dt <= 0 or dt > self.cfg.max_time_gap_s:
+            self.velocity = None
+            return True
+        return False
+
+    # 1. Initialisation ----------------------------------------------------------------------------
+    def _initialise(self, frame: Frame, T_world_cam: F64, new_map: bool = False) -> TrackResult:
+        n_depth = int((frame.features.depths_m > 0).sum())
+        if n_depth < self.cfg.min_init_points:
+            self.last_frame = frame
+            return TrackResult(self.state, None, 0, None)
+        if new_map and len(self.map.keyframes) > 0:
+            self.atlas.new_map()
+        frame.T_world_cam = T_world_cam.copy()
+        kf = self._make_keyframe(frame)
+        self.state = TrackingState.OK
+        self.n_lost = 0
+        self.velocity = None
+        self.last_frame = frame
+        self.last_good_pose = frame.T_world_cam
+        return TrackResult(TrackingState.OK, frame.T_world_cam, 0, kf, new_map=new_map)
+
+    # 2. Frame-to-frame ----------------------------------------------------------------------------
+    def _track_frame_to_frame(self, frame: Frame, gap: bool) -> bool:
+        last = self.last_frame
+        assert last is not None and last.T_world_cam is not None
+        T_wc_pred = last.T_world_cam @ self._motion(frame) if (self.velocity is not None and not gap) else last.T_world_cam
+        pts = self.map.points
+        ids = last.point_ids[last.tracked_mask()]
+        ids = ids[pts.usable()[ids]] if len(ids) else ids
+        radius = self.cfg.radius_motion_px * (1.0 if self.velocity is not None and not gap else 2.0)
+        T_cw_pred = invert(T_wc_pred)
+        n = self._search(frame, T_cw_pred, ids, radius, ratio=0.9)
+        if n < self.cfg.min_motion_inliers:
+            frame.point_ids[:] = -1
+            n = self._search(frame, T_cw_pred, ids, 2 * radius, ratio=0.9)
+        if (n >= self.cfg.min_motion_inliers
+                and self._optimise(frame, T_cw_pred, self.cfg.motion_pose_rounds) >= self.cfg.min_motion_inliers):
+            return True
+        # Fallback: brute-force match against the reference keyframe, from the last pose.
+        frame.point_ids[:] = -1
+        frame.outliers[:] = False
+        if self.ref_kf_id not in self.map.keyframes:
+            return False
+        n = self._match_keyframe(frame, self.map.keyframes[self.ref_kf_id])
+        if n < 15:
+            return False
+        return self._optimise(frame, invert(last.T_world_cam)) >= 10
+
+    def _motion(self, frame: Frame) -> F64:
+        """The predicted camera motion from the last frame to `frame` (constant velocity over the stamp step)."""
+        assert self.velocity is not None and self.last_frame is not None
+        tol = self.cfg.velocity_rescale_tolerance
+        if tol < 0 or self.velocity_dt_s <= 0:
+            return self.velocity
+        k = (frame.stamp_ns - self.last_frame.stamp_ns) * 1e-9 / self.velocity_dt_s
+        return self.velocity if abs(k - 1.0) <= tol else scale_motion(self.velocity, k)
+
+    def _search(self, frame: Frame, T_cw: F64, ids: npt.NDArray[np.int64], radius: float, ratio: float) -> int:
+        """Projection search of map points `ids`; fills `frame.point_ids`, returns the number matched."""
+        if len(ids) == 0:
+            return int((frame.point_ids >= 0).sum())
+        pts = self.map.points
+        q = ProjectionQuery(pts.positions[ids], pts.descriptors[ids], ids, pts.normals[ids], pts.min_dist[ids], pts.max_dist[ids])
+        res = search_by_projection(frame, T_cw, q, radius, self.scales, ratio=ratio, bf_m_px=self.fcfg.bf_m_px)
+        frame.point_ids[res.kp_indices] = ids[res.rows]
+        frame.outliers[res.kp_indices] = False
+        self._visible_rows = ids[res.visible_rows]
+        return int((frame.point_ids >= 0).sum())
+
+    def _match_keyframe(self, frame: Frame, kf: Keyframe) -> int:
+        with_pt = np.flatnonzero(kf.point_ids >= 0)
+        with_pt = with_pt[self.map.points.usable()[kf.point_ids[with_pt]]]
+        ia, ib = match_brute_force(frame.features.descriptors, kf.descriptors[with_pt], ratio=0.8)
+        frame.point_ids[ia] = kf.point_ids[with_pt[ib]]
+        return len(ia)
+
+    def _optimise(self, frame: Frame, T_cw0: F64, rounds: int = 4) -> int:
+        """Optimise the pose on the current matches (`rounds` outlier rounds); outliers lose their map point.
+        Returns inliers."""
+        idx = np.flatnonzero(frame.point_ids >= 0)
+        if len(idx) < 3:
+            return 0
+        f = frame.features
+        obs = PoseObservations(
+            self.map.points.positions[frame.point_ids[idx]], f.keypoints_px[idx], f.u_right[idx],
+            self.inv_sigma2[f.octaves[idx]],
+        )
+        cam = frame.camera
+        res = optimize_pose(T_cw0, obs, PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.fcfg.bf_m_px),
+                            rounds=rounds, iterations=self.cfg.pose_iterations_per_round)
+        frame.T_world_cam = invert(res.T_cam_world)
+        frame.point_ids[idx[~res.inliers]] = -1
+        frame.outliers[:] = False
+        return res.n_inliers
+
+    # 3. Local map ---------------------------------------------------------------------------------
+    def _local_keyframes(self, frame: Frame) -> list[int]:
+        m = self.map
+        ids = frame.point_ids[frame.point_ids >= 0]
+        obs = m.points.observations
+        # Keyframes in first-seen order with their counts (Counter counts in C); the stable sort keeps
+        # first-seen order among equal counts.
+        counts = Counter(chain.from_iterable(obs[pid] for pid in ids.tolist()))
+        ranked = sorted(counts, key=lambda k: -counts[k])
+        if not ranked:
+            return [self.ref_kf_id] if self.ref_kf_id in m.keyframes else []
+        self.ref_kf_id = ranked[0]
+        local = ranked[: self.cfg.n_local_keyframes]
+        seen = set(local)
+        for k in ranked[:3]:
+            for c in m.covisible(k, 10):
+                if c not in seen and len(local) < self.cfg.n_local_keyframes + 10:
+                    local.append(c)
+                    seen.add(c)
+        return local
+
+    def _track_local_map(self, frame: Frame, min_inliers: int) -> bool:
+        assert frame.T_world_cam is not None
+        m = self.map
+        local_ids = m.local_point_ids(self._local_keyframes(frame))
+        matched = frame.point_ids[frame.point_ids >= 0]
+        local_ids = local_ids[~np.isin(local_ids, matched)]
+        radius = self.cfg.radius_local_px * (2.0 if frame.index - self.last_reloc_index < 2 else 1.0)
+        self._visible_rows = np.zeros(0, np.int64)
+        T_cw = invert(frame.T_world_cam)
+        self._search(frame, T_cw, local_ids, radius, ratio=0.8)
+        visible = np.concatenate([matched, self._visible_rows])
+        m.points.n_visible[visible] += 1
+        n = self._optimise(frame, T_cw)
+        found = frame.point_ids[frame.point_ids >= 0]
+        m.points.n_found[found] += 1
+        m.points.last_seen_frame[found] = frame.index
+        return n >= min_inliers
+
+    # 4. Relocalisation ----------------------------------------------------------------------------
+    def _relocalise(self, frame: Frame) -> bool:
+        m = self.map
+        if len(frame) < 50 or not m.keyframes:
+            return False
+        cam = frame.camera
+        for kf_id in self.candidates.candidates(frame, m):
+            if kf_id not in m.keyframes:
+                continue
+            frame.point_ids[:] = -1
+            frame.outliers[:] = False
+            kf = m.keyframes[kf_id]
+            if self._match_keyframe(frame, kf) < 15:
+                continue
+            idx = np.flatnonzero(frame.point_ids >= 0)
+            pw = m.points.positions[frame.point_ids[idx]]
+            ok, rvec, tvec, inl = cv2.solvePnPRansac(
+                pw.astype(np.float64), frame.features.keypoints_px[idx].astype(np.float64), cam.K, None,
+                iterationsCount=200, reprojectionError=5.0, confidence=0.99, flags=cv2.SOLVEPNP_EPNP,
+            )
+            if not ok or inl is None or len(inl) < 12:
+                continue
+            T_cw = np.eye(4)
+            T_cw[:3, :3] = cv2.Rodrigues(rvec)[0]
+            T_cw[:3, 3] = tvec.ravel()
+            if self._optimise(frame, T_cw) < 10:
+                continue
+            self.ref_kf_id = kf_id
+            frame.ref_kf_id = kf_id
+            self.last_reloc_index = frame.index
+            # Local map (wider window right after relocalisation), stricter threshold.
+            if self._track_local_map(frame, self.cfg.min_reloc_inliers):
+                return True
+        frame.point_ids[:] = -1
+        frame.T_world_cam = None
+        return False
+
+    # 5. Accept the frame, keyframe decision -------------------------------------------------------
+    def _accept(self, frame: Frame) -> TrackResult:
+        assert frame.T_world_cam is not None
+        last = self.last_frame
+        if last is not None and last.T_world_cam is not None and frame.index - last.index == 1:
+            self.velocity = orthonormalised(invert(last.T_world_cam) @ frame.T_world_cam)
+            self.velocity_dt_s = (frame.stamp_ns - last.stamp_ns) * 1e-9
+        else:
+            self.velocity = None
+        frame.ref_kf_id = self.ref_kf_id
+        n_inliers = int((frame.point_ids >= 0).sum())
+        kf = self._make_keyframe(frame) if self._need_keyframe(frame, n_inliers) else None
+        self.last_frame = frame
+        self.last_good_pose = frame.T_world_cam
+        return TrackResult(TrackingState.OK, frame.T_world_cam, n_inliers, kf)
+
+    def _need_keyframe(self, frame: Frame, n_inliers: int) -> bool:
+        cfg = self.cfg
+        since = frame.index - self.last_kf_index
+        if since < cfg.min_frames_between_keyframes or self.ref_kf_id not in self.map.keyframes:
+            return False
+        n_kfs = len(self.map.keyframes)
+        # ORB-SLAM counts a stereo observation twice (min 3 / 2); with single counts: 2 / 1.
+        n_ref = self.map.n_tracked_points(self.ref_kf_id, min_obs=2 if n_kfs > 2 else 1)
+        th_close = self.fcfg.close_depth_factor * self.fcfg.bf_m_px / frame.camera.fx
+        d = frame.features.depths_m
+        close = (d > 0) & (d < th_close)
+        tracked = frame.point_ids >= 0
+        need_close = (close & tracked).sum() < cfg.close_tracked_min and (close & ~tracked).sum() > cfg.close_untracked_min
+        ratio = cfg.keyframe_ratio if n_kfs >= 2 else 0.4
+        c1 = since >= cfg.max_frames_between_keyframes or since >= cfg.min_frames_between_keyframes
+        if not self.mapping_idle and cfg.busy_mapping_weak_ratio > 0.0:  # ORB-SLAM: c1b needs an idle mapper
+            c1 = since >= cfg.max_frames_between_keyframes or n_inliers < n_ref * cfg.busy_mapping_weak_ratio or need_close
+        c2 = (n_inliers < n_ref * ratio or need_close) and n_inliers > 15
+        return bool(c1 and c2) or since >= cfg.max_frames_between_keyframes
+
+    def _make_keyframe(self, frame: Frame) -> Keyframe:
+        assert frame.T_world_cam is not None
+        f = frame.features
+        kf = Keyframe(
+            id=self.next_kf_id,
+            stamp_ns=frame.stamp_ns,
+            T_world_cam=frame.T_world_cam.copy(),
+            camera=frame.camera,
+            keypoints_px=f.keypoints_px.astype(np.float32),
+            octaves=f.octaves.astype(np.int8),
+            descriptors=f.descriptors.copy(),
+            depths_m=f.depths_m.astype(np.float32),
+            point_ids=frame.point_ids.copy(),
+            map_id=self.map.id,
+        )
+        self.next_kf_id += 1
+        self.ref_kf_id = kf.id
+        frame.ref_kf_id = kf.id
+        self.last_kf_index = frame.index
+        return kf
