@@ -227,10 +227,10 @@ def test_local_ba_gives_way_to_waiting_keyframes_in_real_time(ros_context, kitch
 
 
 def test_loop_closing_node_closes_the_loop_of_a_drifting_room(ros_context):
-    """Synthetic room with ground truth (test/core/test_loop_closing.py): a drifting owner maps a turn and a
+    """Synthetic room with ground truth (test/core/slam/test_loop_closing.py): a drifting owner maps a turn and a
     quarter; fed its keyframe packets and map updates, the node answers every keyframe and closes the loop
     between the start and a turn later, with the correction's delta for the owner."""
-    from core.test_map_replication import drifting_room_steps
+    from core.replication.test_map_replication import drifting_room_steps
 
     from changing_slam_ros.core.map.slam_map import SlamMap
 

@@ -29,7 +29,7 @@ from changing_slam_ros.io.moving_objects_file import read_moving_objects, write_
 
 pytestmark = pytest.mark.slow
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")

@@ -221,7 +221,7 @@ def test_second_session_on_a_saved_map_of_a_changed_room(tmp_path: Path) -> None
     assert m.stale == ()
 
 
-if __name__ == "__main__":  # diagnostics: python test/core/test_long_term_sim.py vanishing [masks] [out.png]
+if __name__ == "__main__":  # diagnostics: python test/core/objects/test_long_term_sim.py vanishing [masks] [out.png]
     import json
     import sys
 

@@ -157,7 +157,7 @@ def test_counter_increments_survive_an_update_and_reach_the_owner() -> None:
 def drifting_room_steps(n_kf: int = 58, n_per_turn: int = 48):
     """Yield (packet keyframe copy, owner step) per keyframe of a drifting owner that re-uses points of its last 3
     keyframes only; the step, called with the owner's map, maps the keyframe and returns the MapUpdate."""
-    from core.test_loop_closing import SyntheticRoom, _rot_y
+    from core.slam.test_loop_closing import SyntheticRoom, _rot_y
 
     from changing_slam_ros.core.replication.map_replication import MapUpdate
     from changing_slam_ros.core.features.orb_features import FeatureConfig
