@@ -2,61 +2,13 @@
 
     python -m changing_slam_ros.nodes.tracking_node --ros-args -p config:=tum_fr1 -p output_dir:=/tmp/out
 
-Two backends. `in_process_backend:=false` (the split graph): features, dynamic filter and tracking run
-here against a replica of the map; each new keyframe goes out as a keyframe packet (~/keyframes) to
-`local_mapping` (which owns the map) and `loop_closing`; their MapUpdates (/local_mapping/map_updates) are
-applied to the replica as they arrive and the last frame is re-anchored on its moved reference keyframe
-(`nodes/split_backend.py`, `core/replication/map_replication.py`). With `wait_for_map_updates:=true` (lossless graph) a
-keyframe frame is acknowledged to the bag player only once local_mapping's update and loop_closing's verdict
-for it (and, after a loop, local_mapping's update applying it) are in, so the graph replays the offline order.
-In real time (`provisional_points`, on unless `wait_for_map_updates`) a new keyframe's depth keypoints become
-provisional points in the replica at once (`core/slam/provisional_points.py`), so tracking goes on at full rate
-while local_mapping maps the keyframe; the owner's update replaces them.
-`in_process_backend:=true`: the whole `core.system.SlamSystem` (tracking -> local mapping -> object layer ->
-loop closing) runs in this process (deterministic, `nodes/slam_backend.py`), and this node publishes the
-semantic map itself. `slam:=false`: frames are paired, converted and acknowledged only (plumbing tests).
-
-Per RGB-D pair (approximate-time, `sync_slop_s`): the frame waits for the detections stamped with its colour stamp for
-at most `detections_wait_s` (only when the dynamic filter uses detections and a detection stream is there, or
-`detections_required:=true`) or until it is clear that none will come (the detector announced on /detection/skipped
-that it will not detect that image, its rate cap, or it published detections of a later image), then goes through the
-system with them (or with the newest earlier ones carried forward, or none: the object EKFs then predict).
-`frame_policy:=latest` (real time; `nodes/frame_queue.py`): when several paired frames wait, the newest ready one (its
-detections in, or its wait over) is tracked and the older ones whose wait is over are dropped
-(`frames_dropped_stale`), so no queue builds up behind a slow frame; with `reliable_images` and `image_queue_depth:=1`
-the middleware keeps only the newest image too. `detections_skip_late:=true`: while the last `detections_late_window`
-detections all came later than `detections_wait_s` (a detector slower than the wait), frames are tracked at once
-instead of waiting in vain (`frames_not_waited_for_late_detections`); the wait resumes when detections come in time
-again.
-A frame tracked without its own detections takes the newest earlier person boxes carried forward
-(`core.late_detections`, `detections_carry_*`: grown with their age; with `detections_carry_flow` first moved by
-their image motion since the detections' image, from a ring of the recent frames' grey and depth images).
-Intrinsics come from camera_info or from the config's camera (`intrinsics_from`; `auto` follows the config's
-`dataset.bag_intrinsics_from`, since TUM bags carry the uncalibrated ROS defaults). `map_file`: multi-session
-(`SlamSystem.start_from_map`; see `nodes/split_backend.py`). LoadMap mid-run (local_mapping's ~/load_map, split
-backend): on the owner's load marker the replica starts afresh from the marker's map file, as with `map_file`
-(relocalising in the loaded map first; the path restarts in its frame; the trajectory so far is written as
-trajectory_online_before_load_<n>.txt), a marker goes out on ~/keyframes, and map updates and loop verdicts
-made before their sender loaded are dropped (`nodes/map_load.py`).
-
-With `dynamic.movers` on in the config: ~/moving_objects (MovingObjectArray) and ~/moving_object_markers
-(MarkerArray), every `moving_objects_period_s` and at the end; moving_objects.json on shutdown.
-
-Inputs (defaults are the TUM bag names; remap with --ros-args -r):
-  /camera/rgb/image_color (Image, sensor-data QoS), /camera/depth/image (Image 32FC1 m or 16UC1 mm), or with
-  `compressed:=true` their /compressed CompressedImage topics (JPEG/PNG colour, PNG or compressedDepth depth),
-  /camera/rgb/camera_info, /detection/detections, /detection/skipped, /local_mapping/map_updates,
-  /loop_closing/loop_corrections, /object_map/object_states
-Outputs (`nodes/tracking_outputs.py`; odometry, path, TF and debug image only while subscribed): ~/pose
-  (PoseStamped, map frame), ~/odometry, ~/path (the online poses; rebuilt from the optimised
-  trajectory after a loop closure), ~/keyframes, ~/semantic_map (MapObjectArray, transient-local, after each
-  keyframe the object layer worked on), ~/debug_image (keypoints used for tracking, coloured by class, and the
-  frame's detection boxes), TF map->odom (identity: no separate odometry yet) and odom->camera (REP-105,
-  `publish_tf`), and, when `ack_topic` is set, a std_msgs/Header per processed frame (frame_id: this node's
-  name) and per accepted camera_info (frame_id: the camera_info topic) for bag_player's lossless mode.
-On shutdown (SIGINT/SIGTERM, or `destroy_node`) with `output_dir` set: trajectory.txt (final, after all
-optimisation), trajectory_online.txt, keyframes.txt (TUM), semantic_map.json and tracking_stats.json (frames,
-drops, image-to-pose latency: colour message received -> pose published, steady clock), written atomically.
+Pairs colour and depth (`nodes/stamp_sync.py`), lets each frame wait for its detections
+(`nodes/tracking_detections.py`), picks the frames to track (`frame_policy`, `nodes/frame_queue.py`) and runs
+them through the SLAM core: in this process (`in_process_backend:=true`, `nodes/slam_backend.py`) or against a
+replica of the map that local_mapping owns (`nodes/tracking_replica.py`, `nodes/split_backend.py`). Outputs are in
+`nodes/tracking_outputs.py`, counts in `nodes/tracking_stats.py`; on shutdown with `output_dir` set the
+trajectories, keyframes, semantic map and tracking_stats.json are written atomically.
+Topics, parameters and the waiting rules: docs/nodes.md#tracking.
 """
 
 from __future__ import annotations
@@ -67,7 +19,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from rclpy._rclpy_pybind11 import RCLError  # a publish after the context shut down
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -85,31 +36,30 @@ from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import (
     camera_info_to_intrinsics,
-    detections_from_msg,
     image_to_depth_m,
     image_to_rgb,
     keyframe_to_msg,
     make_header,
     stamp_to_ns,
 )
+from changing_slam_ros.nodes.keep_newest import keep_newest as _keep_newest
 from changing_slam_ros.nodes.frame_queue import FrameQueue, PendingFrame
-from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, keyframe_marker, marker_of
+from changing_slam_ros.nodes.map_load import LoadEpochs
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
+from changing_slam_ros.nodes.tracking_detections import DetectionInputs
 from changing_slam_ros.nodes.tracking_params import TRACKING_PARAMETERS
+from changing_slam_ros.nodes.tracking_replica import ReplicaInputs
+from changing_slam_ros.nodes.tracking_stats import TrackingStats, _warn_if
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def _keep_newest(by_stamp: dict[int, Any], n: int) -> None:
-    """Drop the oldest entries (insertion order) of a per-stamp dict until at most `n` are left."""
-    while len(by_stamp) > n:
-        del by_stamp[next(iter(by_stamp))]
+class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents, Node):
+    """Colour + depth (+ detections) in, camera pose and keyframes out; see docs/nodes.md#tracking."""
 
-
-class TrackingNode(QuietQosEvents, Node):
     def __init__(
         self,
         image_qos: QoSProfile = qos_profile_sensor_data,
@@ -297,174 +247,8 @@ class TrackingNode(QuietQosEvents, Node):
         if first and len(self.queue):
             self._drain()  # frames held for it (lossless)
 
-    def on_detections(self, msg: DetectionArray) -> None:
-        ds = detections_from_msg(msg)
-        self._detections_seen = True
-        self.detections_in += 1
-        received = (self._received_s.get(ds.stamp_ns) or self._processed_received_s.get(ds.stamp_ns)
-                    or self.queue.received_s(ds.stamp_ns))  # fmt: skip
-        if received is not None:  # also for frames tracked already: how late detections come
-            delay_ms = (time.monotonic() - received) * 1e3
-            self.detection_delay_ms.append(delay_ms)
-            self._recent_delays_ms.append(delay_ms)
-        self.detections[ds.stamp_ns] = ds
-        self._last_detected_ns = ds.stamp_ns
-        if self._newest_detections is None or ds.stamp_ns > self._newest_detections.stamp_ns:
-            self._previous_detections, self._newest_detections = self._newest_detections, ds
-        _keep_newest(self.detections, 30)
-        if self.backend is not None and self.backend.system.refinement is not None:
-            # tracking.deferred_refinement: the frames tracked before these detections came get their final pose
-            # refined (core.deferred_refinement); the published poses stay
-            self.backend.system.refine_with_detections(ds)
-        self._drain()
-
-    def _detections_settled(self, stamp_ns: int) -> bool:
-        """A frame's detections are in, or none will come: the detector announced it skips the image, or it has
-        published detections of a later image (it works through images in order and never goes back)."""
-        last = self._last_detected_ns
-        return stamp_ns in self.detections or stamp_ns in self._skipped or (last is not None and stamp_ns < last)
-
-    def on_detections_skipped(self, msg: Header) -> None:
-        """The detector will not detect this image (its rate cap, or it rejected it): its frame stops waiting."""
-        self.detections_skipped_in += 1
-        self._skipped[stamp_to_ns(msg.stamp)] = None
-        _keep_newest(self._skipped, 30)
-        self._drain()
-
-    def _carried_detections(self, stamp_ns: int) -> Any:
-        """The newest earlier detections for a frame that has none of its own (`core.late_detections`), or None."""
-        from changing_slam_ros.core.dynamic.late_detections import carried_forward
-
-        if self._newest_detections is None or self._carry.max_age_s <= 0:
-            return None
-        c0 = time.process_time()
-        images = None
-        if self._carry.flow:
-            before = self._recent_images.get(self._newest_detections.stamp_ns)
-            after = self._recent_images.get(stamp_ns)
-            images = (before, after) if before is not None and after is not None else None
-        carried = carried_forward(self._newest_detections, stamp_ns, self._carry, self._previous_detections, images)
-        if carried is not None:
-            self.frames_with_carried_detections += 1
-            self.carry_cpu_ms.append((time.process_time() - c0) * 1e3)
-        return carried
-
-    def on_map_update(self, msg: MapUpdate) -> None:
-        """Split backend: local_mapping's change of the map into the replica (in publication order)."""
-        if self.split is None:
-            return
-        marker = marker_of(msg, msg.keyframe_id)
-        if marker is not None:
-            self._on_marker("updates", marker)
-            return
-        if not self.epochs.current("updates"):
-            return  # the owner's change of the map it held before ~/load_map
-        from changing_slam_ros.nodes.replication_conversions import update_from_msg
-
-        try:
-            update = update_from_msg(msg, "/local_mapping/map_updates")
-            released = self.split.apply_update(update)
-        except (SlamError, ValueError) as err:
-            self.updates_rejected += 1
-            self.get_logger().warning(f"tracking: map update rejected: {err}", throttle_duration_sec=5.0)
-            return
-        for packet in released:  # provisional points: keyframes held until this update named their points
-            self._send_packet(packet)
-        self.updates_applied += 1
-        sent = self._kf_sent_s.pop(update.keyframe_id, None)
-        if sent is not None:
-            self.update_latency_ms.append((time.monotonic() - sent) * 1e3)
-        if update.loop_query_kf_id >= 0:
-            self.split.n_loops += int(update.merge is None)  # a merge is counted in split.n_merges
-            self._relays_seen.add(update.loop_query_kf_id)
-            self._rebuild_path()
-        self._settle(update=update.keyframe_id, relay=update.loop_query_kf_id)
-
-    def _resend_unmapped(self) -> None:
-        """After a map snapshot: keyframes sent but not mapped (local_mapping was down) go out again."""
-        for packet in self.split.resend():
-            self._send_packet(packet, resend=True)
-
-    def on_loop_correction(self, msg: LoopCorrection) -> None:
-        """Split backend: loop_closing's verdict; a closed loop reaches the replica through local_mapping's update."""
-        if self.split is None:
-            return
-        marker = marker_of(msg, msg.query_keyframe_id)
-        if marker is not None:
-            self._on_marker("loops", marker)
-            return
-        if not self.epochs.current("loops"):
-            return  # a verdict on the map before ~/load_map
-        # a map merge, like a closed loop, comes back as local_mapping's update: wait for that relay too
-        self._settle(verdict=int(msg.query_keyframe_id), closed=bool(msg.closed) or bool(msg.merge))
-
-    def _on_marker(self, stream: str, marker: LoadMarker) -> None:
-        """A load announced on `stream` (local_mapping's ~/load_map): the first announcement of a newer load
-        replaces the replica with the marker's file (`TrackingSide.start_from_map`: relocalise in it first)."""
-        if not self.epochs.on_marker(stream, marker):
-            return
-        from changing_slam_ros.io.map_file import load_map
-        from changing_slam_ros.nodes.split_backend import TrackingSide, object_layer_for
-
-        p, old = self.params, self.split
-
-        def build() -> TrackingSide:
-            return TrackingSide.build(self._cfg, loop=p["loop_closing"], dynamic=p["dynamic"], objects=p["objects"],
-                                      provisional=old.provisional is not None)  # fmt: skip
-
-        side = build()
-        try:
-            side.start_from_map(load_map(marker.path), object_layer_for(self._cfg, p["objects"]))
-        except (SlamError, OSError, ValueError) as err:  # local_mapping loaded it: the file changed since
-            self.get_logger().error(f"tracking: map {marker.path} not loaded ({err}); starting a new map")
-            side = build()
-        if old.system.records:
-            self._before_load.append(old.system.online_trajectory())
-        self.split, self.backend = side, side.backend
-        if self.movers is not None and side.backend.dynamic is not None:
-            self.movers = side.backend.dynamic.movers
-        self.epochs.adopt(marker)
-        self.loads += 1
-        self.poses_out.replace_path([], [])  # the path goes on in the loaded map's frame
-        self._kf_sent_s.clear()
-        self._relays_seen.clear()
-        self.keyframe_pub.publish(keyframe_marker(marker))
-        atlas = side.system.atlas
-        self.get_logger().info(f"tracking: {atlas.n_keyframes} keyframes in {len(atlas.maps)} maps loaded from "
-                               f"{marker.path} (LoadMap); relocalising in map {atlas.current.id}")  # fmt: skip
-        if self._awaiting is not None:  # its update and verdict will not come: the old map is gone
-            held, self._awaiting = self._awaiting["header"], None
-            self._ack(held)
-        self._drain()
-
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # Point activity comes from the object layer (in local_mapping, or in-process), not from object_map.
-
-    def _settle(self, update: int = -2, relay: int = -2, verdict: int = -2, closed: bool = False) -> None:
-        """wait_for_map_updates: tick off what the held acknowledgement waits for; send it when all is in."""
-        a = self._awaiting
-        if a is None:
-            return
-        kf = a["kf"]
-        if update == kf:
-            a["update"] = True
-        if verdict == kf:
-            a["verdict"] = True
-            a["relay"] = not closed or kf in self._relays_seen
-        if relay == kf:
-            a["relay"] = True
-        if a["update"] and a["verdict"] and a["relay"]:
-            self._awaiting = None
-            self._ack(a["header"])
-            self._drain()
-
-    def _check_wait(self) -> None:
-        a = self._awaiting
-        if a is not None and time.monotonic() > a["deadline"]:
-            self.get_logger().warning(f"tracking: no map update / loop verdict for keyframe {a['kf']} after "
-                                      f"{self.params['map_update_timeout_s']} s; going on")  # fmt: skip
-            self._awaiting = None
-            self._ack(a["header"])
 
     # -- one RGB-D frame ------------------------------------------------------------------------
     def on_frame(self, stamp_ns: int, rgb_msg: Any, depth_msg: Any) -> None:
@@ -478,15 +262,6 @@ class TrackingNode(QuietQosEvents, Node):
         _keep_newest(self._processed_received_s, 200)
         self.queue.push(PendingFrame(stamp_ns, rgb_msg, depth_msg, received, now + wait))
         self._drain()
-
-    def _detections_hopelessly_late(self, wait_s: float) -> bool:
-        """detections_skip_late: the last `detections_late_window` detections all came after `wait_s`."""
-        d = self._recent_delays_ms
-        return bool(self.params["detections_skip_late"] and len(d) == d.maxlen and min(d) > wait_s * 1e3)
-
-    def _wait_for_detections(self) -> bool:
-        return (self.backend is not None and self.backend.wants_detections
-                and (self._detections_seen or self.params["detections_required"]))  # fmt: skip
 
     def _drain(self) -> None:
         """Process waiting frames in order: each when its detections are in, or at its deadline. frame_policy
@@ -649,71 +424,6 @@ class TrackingNode(QuietQosEvents, Node):
         if self.movers is not None and self.movers_out is not None:
             self.movers_out.publish(self.movers, stamp_ns)
 
-    def stats(self) -> dict[str, Any]:
-        """Counts and latencies for tracking_stats.json and the log."""
-        s = self.pairer.stats
-        lat = np.asarray(self.latency_ms) if self.latency_ms else np.zeros(0)
-        proc = np.asarray(self.process_ms) if self.process_ms else np.zeros(0)
-        prov = self.split.provisional if self.split is not None else None
-        return {
-            "colour_received": self.colour_in, "pairs": s.pairs, "unpaired_colour_dropped": s.dropped_first,
-            "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
-            "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
-            "frames_without_detections": self.frames_without_detections,
-            "detections_skipped_received": self.detections_skipped_in,
-            "frames_with_carried_detections": self.frames_with_carried_detections,
-            "carry_cpu_ms_mean": float(np.mean(self.carry_cpu_ms)) if self.carry_cpu_ms else None,
-            "deferred_refinement": None if self.backend is None or self.backend.system.refinement is None
-            else dict(vars(self.backend.system.refinement.stats)),  # frames bracketed / optimised again / refined
-            "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
-            "frames_not_waited_for_late_detections": self.frames_not_waited,
-            "latency_ms_median": float(np.median(lat)) if lat.size else None,
-            "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
-            "process_ms_median": float(np.median(proc)) if proc.size else None,
-            "process_cpu_ms_median": float(np.median(self.process_cpu_ms)) if self.process_cpu_ms else None,
-            "process_cpu_ms_p90": float(np.percentile(self.process_cpu_ms, 90)) if self.process_cpu_ms else None,
-            "detection_delay_ms_median": float(np.median(self.detection_delay_ms)) if self.detection_delay_ms else None,
-            "detections_received": self.detections_in,
-            "backend": "in_process" if self.split is None else "split",
-            "map_updates_applied": self.updates_applied, "map_updates_rejected": self.updates_rejected,
-            "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
-            "loops_closed_split": self.split.n_loops if self.split is not None else None,
-            "maps_merged_split": self.split.n_merges if self.split is not None else None,
-            "keyframes_moved_by_merges": self.split.n_moved_keyframes if self.split is not None else None,
-            "provisional_points_moved_by_merges": self.split.n_moved_provisional if self.split is not None else None,
-            "frames_skipped_waiting_for_map": self.split.n_skipped if self.split is not None else None,
-            "provisional_points_created": prov.n_created if prov is not None else None,
-            "provisional_points_replaced": prov.n_replaced if prov is not None else None,
-            "provisional_points_dropped": prov.n_dropped if prov is not None else None,
-            "moving_objects_messages": self.movers_out.published if self.movers_out is not None else 0,
-            "map_loads": self.loads,
-            "load_relocalised_after_s": self._relocalised_after_load_s(),
-            "dropped_before_load": self.epochs.dropped,
-            "latency_ms": [round(float(v), 2) for v in lat],
-        }  # fmt: skip
-
-    def _relocalised_after_load_s(self) -> float | None:
-        """After a LoadMap: seconds (frame stamps) from the first frame tracked after it to the frame that
-        relocalised in the loaded map; None before a load or while not relocalised."""
-        if not self.epochs.epoch_ns or self.split is None:
-            return None
-        system = self.split.system
-        i = system.tracker.loaded_map_relocalised_index
-        if i < 0 or not system.records:
-            return None
-        return (system.records[i].stamp_ns - system.records[0].stamp_ns) * 1e-9
-
-    def diagnostic_values(self) -> dict[str, Any]:
-        """Counts and latencies for /diagnostics (no per-frame lists)."""
-        s = self.stats()
-        keep = ("colour_received", "frames_converted", "poses_published", "unpaired_colour_dropped",
-                "unpaired_depth_dropped", "frames_rejected", "frames_without_detections", "frames_dropped_stale",
-                "latency_ms_median",
-                "latency_ms_p90", "process_ms_median", "process_cpu_ms_median", "detections_received", "map_updates_applied", "map_update_latency_ms_median")  # fmt: skip
-        out = {k: s[k] for k in keep}
-        out["dropped"] = self.colour_in - self.published_poses
-        return out
-
     def finish(self) -> list[Path]:
         """Process frames still waiting, then write the outputs to `output_dir` (once; no-op without it)."""
         if self._finished:
@@ -757,15 +467,6 @@ class TrackingNode(QuietQosEvents, Node):
         finally:
             super().destroy_node()
 
-    def _log_stats(self) -> None:
-        s = self.pairer.stats
-        if s.pairs or s.dropped_first or s.dropped_second:
-            lat = f", latency median {np.median(self.latency_ms):.0f} ms" if self.latency_ms else ""
-            self.get_logger().info(
-                f"tracking: {self.frames_in} frames, {s.pairs} colour/depth pairs, unpaired dropped: "
-                f"{s.dropped_first} colour, {s.dropped_second} depth, {self.published_poses} poses{lat}"
-            )
-
     def _ack(self, header: Header) -> None:
         if self.ack_pub is not None:
             self.ack_pub.publish(Header(stamp=header.stamp, frame_id=self.get_name()))
@@ -783,13 +484,6 @@ class TrackingNode(QuietQosEvents, Node):
         if key not in self._warned:
             self._warned.add(key)
             self.get_logger().warning(text)
-
-
-def _warn_if(values: Any) -> str | None:
-    lat = values.get("latency_ms_median")
-    if lat is not None and lat > 60.0:
-        return f"image-to-pose latency median {lat:.0f} ms > 60 ms"
-    return None
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -1,0 +1,95 @@
+"""The tracking node's counts and latencies: tracking_stats.json, /diagnostics and the periodic log line.
+
+Mixed into `TrackingNode`, whose `__init__` sets the counters these methods read.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+class TrackingStats:
+    """Methods of `TrackingNode` (see the module docstring)."""
+
+    def stats(self) -> dict[str, Any]:
+        """Counts and latencies for tracking_stats.json and the log."""
+        s = self.pairer.stats
+        lat = np.asarray(self.latency_ms) if self.latency_ms else np.zeros(0)
+        proc = np.asarray(self.process_ms) if self.process_ms else np.zeros(0)
+        prov = self.split.provisional if self.split is not None else None
+        return {
+            "colour_received": self.colour_in, "pairs": s.pairs, "unpaired_colour_dropped": s.dropped_first,
+            "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
+            "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
+            "frames_without_detections": self.frames_without_detections,
+            "detections_skipped_received": self.detections_skipped_in,
+            "frames_with_carried_detections": self.frames_with_carried_detections,
+            "carry_cpu_ms_mean": float(np.mean(self.carry_cpu_ms)) if self.carry_cpu_ms else None,
+            "deferred_refinement": None if self.backend is None or self.backend.system.refinement is None
+            else dict(vars(self.backend.system.refinement.stats)),  # frames bracketed / optimised again / refined
+            "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
+            "frames_not_waited_for_late_detections": self.frames_not_waited,
+            "latency_ms_median": float(np.median(lat)) if lat.size else None,
+            "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
+            "process_ms_median": float(np.median(proc)) if proc.size else None,
+            "process_cpu_ms_median": float(np.median(self.process_cpu_ms)) if self.process_cpu_ms else None,
+            "process_cpu_ms_p90": float(np.percentile(self.process_cpu_ms, 90)) if self.process_cpu_ms else None,
+            "detection_delay_ms_median": float(np.median(self.detection_delay_ms)) if self.detection_delay_ms else None,
+            "detections_received": self.detections_in,
+            "backend": "in_process" if self.split is None else "split",
+            "map_updates_applied": self.updates_applied, "map_updates_rejected": self.updates_rejected,
+            "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
+            "loops_closed_split": self.split.n_loops if self.split is not None else None,
+            "maps_merged_split": self.split.n_merges if self.split is not None else None,
+            "keyframes_moved_by_merges": self.split.n_moved_keyframes if self.split is not None else None,
+            "provisional_points_moved_by_merges": self.split.n_moved_provisional if self.split is not None else None,
+            "frames_skipped_waiting_for_map": self.split.n_skipped if self.split is not None else None,
+            "provisional_points_created": prov.n_created if prov is not None else None,
+            "provisional_points_replaced": prov.n_replaced if prov is not None else None,
+            "provisional_points_dropped": prov.n_dropped if prov is not None else None,
+            "moving_objects_messages": self.movers_out.published if self.movers_out is not None else 0,
+            "map_loads": self.loads,
+            "load_relocalised_after_s": self._relocalised_after_load_s(),
+            "dropped_before_load": self.epochs.dropped,
+            "latency_ms": [round(float(v), 2) for v in lat],
+        }  # fmt: skip
+
+    def _relocalised_after_load_s(self) -> float | None:
+        """After a LoadMap: seconds (frame stamps) from the first frame tracked after it to the frame that
+        relocalised in the loaded map; None before a load or while not relocalised."""
+        if not self.epochs.epoch_ns or self.split is None:
+            return None
+        system = self.split.system
+        i = system.tracker.loaded_map_relocalised_index
+        if i < 0 or not system.records:
+            return None
+        return (system.records[i].stamp_ns - system.records[0].stamp_ns) * 1e-9
+
+    def diagnostic_values(self) -> dict[str, Any]:
+        """Counts and latencies for /diagnostics (no per-frame lists)."""
+        s = self.stats()
+        keep = ("colour_received", "frames_converted", "poses_published", "unpaired_colour_dropped",
+                "unpaired_depth_dropped", "frames_rejected", "frames_without_detections", "frames_dropped_stale",
+                "latency_ms_median",
+                "latency_ms_p90", "process_ms_median", "process_cpu_ms_median", "detections_received", "map_updates_applied", "map_update_latency_ms_median")  # fmt: skip
+        out = {k: s[k] for k in keep}
+        out["dropped"] = self.colour_in - self.published_poses
+        return out
+
+    def _log_stats(self) -> None:
+        s = self.pairer.stats
+        if s.pairs or s.dropped_first or s.dropped_second:
+            lat = f", latency median {np.median(self.latency_ms):.0f} ms" if self.latency_ms else ""
+            self.get_logger().info(
+                f"tracking: {self.frames_in} frames, {s.pairs} colour/depth pairs, unpaired dropped: "
+                f"{s.dropped_first} colour, {s.dropped_second} depth, {self.published_poses} poses{lat}"
+            )
+
+
+def _warn_if(values: Any) -> str | None:
+    lat = values.get("latency_ms_median")
+    if lat is not None and lat > 60.0:
+        return f"image-to-pose latency median {lat:.0f} ms > 60 ms"
+    return None
