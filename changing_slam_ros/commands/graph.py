@@ -49,10 +49,12 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from changing_slam_ros.commands.graph_outputs import detection_median_ms, evaluate, read_json, write_outputs_mcap
+from changing_slam_ros.commands.graph_process import NodeProcess, node_argv
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
@@ -145,76 +147,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--load-map", action="append", default=[], metavar="MAP@S",
                         help="multi-session mid-run: S seconds after the player's first message, call local_mapping's LoadMap "
                              "with MAP (a map.npz); tracking and loop_closing follow (repeatable)")
-
-
-@dataclass
-class NodeProcess:
-    """One node of the graph: its command, the running process and its restarts."""
-
-    name: str
-    argv: list[str]
-    log_dir: Path
-    starts: int = 0
-    proc: subprocess.Popen[bytes] | None = None
-    log_path: Path | None = None
-    exit_codes: list[int] = field(default_factory=list)
-    restart_argv: list[str] | None = None  # the command of a restart, when it differs from the first start's
-    nice: int = 0  # niceness added to the process (and all its threads) before it starts
-
-    def start(self, env: dict[str, str]) -> None:
-        suffix = "" if self.starts == 0 else f".{self.starts}"
-        self.log_path = self.log_dir / f"{self.name}{suffix}.log"
-        argv = self.restart_argv if self.starts > 0 and self.restart_argv is not None else self.argv
-        log = open(self.log_path, "wb")  # noqa: SIM115 - the child keeps writing it
-        try:
-            increment = self.nice
-            self.proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
-                                         preexec_fn=(lambda: os.nice(increment)) if increment else None)  # fmt: skip
-        finally:
-            log.close()
-        self.starts += 1
-
-    def running(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
-    def log_text(self) -> str:
-        try:
-            return self.log_path.read_text(errors="replace") if self.log_path else ""
-        except OSError:
-            return ""
-
-    def stop(self, sig: int, wait_s: float) -> int | None:
-        """Send `sig`, wait up to `wait_s`; returns the exit code or None while it still runs."""
-        if self.proc is None:
-            return None
-        if self.proc.poll() is None:
-            try:
-                self.proc.send_signal(sig)
-            except ProcessLookupError:
-                pass
-            try:
-                self.proc.wait(wait_s)
-            except subprocess.TimeoutExpired:
-                return None
-        return self.proc.returncode
-
-
-def _node_argv(module: str, params: dict[str, Any], remaps: dict[str, str] | None = None,
-               positional: list[str] | None = None) -> list[str]:  # fmt: skip
-    argv = [sys.executable, "-m", f"changing_slam_ros.nodes.{module}", *(positional or []), "--ros-args"]
-    for key, value in params.items():
-        if isinstance(value, bool):
-            text = "true" if value else "false"
-        elif isinstance(value, list):
-            text = "[" + ", ".join(f"'{v}'" for v in value) + "]"
-        elif isinstance(value, str):
-            text = f"'{value}'"  # YAML string, also for values that look like numbers or are empty
-        else:
-            text = str(value)
-        argv += ["-p", f"{key}:={text}"]
-    for src, dst in (remaps or {}).items():
-        argv += ["-r", f"{src}:={dst}"]
-    return argv
 
 
 @dataclass(frozen=True)
@@ -335,7 +267,7 @@ class Graph:
         split = a.backend == "split"
         if a.object_map:
             remaps = {"/tracking/semantic_map": "/local_mapping/semantic_map"} if split else None
-            self.nodes["object_map"] = NodeProcess("object_map", _node_argv("object_map_node", {
+            self.nodes["object_map"] = NodeProcess("object_map", node_argv("object_map_node", {
                 "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
         if split:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
@@ -344,11 +276,11 @@ class Graph:
                        "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
                        "ba_solver": "" if solver == "config" else solver}  # fmt: skip
             self.nodes["local_mapping"] = NodeProcess(
-                "local_mapping", _node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
-                restart_argv=_node_argv("local_mapping_node", {**mapping, "map_file": ""}))  # fmt: skip
+                "local_mapping", node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
+                restart_argv=node_argv("local_mapping_node", {**mapping, "map_file": ""}))  # fmt: skip
             self.nodes["loop_closing"] = NodeProcess(
-                "loop_closing", _node_argv("loop_closing_node", {"config": self.config, "map_file": self.map_in}),
-                self.logs, restart_argv=_node_argv("loop_closing_node", {"config": self.config, "map_file": ""}))  # fmt: skip
+                "loop_closing", node_argv("loop_closing_node", {"config": self.config, "map_file": self.map_in}),
+                self.logs, restart_argv=node_argv("loop_closing_node", {"config": self.config, "map_file": ""}))  # fmt: skip
         if self.detection:
             remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
             threads = a.detector_threads if a.detector_threads is not None else mode_default("detector_threads", a.lossless)
@@ -362,11 +294,11 @@ class Graph:
             if max_hz < 0 or (max_hz > 0 and a.lossless):
                 raise ConfigError(f"--detection-max-hz {max_hz}: must be >= 0, and 0 with --lossless (tracking waits "
                                   "for every frame's detections there)")  # fmt: skip
-            self.nodes["detection"] = NodeProcess("detection", _node_argv("detection_node", {
+            self.nodes["detection"] = NodeProcess("detection", node_argv("detection_node", {
                 "config": self.config, "compressed": info.compressed, "reliable_images": True,
                 "intra_op_threads": int(threads), "model": "" if model == "config" else model,
                 "max_rate_hz": float(max_hz)}, remaps), self.logs)  # fmt: skip
-        self.nodes["tracking"] = NodeProcess("tracking", _node_argv("tracking_node", {
+        self.nodes["tracking"] = NodeProcess("tracking", node_argv("tracking_node", {
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
             "in_process_backend": not split, "wait_for_map_updates": bool(a.lossless and split),
@@ -382,7 +314,7 @@ class Graph:
             # camera_info's own writer can be matched after the images' (volatile: lost intrinsics); tracking
             # confirms each camera_info on the ack topic, and the player re-sends it until one is confirmed
             player["confirm_topics"] = [CAMERA_INFO_TOPIC]
-        self.player = NodeProcess("bag_player", _node_argv("bag_player_node", player), self.logs)
+        self.player = NodeProcess("bag_player", node_argv("bag_player_node", player), self.logs)
         for name, increment in parse_nice(getattr(a, "nice", []), (*self.nodes, "bag_player")).items():
             (self.player if name == "bag_player" else self.nodes[name]).nice = increment
 
@@ -542,7 +474,7 @@ class Graph:
             "backend": self.args.backend, "map_updates_applied": stats.get("map_updates_applied"),
             "map_in": self.map_in or None,
             "map_update_latency_ms_median": stats.get("map_update_latency_ms_median"),
-            "local_mapping": _read_json(self.out / "local_mapping_stats.json"), "play_wall_s": play_s, "startup_s": up_s,
+            "local_mapping": read_json(self.out / "local_mapping_stats.json"), "play_wall_s": play_s, "startup_s": up_s,
             "bag_duration_s": self.info.duration_s, "detection_node": self.detection,
             "frames_without_detections": stats.get("frames_without_detections"),
             "frames_with_carried_detections": stats.get("frames_with_carried_detections"),
@@ -550,15 +482,15 @@ class Graph:
             "detections_skipped_received": stats.get("detections_skipped_received"),
             "frames_not_waited_for_late_detections": stats.get("frames_not_waited_for_late_detections"),
             "restarts": dict(self.restarts), "exit_codes": codes, "map_loads": self.map_loads,
-            "detection_ms_median": _detection_median_ms(self.nodes.get("detection")),
+            "detection_ms_median": detection_median_ms(self.nodes.get("detection")),
             "detections_received": stats.get("detections_received"),
             "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
         }  # fmt: skip
         summary.update(self._cpu_summary())
-        summary.update(_evaluate(self.bag, self.config, self.out))
-        summary["outputs_mcap"] = _write_outputs_mcap(self.bag, self.config, self.out)
+        summary.update(evaluate(self.bag, self.config, self.out))
+        summary["outputs_mcap"] = write_outputs_mcap(self.bag, self.config, self.out)
         summary["map_out"] = str(self.out / "map.npz") if (self.out / "map.npz").is_file() else None
-        movers = _read_json(self.out / "moving_objects.json")
+        movers = read_json(self.out / "moving_objects.json")
         summary["moving_objects"] = len(movers["objects"]) if movers else None
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
@@ -574,122 +506,6 @@ class Graph:
         if found:
             sec["bag_player"] = float(found[-1])
         return {"cpu_s_during_play": sec, "cpu_ms_per_bag_frame": per_frame_ms(sec, self.info.colour_frames)}
-
-
-def _read_json(path: Path) -> dict[str, Any] | None:
-    return json.loads(path.read_text()) if path.is_file() else None
-
-
-def _detection_median_ms(node: NodeProcess | None) -> float | None:
-    """The last 'median X ms per frame' the detection node logged (every 100 frames), if any."""
-    if node is None:
-        return None
-    import re
-
-    found = re.findall(r"median ([0-9.]+) ms per frame", node.log_text())
-    return float(found[-1]) if found else None
-
-
-def _write_outputs_mcap(bag: str, config: str, out: Path) -> str | None:
-    """outputs.mcap: /tracking/pose (final), /tracking/pose_online (PoseStamped, `map`) and the bag's ground truth
-    (/ground_truth/pose, `world`), written from the trajectory files after the run (not a live recording), so
-    that `evo_ape bag2 outputs.mcap /ground_truth/pose /tracking/pose -a` and Foxglove read them."""
-    from changing_slam_ros.core.geometry.se3 import rot_to_quat
-    from changing_slam_ros.io.dataset import open_dataset
-    from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
-    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
-
-    final = out / "trajectory.txt"
-    if not final.is_file():
-        return None
-    try:
-        gt = open_dataset(bag, config or None).groundtruth
-    except SlamError:
-        gt = None
-    path = out / "outputs.mcap"
-    with RgbdMcapWriter(path) as writer:
-        t = writer.typestore.types
-        for topic, name in (("/tracking/pose", "trajectory.txt"), ("/tracking/pose_online", "trajectory_online.txt")):
-            if not (out / name).is_file():
-                continue
-            traj = read_tum_trajectory(out / name)
-            for stamp_s, T in zip(traj.stamps_s, traj.poses(), strict=True):
-                stamp_ns = round(float(stamp_s) * 1e9)
-                q = rot_to_quat(T[:3, :3])
-                sec, nsec = divmod(stamp_ns, 1_000_000_000)
-                header = t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](sec, nsec), "map")
-                pose = t["geometry_msgs/msg/Pose"](t["geometry_msgs/msg/Point"](*(float(v) for v in T[:3, 3])),
-                                                   t["geometry_msgs/msg/Quaternion"](*(float(v) for v in q)))  # fmt: skip
-                writer.write_message(topic, "geometry_msgs/msg/PoseStamped",
-                                     t["geometry_msgs/msg/PoseStamped"](header, pose), stamp_ns)  # fmt: skip
-        if gt is not None:
-            for stamp_s, T in zip(gt.stamps_s, gt.poses(), strict=True):
-                writer.write_pose(round(float(stamp_s) * 1e9), T)
-        _write_moving_objects(writer, out)
-    return str(path)
-
-
-def _write_moving_objects(writer: Any, out: Path) -> int:
-    """Tracking's moving_objects.json (class-agnostic movers) into the open mcap: every pose of object N as
-    /moving_objects/object_N/pose (PoseStamped, `map`; evo reads it), and at the last pose a
-    /tracking/moving_objects MovingObjectArray (full trajectories; no points: the file has none) and a
-    /tracking/moving_object_markers MarkerArray (line strips), as the tracking node published them last.
-    Returns the number of objects (0 without the file)."""
-    from rclpy.serialization import serialize_message
-
-    from changing_slam_ros.io.moving_objects_file import INDEX_NAME, read_moving_objects
-    from changing_slam_ros.io.msg_types import register_project_types
-    from changing_slam_ros.nodes.conversions import make_header, moving_object_markers, moving_objects_to_msg
-
-    index = out / INDEX_NAME
-    if not index.is_file():
-        return 0
-    tracks = [t for t in read_moving_objects(index) if len(t.stamps_ns)]
-    if not tracks:
-        return 0
-    store = writer.typestore
-    if "changing_slam_msgs/msg/MovingObjectArray" not in store.fielddefs:
-        register_project_types(store)
-    pose_type = "geometry_msgs/msg/PoseStamped"
-    for track in tracks:
-        msg = moving_objects_to_msg([track], {}, make_header(0, "map")).objects[0]
-        for pose in msg.trajectory.poses:
-            writer.write_message(f"/moving_objects/object_{track.object_id}/pose", pose_type,
-                                 store.deserialize_cdr(serialize_message(pose), pose_type),
-                                 pose.header.stamp.sec * 1_000_000_000 + pose.header.stamp.nanosec)  # fmt: skip
-    last_ns = max(t.last_stamp_ns for t in tracks)
-    header = make_header(last_ns, "map")
-    for topic, msg_type, msg in (
-        ("/tracking/moving_objects", "changing_slam_msgs/msg/MovingObjectArray", moving_objects_to_msg(tracks, {}, header)),
-        ("/tracking/moving_object_markers", "visualization_msgs/msg/MarkerArray", moving_object_markers(tracks, header)),
-    ):
-        writer.write_message(topic, msg_type, store.deserialize_cdr(serialize_message(msg), msg_type), last_ns)
-    return len(tracks)
-
-
-def _evaluate(bag: str, config: str, out: Path) -> dict[str, Any]:
-    """ATE RMSE of trajectory.txt and trajectory_online.txt against the bag's ground truth (SE(3) aligned)."""
-    from changing_slam_ros.eval.ate import ate
-    from changing_slam_ros.io.dataset import open_dataset
-    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
-
-    result: dict[str, Any] = {}
-    try:
-        gt = open_dataset(bag, config or None).groundtruth
-    except SlamError as err:
-        return {"evaluation_error": str(err)}
-    if gt is None:
-        return {"evaluation_error": f"{bag}: no ground truth"}
-    for key, name in (("ate_rmse_m", "trajectory.txt"), ("ate_online_rmse_m", "trajectory_online.txt")):
-        path = out / name
-        if not path.is_file():
-            result.setdefault("evaluation_error", f"{path}: not written")
-            continue
-        try:
-            result[key] = float(ate(gt, read_tum_trajectory(path), est_name=name).stats.rmse)
-        except SlamError as err:
-            result.setdefault("evaluation_error", str(err))
-    return result
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:

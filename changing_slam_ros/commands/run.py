@@ -127,7 +127,7 @@ def main(args: argparse.Namespace) -> int:
         metrics["multi_session"] = multi_session_summary(system, args.map_in)
     gt = source.groundtruth
     if gt is not None and len(final) >= 3:
-        metrics.update(_evaluate(gt, final, online, out, args.no_plot))
+        metrics.update(evaluate(gt, final, online, out, args.no_plot))
     metrics["loops"] = loops.evaluate(gt)
     metrics["objects"] = write_object_outputs(out, objects, final, gt, args.source, args.no_plot)
     movers = dynamic.filter.movers if dynamic.filter is not None else None
@@ -220,7 +220,7 @@ def _progress(frames: Iterator[RgbdFrame], total: int, quiet: bool) -> Iterator[
     yield from tqdm(frames, total=total, unit="frame", desc="slam")
 
 
-def _evaluate(gt: Any, final: Any, online: Any, out: Path, no_plot: bool) -> dict[str, Any]:
+def evaluate(gt: Any, final: Any, online: Any, out: Path, no_plot: bool) -> dict[str, Any]:
     from changing_slam_ros.eval.ate import ate
     from changing_slam_ros.eval.report import evaluate
 

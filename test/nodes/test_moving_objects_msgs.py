@@ -63,7 +63,7 @@ def test_a_bad_point_array_is_rejected():
 def test_the_graph_writes_moving_objects_json_into_outputs_mcap(tmp_path):
     from rosbags.highlevel import AnyReader
 
-    from changing_slam_ros.commands.graph import _write_moving_objects
+    from changing_slam_ros.commands.graph_outputs import write_mover_topics
     from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
     from changing_slam_ros.io.moving_objects_file import write_moving_objects
     from changing_slam_ros.io.msg_types import typestore_with_project_types
@@ -71,7 +71,7 @@ def test_the_graph_writes_moving_objects_json_into_outputs_mcap(tmp_path):
     tracks = [_track(3, 12), _track(8, 2, 6 * S)]
     write_moving_objects(tmp_path, tracks)
     with RgbdMcapWriter(tmp_path / "outputs.mcap") as writer:
-        assert _write_moving_objects(writer, tmp_path) == 2
+        assert write_mover_topics(writer, tmp_path) == 2
     with AnyReader([tmp_path / "outputs.mcap"], default_typestore=typestore_with_project_types()) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         assert counts == {"/moving_objects/object_3/pose": 12, "/moving_objects/object_8/pose": 2,
@@ -89,8 +89,8 @@ def test_the_graph_writes_moving_objects_json_into_outputs_mcap(tmp_path):
 
 
 def test_without_moving_objects_json_nothing_is_written(tmp_path):
-    from changing_slam_ros.commands.graph import _write_moving_objects
+    from changing_slam_ros.commands.graph_outputs import write_mover_topics
     from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
 
     with RgbdMcapWriter(tmp_path / "outputs.mcap") as writer:
-        assert _write_moving_objects(writer, tmp_path) == 0
+        assert write_mover_topics(writer, tmp_path) == 0

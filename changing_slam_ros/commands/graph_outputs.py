@@ -1,0 +1,127 @@
+"""What `changing-slam graph` makes of a finished run: the nodes' stats files read back, outputs.mcap (the
+trajectories, ground truth and moving objects as PoseStamped topics) and the ATE against the bag's ground truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from changing_slam_ros.commands.graph_process import NodeProcess
+from changing_slam_ros.errors import SlamError
+
+
+def read_json(path: Path) -> dict[str, Any] | None:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def detection_median_ms(node: NodeProcess | None) -> float | None:
+    """The last 'median X ms per frame' the detection node logged (every 100 frames), if any."""
+    if node is None:
+        return None
+    import re
+
+    found = re.findall(r"median ([0-9.]+) ms per frame", node.log_text())
+    return float(found[-1]) if found else None
+
+
+def write_outputs_mcap(bag: str, config: str, out: Path) -> str | None:
+    """outputs.mcap: /tracking/pose (final), /tracking/pose_online (PoseStamped, `map`) and the bag's ground truth
+    (/ground_truth/pose, `world`), written from the trajectory files after the run (not a live recording), so
+    that `evo_ape bag2 outputs.mcap /ground_truth/pose /tracking/pose -a` and Foxglove read them."""
+    from changing_slam_ros.core.geometry.se3 import rot_to_quat
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
+    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+    final = out / "trajectory.txt"
+    if not final.is_file():
+        return None
+    try:
+        gt = open_dataset(bag, config or None).groundtruth
+    except SlamError:
+        gt = None
+    path = out / "outputs.mcap"
+    with RgbdMcapWriter(path) as writer:
+        t = writer.typestore.types
+        for topic, name in (("/tracking/pose", "trajectory.txt"), ("/tracking/pose_online", "trajectory_online.txt")):
+            if not (out / name).is_file():
+                continue
+            traj = read_tum_trajectory(out / name)
+            for stamp_s, T in zip(traj.stamps_s, traj.poses(), strict=True):
+                stamp_ns = round(float(stamp_s) * 1e9)
+                q = rot_to_quat(T[:3, :3])
+                sec, nsec = divmod(stamp_ns, 1_000_000_000)
+                header = t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](sec, nsec), "map")
+                pose = t["geometry_msgs/msg/Pose"](t["geometry_msgs/msg/Point"](*(float(v) for v in T[:3, 3])),
+                                                   t["geometry_msgs/msg/Quaternion"](*(float(v) for v in q)))  # fmt: skip
+                writer.write_message(topic, "geometry_msgs/msg/PoseStamped",
+                                     t["geometry_msgs/msg/PoseStamped"](header, pose), stamp_ns)  # fmt: skip
+        if gt is not None:
+            for stamp_s, T in zip(gt.stamps_s, gt.poses(), strict=True):
+                writer.write_pose(round(float(stamp_s) * 1e9), T)
+        write_mover_topics(writer, out)
+    return str(path)
+
+
+def write_mover_topics(writer: Any, out: Path) -> int:
+    """Tracking's moving_objects.json (class-agnostic movers) into the open mcap: every pose of object N as
+    /moving_objects/object_N/pose (PoseStamped, `map`; evo reads it), and at the last pose a
+    /tracking/moving_objects MovingObjectArray (full trajectories; no points: the file has none) and a
+    /tracking/moving_object_markers MarkerArray (line strips), as the tracking node published them last.
+    Returns the number of objects (0 without the file)."""
+    from rclpy.serialization import serialize_message
+
+    from changing_slam_ros.io.moving_objects_file import INDEX_NAME, read_moving_objects
+    from changing_slam_ros.io.msg_types import register_project_types
+    from changing_slam_ros.nodes.conversions import make_header, moving_object_markers, moving_objects_to_msg
+
+    index = out / INDEX_NAME
+    if not index.is_file():
+        return 0
+    tracks = [t for t in read_moving_objects(index) if len(t.stamps_ns)]
+    if not tracks:
+        return 0
+    store = writer.typestore
+    if "changing_slam_msgs/msg/MovingObjectArray" not in store.fielddefs:
+        register_project_types(store)
+    pose_type = "geometry_msgs/msg/PoseStamped"
+    for track in tracks:
+        msg = moving_objects_to_msg([track], {}, make_header(0, "map")).objects[0]
+        for pose in msg.trajectory.poses:
+            writer.write_message(f"/moving_objects/object_{track.object_id}/pose", pose_type,
+                                 store.deserialize_cdr(serialize_message(pose), pose_type),
+                                 pose.header.stamp.sec * 1_000_000_000 + pose.header.stamp.nanosec)  # fmt: skip
+    last_ns = max(t.last_stamp_ns for t in tracks)
+    header = make_header(last_ns, "map")
+    for topic, msg_type, msg in (
+        ("/tracking/moving_objects", "changing_slam_msgs/msg/MovingObjectArray", moving_objects_to_msg(tracks, {}, header)),
+        ("/tracking/moving_object_markers", "visualization_msgs/msg/MarkerArray", moving_object_markers(tracks, header)),
+    ):
+        writer.write_message(topic, msg_type, store.deserialize_cdr(serialize_message(msg), msg_type), last_ns)
+    return len(tracks)
+
+
+def evaluate(bag: str, config: str, out: Path) -> dict[str, Any]:
+    """ATE RMSE of trajectory.txt and trajectory_online.txt against the bag's ground truth (SE(3) aligned)."""
+    from changing_slam_ros.eval.ate import ate
+    from changing_slam_ros.io.dataset import open_dataset
+    from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+    result: dict[str, Any] = {}
+    try:
+        gt = open_dataset(bag, config or None).groundtruth
+    except SlamError as err:
+        return {"evaluation_error": str(err)}
+    if gt is None:
+        return {"evaluation_error": f"{bag}: no ground truth"}
+    for key, name in (("ate_rmse_m", "trajectory.txt"), ("ate_online_rmse_m", "trajectory_online.txt")):
+        path = out / name
+        if not path.is_file():
+            result.setdefault("evaluation_error", f"{path}: not written")
+            continue
+        try:
+            result[key] = float(ate(gt, read_tum_trajectory(path), est_name=name).stats.rmse)
+        except SlamError as err:
+            result.setdefault("evaluation_error", str(err))
+    return result
