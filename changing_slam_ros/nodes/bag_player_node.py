@@ -158,8 +158,8 @@ class BagPlayerNode(QuietQosEvents, Node):
             ("progress_period_s", 2.0, "seconds between progress log lines"),
             ("lossless", False, "wait for subscribers and acknowledgements instead of dropping"),
             ("dds_ack_wait", True, "lossless: wait for every reliable subscription's DDS-level ack after each "
-                                   "message (step 2); across processes Fast DDS acks on its heartbeat (up to 3 s)"),
-            ("wait_subscribers", False, "also without lossless: wait for subscribers (as in step 1) before playing"),
+                                   "message; across processes Fast DDS acks on its heartbeat (up to 3 s)"),
+            ("wait_subscribers", False, "also without lossless: wait for subscribers (as lossless does) before playing"),
             ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = ack_topics or all"),
             ("min_subscribers", 1, "lossless: subscriptions each waited-for ack topic (every topic without ack_topics) "
                                    "needs before playing; other waited-for topics need one"),
