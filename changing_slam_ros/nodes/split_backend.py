@@ -11,8 +11,7 @@ same state in the same order:
     map owner : LoopResult -> applies it -> MapUpdate (the delta of applying it; tracking and loop side follow)
 
 The map owner is the only writer of the map; tracking and the loop side keep replicas fed by its MapUpdates.
-Multi-session: every side loads the same map file itself (`start_from_map`), so the three maps agree before
-the first frame without a message between them.
+Multi-session: every side loads the same map file itself (`start_from_map`); the three maps agree at once.
 """
 
 from __future__ import annotations
