@@ -21,7 +21,7 @@ shared), with OPENBLAS_NUM_THREADS=1 as in the graph (`changing-slam graph` sets
   `LocalMapper` costs per keyframe); `objects`: the object layer per keyframe (`SlamSystem._after_objects`).
 
 Per tree: the median over runs of ms per keyframe per stage, keyframes, ATE and the sha256 of trajectory.txt
-(an exact change keeps it). Table in docs/architecture.md, "Session 7: local mapping CPU".
+(an exact change keeps it).
 """
 
 from __future__ import annotations

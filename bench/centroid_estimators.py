@@ -1,4 +1,4 @@
-"""Offline study of MapObject centroid / box estimators (issue 6 target: centroids within 10 cm). Prints, never asserts.
+"""Offline study of MapObject centroid / box estimators (target: centroids within 10 cm). Prints, never asserts.
 
 The layer's centroid is the mean of an object's points (`MapObject.set_points`), its 3D box the median of the
 5 % extremes per axis (`box_extent`). Both lean toward what the points over-represent: parts seen from many

@@ -1,4 +1,4 @@
-"""Issue 6's table: changing-scene scenarios with the object layer on and off (oracle detections, loop closing on),
+"""The changing-scenes table: scenarios with the object layer on and off (oracle detections, loop closing on),
 and the plain engine (no detections, no dynamic filter, no layer: the ORB-SLAM3-like baseline of the paper).
 
 Per scenario and mode: camera ATE (final trajectory, SE(3)-aligned: RMSE, median, and the RMSE of the online
@@ -18,7 +18,7 @@ run's metrics.json.
 Centroids are compared two ways (`eval/object_metrics.py`): with the ground-truth box centre (the volume
 centre; what metrics.json reports) and, fairly, with the ground-truth *visible-surface* centroid (the mean of
 the object's mask pixels back-projected with the simulator's depth and ground-truth poses over the frames
-where it stood at its final place): a MapObject's centroid is a (weighted, docs/changing_scenes.md session 6)
+where it stood at its final place): a MapObject's centroid is a (weighted: core/objects/object_point_weights.py)
 mean of surface points, so an object seen from one side has its centroid on that side however good the points are. The bench recomputes the object
 metrics from each run's object_map.json and trajectory.txt with the same SE(3) alignment as `changing-slam run`.
 

@@ -1,4 +1,4 @@
-"""Issue 6: which safeguard stops a loop closed on a moved object? `one_chair_closeup`, six ways.
+"""Which safeguard stops a loop closed on a moved object? `one_chair_closeup`, six ways.
 
 `one_chair_closeup` (sim/scenarios.py) puts the printed chair with the teddy bear 0.7 m ahead of the robot's first
 corner (A, facing east) and moves it, out of view, 0.7 m ahead of the second corner (B, facing north): the last

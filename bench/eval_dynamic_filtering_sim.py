@@ -7,7 +7,7 @@ truth is the actor under its pixel: a moving actor (person) = dynamic, anything 
 - `kept`: static keypoints used for tracking / static keypoints;
 - `kept_in_person_boxes`: static keypoints inside person boxes used (what repopulation recovers);
 The "plain" system (no dynamic handling) uses every keypoint: leak 100 %, kept 100 %.
-`--variants +detection_filtering +repopulation +ekf_doc` gives the keypoint-level rows of issue 5's ablation.
+`--variants +detection_filtering +repopulation +ekf_doc` gives the keypoint-level rows of the ablation (`bench/ablation_dynamic.py`).
 - `ms`: classification + association + EKF per frame.
 
     .venv/bin/python bench/eval_dynamic_filtering_sim.py [--scenarios walking_xyz ...] [--step 5] [--variants ...]
@@ -37,7 +37,7 @@ from changing_slam_ros.sim.scene import SceneSpec
 WALKING = ["walking_xyz", "walking_static", "walking_rpy", "walking_halfsphere", "sitting_xyz"]
 BASE = KeypointClassificationConfig()
 NO_EKF = 10**9  # min_updates never reached: movable objects are never found static
-# Ablation rows of issue 5 at keypoint level (ATE needs the tracking integration):
+# The ablation's rows (bench/ablation_dynamic.py) at keypoint level (ATE needs the tracking integration):
 ABLATION: dict[str, DynamicObjectsConfig] = {
     "+detection_filtering": DynamicObjectsConfig(classification=replace(BASE, repopulation=False), min_updates=NO_EKF),
     "+repopulation": DynamicObjectsConfig(min_updates=NO_EKF),

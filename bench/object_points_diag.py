@@ -1,4 +1,4 @@
-"""Where a run's object centroid errors come from (issue 6, docs/changing_scenes.md session 4). Prints, never asserts.
+"""Where a run's object centroid errors come from. Prints, never asserts.
 
 For each object of the run's semantic map matched to the simulator's ground truth (`changing-slam run` output with
 `object_map.json`, `map.npz` and `trajectory.txt`; the scenario folder with `objects.json` and `masks/`):
