@@ -1,4 +1,4 @@
-"""System test of issue 6's multi-session target: run `static`, save the map, run `shift` from the saved map.
+"""System test of the multi-session target: run `static`, save the map, run `shift` from the saved map.
 
 The test renders both scenarios itself (seed 0, 320x240, 15 fps, their full 101 s: the same world frame and
 nearly the same robot loop; at 7.5 fps the `static` run itself drifts to 18 cm ATE, so the frame rate stays at
