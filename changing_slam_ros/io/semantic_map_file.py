@@ -8,14 +8,11 @@ Layout (version 1):
     objects:                      # ordered by id
       - {id, class_id, class_name, centroid_m: [x, y, z], box_center_m: [x, y, z], box_size_m: [dx, dy, dz],
          belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
-Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`).
-Load errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
+Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`); load
+errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
 
-The object map (every MapObject with its point ids, point positions, optional `point_weights` (one per point,
-the centroid's weights), boxes and persistence state, for a saved map that a later run starts from) has its
-own document, `object_map_to_dict` /
-`object_map_from_dict` (format "changing_slam_ros object map", version 1), meant to be embedded in the
-map file or written alone with `write_object_map` / `read_object_map`.
+The object map (every MapObject with its points, weights, boxes and persistence state, for a saved map that a
+later run starts from) has its own document (`object_map_to_dict`, format "changing_slam_ros object map").
 """
 
 from __future__ import annotations
@@ -124,7 +121,8 @@ def semantic_map_from_dict(doc: Any, where: str) -> SemanticMap:
 
 
 def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
-    """Every field of every MapObject (ordered by id); points as [[id, x, y, z], ...]."""
+    """Every field of every MapObject (ordered by id); points as [[id, x, y, z], ...], optional `point_weights` (one
+    per point, the centroid's weights). Embedded in the map file, or written alone with `write_object_map`."""
     return {
         "format": OBJECT_MAP_FORMAT,
         "version": OBJECT_MAP_VERSION,

@@ -1,9 +1,8 @@
 """Object-level bundle adjustment with gtsam (Dai et al. 2021, eqs. 7, 10 and 11).
 
-The paper writes the camera-frame prediction of the n-th point of object g in frame k as
-``T_k^c (T_k^g)^-1 T_0^g p_n^g`` (T^c, T^g world-to-camera and world-to-object). We store the object's
-points in its own frame, p_obj = T_0^g p_n^g, and its poses as object-to-world T_world_obj_k =
-(T_k^g)^-1, so the prediction is ``T_cam_world_k T_world_obj_k p_obj``.
+The paper's camera-frame prediction of point n of object g in frame k is ``T_k^c (T_k^g)^-1 T_0^g p_n^g``
+(T^c, T^g world-to-camera and world-to-object). We store the object's points in its own frame, p_obj =
+T_0^g p_n^g, and its poses as T_world_obj_k = (T_k^g)^-1: the prediction is ``T_cam_world_k T_world_obj_k p_obj``.
 
 The camera poses come from camera tracking and are held fixed, so we optimise, for each frame, the
 camera pose *seen from the object*, X(k) = T_obj_cam_k = T_world_obj_k^-1 T_world_cam_k. This is a
