@@ -9,9 +9,7 @@ Layout (version 1):
       - {id, class_id, class_name, centroid_m: [x, y, z], box_center_m: [x, y, z], box_size_m: [dx, dy, dz],
          belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
 Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`); load
-errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
-
-The object map (every MapObject with its points, weights, boxes and persistence state, for a saved map that a
+errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`). The object map (every MapObject with its points, weights, boxes and persistence state, for a saved map that a
 later run starts from) has its own document (`object_map_to_dict`, format "changing_slam_ros object map").
 """
 
