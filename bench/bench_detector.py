@@ -11,10 +11,7 @@ absent). Per part: pre-processing (input tensor), `session.run`, post-processing
 load = constructing the `Detector` (creating its onnxruntime session; the first start of a
 cached setting prepares its graph, later ones load it, so run twice to see both).
 
-The baseline (first row) is the graph cut before its NMS, not slimmed, no spinning. The
-other rows: the slimmed graph (`detector.slim_graph`) without spinning, with spinning, with spinning bounded to
-`--spin-us` microseconds, and on one thread; `--graph-nms` adds the graph's own NMS (20-45 s to load). At the
-end every setting's detections are compared with the baseline's on all images (class lists, boxes, scores).
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -106,6 +103,13 @@ def compare(reference: Detector, other: Detector, images: list[tuple[str, np.nda
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    The baseline (first row) is the graph cut before its NMS, not slimmed, no spinning. The
+    other rows: the slimmed graph (`detector.slim_graph`) without spinning, with spinning, with spinning bounded to
+    `--spin-us` microseconds, and on one thread; `--graph-nms` adds the graph's own NMS (20-45 s to load). At the
+    end every setting's detections are compared with the baseline's on all images (class lists, boxes, scores).
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="", help="ONNX detector (default: the shipped SSD-MobileNetV2)")
     parser.add_argument("--frames", type=int, default=30, help="timed frames per setting")

@@ -11,8 +11,7 @@ passed to every `graph` run: for thread counts from the configs, `--graph-arg=--
 over runs of the detection rate, CPU per detection, tracking CPU per tracked frame, total CPU per bag frame,
 poses, latency and ATE (`bench_graph_cpu.figures`).
 
-`--variant "LABEL: OPTIONS"` (repeatable) compares sets of `graph` options instead, all on the first config, e.g.
-`--variant "fp32: --detector-model ssd_mobilenet_v2_coco" --variant "int8: " --variant "int8 15Hz: --detection-max-hz 15"`.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -33,6 +32,11 @@ KEYS = (
 
 
 def main() -> None:
+    """Parse the options, measure, print the table.
+
+    `--variant "LABEL: OPTIONS"` (repeatable) compares sets of `graph` options instead, all on the first config, e.g.
+    `--variant "fp32: --detector-model ssd_mobilenet_v2_coco" --variant "int8: " --variant "int8 15Hz: --detection-max-hz 15"`.
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("bag")
     parser.add_argument("configs", nargs="+", help="config names or YAML paths")
