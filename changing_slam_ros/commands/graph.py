@@ -46,7 +46,7 @@ BACKENDS = ("split", "in_process")
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
 # What the graph gives its nodes unless an option says otherwise, as node parameter values: (in real time, with
-# --lossless). Real time: measured settings for six processes on few cores (docs/architecture.md, sessions 9-11):
+# --lossless). Real time: settings measured for six processes on two cores (bench/bench_graph_configs.py):
 # one onnxruntime thread, the static INT8 SSD capped at 15 Hz by image stamp, tracking waiting up to 50 ms for a
 # detected frame's boxes (the detector announces the frames it skips), the numpy Schur-complement BA solver.
 # Lossless: the config's (-1, '' = the config's; every frame detected and waited for), so that the graph repeats

@@ -8,7 +8,7 @@ the second session relocalises within the first 2 s, that its trajectory lies in
 against ground truth under the first session's alignment, not re-aligned, within 1.5x the first session's own
 ATE + 2 cm), that the old places of the moved
 objects hold only low-belief, inactive objects and that the new places of the monitors and the suitcase hold a
-new object (bounds measured on this configuration, with margin; docs/multi_session.md has the figures).
+new object (bounds measured on this configuration, with margin; bench/multi_session.py prints the figures).
 Several minutes on an idle 2-core machine.
 """
 
