@@ -333,7 +333,7 @@ class LocalMappingNode(Node):
     def apply_loop(self, result: LoopResult, stamp: Any) -> None:
         # In real time too: keyframe packets of the merged-away map that arrive later are moved into the merged
         # map (MapOwner.on_keyframe), and tracking and loop_closing move what they hold of it that is not mapped
-        # yet (docs/loop_closing.md, "Map merging in the split graph").
+        # yet (core/replication/merge_in_flight.py).
         try:
             relay = self.owner.on_loop(result)
         except SlamError as err:

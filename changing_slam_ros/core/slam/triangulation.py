@@ -25,8 +25,7 @@ I64 = npt.NDArray[np.int64]
 class TriangulationConfig:
     """YAML section `mapping: triangulation:`.
 
-    - `enabled`: create points by triangulation at all (off by default: on 7-Scenes redkitchen it costs
-      ATE, see docs/loop_closing.md "Triangulated map points").
+    - `enabled`: create points by triangulation at all (off by default: on 7-Scenes redkitchen it costs ATE).
     - `neighbours`: best covisible keyframes paired with each new keyframe.
     - `min_baseline_m`: skip pairs whose camera centres are closer (ORB-SLAM RGB-D: the virtual stereo baseline).
     - `max_hamming`, `ratio`: descriptor acceptance (ORB-SLAM TH_LOW = 50) and Lowe ratio to the second best.
