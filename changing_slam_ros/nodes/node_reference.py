@@ -73,8 +73,13 @@ class NodeSpec:
 
 
 def _movers_config(tmp: Path) -> str:
+    """config/sim.yaml with `dynamic.movers.enabled: true` (the tracking node's mover topics exist only then)."""
+    import yaml
+
+    data = yaml.safe_load((REPO / "config" / "sim.yaml").read_text()) or {}
+    data.setdefault("dynamic", {}).setdefault("movers", {})["enabled"] = True
     path = tmp / "movers.yaml"
-    path.write_text((REPO / "config" / "sim.yaml").read_text() + "\ndynamic:\n  movers:\n    enabled: true\n")
+    path.write_text(yaml.safe_dump(data))
     return str(path)
 
 
