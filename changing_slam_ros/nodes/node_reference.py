@@ -48,7 +48,9 @@ and set parameters with `-p name:=value` (`ros2 param describe /NODE NAME` shows
 A row's *When* says when a topic exists only with some parameters, or not with them; empty: always.
 Every node also has rclpy's standard parameters (`use_sim_time`, `start_type_description_service`) and
 parameter services, and publishes `/rosout` and `/parameter_events`; `detection` is a lifecycle node and has
-the lifecycle services (`~/change_state`, `~/get_state`, ...) and `~/transition_event` too.
+the lifecycle services (`~/change_state`, `~/get_state`, ...) and `~/transition_event` too. The QoS of
+`/detection/detections` and of bag_player's publishers can be overridden with the standard
+`qos_overrides.<topic>.publisher.<policy>` parameters (left out of the tables).
 
 Run a node with `ros2 run changing_slam_ros NODE --ros-args ...` in a colcon workspace, or with
 `python -m changing_slam_ros.nodes.NODE_node --ros-args ...` from a checkout. `changing-slam graph` starts
