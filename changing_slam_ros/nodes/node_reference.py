@@ -1,10 +1,13 @@
 """The node reference, docs/nodes.md, generated from the nodes themselves.
 
-Each node class is built in-process (no spinning, no bag played, no detector loaded) and read back: its
-declared parameters (name, type, default, description from the ParameterDescriptor), publishers,
-subscriptions and services with their types and QoS. A few nodes are built again with parameter overrides
-(`NodeSpec.variants`) to find the topics that exist only with them; those rows say when. The hand-written
-text of each section comes from docs/nodes_intro/<node>.md, so regenerating keeps it.
+Each node class is built in-process with its default parameters (no spinning, no bag played) and read back:
+parameters (name, type, default, description from the ParameterDescriptor), publishers, subscriptions and
+services with their types and QoS. Defaults are cheap: tracking's split backend, local_mapping and
+loop_closing load their config and vocabulary in under a second; detection is configured but not activated
+(its ONNX model is never loaded); bag_player opens the bundled sample bag. Tracking is built again with
+overrides (`NodeSpec.variants`: compressed, ack_topic, movers, in-process backend, slam:=false, ...) because
+some topics exist only with them (the map resync topics only with the split backend); those rows say when.
+The hand-written text of each section comes from docs/nodes_intro/<node>.md, so regenerating keeps it.
 
     python tools/gen_node_reference.py           # rewrite docs/nodes.md
     python tools/gen_node_reference.py --check   # exit 1 when docs/nodes.md is out of date
