@@ -90,7 +90,7 @@ def test_auto_launch_arguments_give_the_nodes_the_graph_commands_settings(monkey
     for node, params in AUTO_PARAMETERS.items():
         for name in params:
             assert launch[node][name] == graph[node][name], (node, name)
-    if not lossless:  # what the measured real-time settings are (docs/architecture.md, sessions 9-11)
+    if not lossless:  # the real-time settings measured for six processes on two cores (commands/graph.py)
         assert launch["detection"]["model"] == "ssd_mobilenet_v2_coco_int8" and launch["detection"]["max_rate_hz"] == 15.0
         assert launch["tracking"]["detections_wait_s"] == 0.05 and launch["local_mapping"]["ba_solver"] == "schur"
 
