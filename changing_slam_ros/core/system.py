@@ -96,6 +96,8 @@ class FrameOutput:
     timings_ms: dict[str, float]
     dynamic: DynamicFrame | None = None  # the dynamic filter's verdict on the frame's keypoints (before subsetting)
     objects: ObjectLayerResult | None = None  # the object layer's work on this frame's new keyframe
+    relocalised: bool = False  # tracking was lost and found the map again on this frame (the pose jumps)
+    new_map: bool = False  # this frame started a new map in the Atlas (poses from here are in its frame)
 
 
 class SlamSystem:
@@ -206,7 +208,7 @@ class SlamSystem:
         if res.new_keyframe is not None:
             self.timings_ms["local_mapping_per_keyframe"].append(timings["local_mapping"])
         return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings, dyn,
-                           objects)
+                           objects, relocalised=res.relocalised, new_map=res.new_map)
 
     def _try_merge(self, kf: Keyframe) -> None:
         """A place of an older map seen from the current one: weld the maps (`map_merging`); frame records,

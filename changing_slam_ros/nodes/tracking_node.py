@@ -31,6 +31,7 @@ from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArra
 from changing_slam_msgs.msg import ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.rep105 import PoseCovarianceModel
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.errors import SlamError
@@ -49,6 +50,7 @@ from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
+from changing_slam_ros.nodes.tracking_tf import Rep105Outputs
 from changing_slam_ros.nodes.tracking_detections import DetectionInputs
 from changing_slam_ros.nodes.tracking_params import TRACKING_PARAMETERS
 from changing_slam_ros.nodes.tracking_replica import ReplicaInputs
@@ -173,8 +175,10 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
 
-        self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], p["odom_frame"], p["camera_frame"],
-                                     p["publish_tf"])  # pose, odometry, path, TF  # fmt: skip
+        self.frames_out = Rep105Outputs(self, p)  # TF: map -> odom (-> base_frame with visual odometry)
+        self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], self.frames_out.base_frame)
+        self.covariance = PoseCovarianceModel(p["pose_sigma_m"], p["pose_sigma_rad"], p["pose_sigma_inliers"])
+        self._n_merges = 0
         self.keyframe_pub = self.create_publisher(KeyframeMsg, "~/keyframes", QoSProfile(depth=100))
         self.object_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
@@ -364,8 +368,10 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         else:
             out = self.backend.system.process(frame, used)
         if out.state == TrackingState.OK and out.T_world_cam is not None:
-            self.publish_pose(item.stamp_ns, out.T_world_cam)
+            self.publish_pose(item.stamp_ns, out)
             self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
+        else:
+            self.frames_out.on_lost(item.stamp_ns)
         if out.loop_corrected:
             self._rebuild_path()
         if packet is not None:
@@ -400,13 +406,25 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             self._kf_sent_s[packet.keyframe.id] = time.monotonic()
         self.keyframe_pub.publish(msg)
 
-    def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
-        """Pose, odometry, path and TF (odom = map until loop corrections separate them; `PoseOutputs`)."""
-        self.poses_out.publish(stamp_ns, T_world_cam)
+    def publish_pose(self, stamp_ns: int, out: Any) -> None:
+        """TF (`Rep105Outputs`), then pose, odometry with covariance and path (`PoseOutputs`) of the base frame
+        (the camera's while its mounting is unknown). A pose that is not continuous with the last says so, so
+        that its jump goes into map -> odom: a relocalised frame or a new map at once; a loop correction or a
+        merge moves the map after this frame was tracked, so the next frame is the first in the moved map."""
+        system = self.backend.system
+        moved = out.relocalised or out.new_map
+        T_map_pose, child = self.frames_out.on_tracked(stamp_ns, out.T_world_cam, moved,  # noqa: N806
+                                                       system.tracker.velocity)  # fmt: skip
+        self.poses_out.publish(stamp_ns, T_map_pose, child, self.covariance.covariance(out.n_inliers))
         self.published_poses += 1
+        if len(system.merges) != self._n_merges:
+            self._n_merges = len(system.merges)
+            self.frames_out.map_moved()
 
     def _rebuild_path(self) -> None:
-        """After a loop closure: the path becomes the optimised (final) trajectory so far."""
+        """After a loop closure: the path becomes the optimised (final) trajectory so far; the map moved under
+        the robot (the next pose's jump goes into map -> odom)."""
+        self.frames_out.map_moved()
         traj = self.backend.system.final_trajectory()
         if len(traj) == 0:
             return
