@@ -174,7 +174,7 @@ class SlamSystem:
         self.tracker.start_from_map(next_keyframe_id)
         self.set_mode(mode)
 
-    def _map_objects(self, map_id: int) -> list[MapObject]:
+    def map_objects(self, map_id: int) -> list[MapObject]:
         """The MapObjects of a map: as loaded for localisation, else the object layer's."""
         if map_id in self.loaded_objects:
             return self.loaded_objects[map_id]
@@ -203,7 +203,7 @@ class SlamSystem:
         seen: list[int] = []
         if self.mode is Mode.LOCALIZATION and res.state == TrackingState.OK:
             seen = self.sightings.update(frame.stamp_ns, res.T_world_cam, rgbd.camera, rgbd.depth_m,
-                                         self._map_objects(self.atlas.current.id))  # fmt: skip
+                                         self.map_objects(self.atlas.current.id))  # fmt: skip
         if self.refinement is not None:
             self._keep_for_refinement(frame, rgbd, res)
         t2 = time.perf_counter()

@@ -32,6 +32,7 @@ from changing_slam_msgs.msg import ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.geometry.rep105 import PoseCovarianceModel
+from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.errors import SlamError
@@ -50,6 +51,7 @@ from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
+from changing_slam_ros.nodes.tracking_mode import ModeControl
 from changing_slam_ros.nodes.tracking_tf import Rep105Outputs
 from changing_slam_ros.nodes.tracking_detections import DetectionInputs
 from changing_slam_ros.nodes.tracking_params import TRACKING_PARAMETERS
@@ -179,6 +181,14 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], self.frames_out.base_frame)
         self.covariance = PoseCovarianceModel(p["pose_sigma_m"], p["pose_sigma_rad"], p["pose_sigma_inliers"])
         self._n_merges = 0
+        objects = None if self.backend is None or self.backend.objects is None else self.backend.objects
+        self.mode_control = ModeControl(self, p["mode"], lambda: None if self.backend is None else self.backend.system,
+                                        None if objects is None else objects.config.association, p["map_frame"],
+                                        output_qos)  # fmt: skip
+        if self.mode_control.mode is Mode.LOCALIZATION and self.backend is not None:
+            ok, why = self.mode_control.apply(Mode.LOCALIZATION)
+            if not ok:
+                raise SlamError(f"tracking: parameter mode: {why}")
         self.keyframe_pub = self.create_publisher(KeyframeMsg, "~/keyframes", QoSProfile(depth=100))
         self.object_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
@@ -219,7 +229,8 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
 
             self.split.start_from_map(loaded, object_layer_for(cfg, self.params["objects"]))
         else:
-            self.backend.system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
+            self.backend.system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects,
+                                               Mode.parse(self.params["mode"]))  # fmt: skip
         atlas = self.backend.system.atlas
         self.get_logger().info(f"tracking: {atlas.n_keyframes} keyframes in {len(atlas.maps)} maps loaded from "
                                f"{map_file}; relocalising in map {atlas.current.id} first")  # fmt: skip
@@ -372,6 +383,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
         else:
             self.frames_out.on_lost(item.stamp_ns)
+        self.mode_control.after_frame(item.stamp_ns, out)
         if out.loop_corrected:
             self._rebuild_path()
         if packet is not None:

@@ -88,6 +88,10 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
                                "sensor-data best effort: large images across processes on Fast DDS arrive only this way"),
     ("image_queue_depth", 2, "reliable_images: frames queued while one is processed (more = fewer drops "
                              "after slow keyframes, more latency)"),
+    ("mode", "mapping", "'mapping' (SLAM) or 'localization': the map (map_file) is only read: no keyframes, "
+                        "points or objects added or moved, no loops; tracking relocalises when lost; "
+                        "~/objects_seen lists the mapped objects present at their place. Also settable at run "
+                        "time, and by ~/set_mode (std_srvs/SetBool, true = localization)"),
     ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz) and "
                      "relocalise in it first; split backend: local_mapping and loop_closing load it too"),
 )  # fmt: skip

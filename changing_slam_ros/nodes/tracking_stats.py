@@ -77,6 +77,7 @@ class TrackingStats:
         out = {k: s[k] for k in keep}
         out["dropped"] = self.colour_in - self.published_poses
         out.update(self.frames_out.diagnostic_values())  # tracking state, map -> odom jumps, odometry time-outs
+        out.update(self.mode_control.diagnostic_values())  # mapping / localization, objects present
         return out
 
     def _log_stats(self) -> None:
