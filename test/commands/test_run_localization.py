@@ -5,9 +5,14 @@ from __future__ import annotations
 
 import json
 
-from helpers import FR1_XYZ_10, require
+import numpy as np
+import pytest
+from helpers import FR1_XYZ_10, REDKITCHEN, require
 
 from changing_slam_ros.cli import main as cli_main
+from changing_slam_ros.commands.objects_options import trajectory_alignment
+from changing_slam_ros.eval.multi_session import map_frame_errors_m
+from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
 
 def test_localisation_writes_the_loaded_map_back_unchanged_and_tracks_as_well_as_mapping(tmp_path, capsys) -> None:
@@ -31,3 +36,44 @@ def test_localisation_writes_the_loaded_map_back_unchanged_and_tracks_as_well_as
     assert m2["localization"] == {"objects_seen": 5, "frames_lost": 0}
     rc = cli_main(["run", data, "--out", str(tmp_path / "bad"), "--config", "tum_fr1", "--quiet", "--localization"])
     assert rc == 1 and "--localization needs --map-in" in capsys.readouterr().err
+
+
+def redkitchen_part(dst, lo: int, hi: int):  # noqa: ANN001, ANN201
+    """A TUM-layout folder with frames lo..hi-1 of the 7-Scenes redkitchen sample (lists cut, images linked)."""
+    src = require(REDKITCHEN)
+    dst.mkdir(parents=True)
+    for name in ("rgb", "depth", "camera-intrinsics.txt"):
+        (dst / name).symlink_to(src / name)
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+        lines = (src / name).read_text().splitlines()
+        head = [ln for ln in lines if ln.startswith("#")]
+        body = [ln for ln in lines if not ln.startswith("#")]
+        (dst / name).write_text("\n".join(head + body[lo:hi]) + "\n")
+    return dst
+
+
+@pytest.mark.slow
+def test_localisation_on_the_second_half_of_redkitchen_in_the_map_of_the_first(tmp_path) -> None:
+    """Real frames: map frames 0-499, then localise on frames 500-999 against that map, and for reference go on
+    mapping from the same map over the same frames. Measured (7scenes config, 2-core machine, ~12 min for the
+    three runs): all 500 frames localised, relocalised at the first, map.npz identical, 13 of the 14 objects
+    found at their place; errors in the saved map's frame (the first run's ground-truth alignment, not
+    re-aligned) 8.45 cm localising vs 7.91 cm mapping on (own-aligned ATE 5.24 vs 3.85 cm)."""
+    first, rest = redkitchen_part(tmp_path / "first", 0, 500), redkitchen_part(tmp_path / "rest", 500, 1000)
+    common = ["--config", "7scenes", "--quiet", "--no-plot"]
+    assert cli_main(["run", str(first), "--out", str(tmp_path / "map"), *common]) == 0
+    map_in = ["--map-in", str(tmp_path / "map" / "map.npz")]
+    assert cli_main(["run", str(rest), "--out", str(tmp_path / "loc"), *common, *map_in, "--localization"]) == 0
+    assert cli_main(["run", str(rest), "--out", str(tmp_path / "slam"), *common, *map_in]) == 0
+    assert (tmp_path / "loc" / "map.npz").read_bytes() == (tmp_path / "map" / "map.npz").read_bytes()
+    m = json.loads((tmp_path / "loc" / "metrics.json").read_text())
+    assert m["frames_tracked"] >= 495 and m["multi_session"]["relocalised_frame"] == 0 and m["maps"] == 1
+    assert m["localization"]["objects_seen"] >= 10
+    gt = read_tum_trajectory(REDKITCHEN / "groundtruth.txt")
+    T_gt_map = trajectory_alignment(gt, read_tum_trajectory(tmp_path / "map" / "trajectory.txt"), lever_m=0.0)  # noqa: N806
+
+    def map_frame_rmse(run: str) -> float:
+        e = map_frame_errors_m(gt, read_tum_trajectory(tmp_path / run / "trajectory.txt"), T_gt_map)
+        return float(np.sqrt((e**2).mean()))
+
+    assert map_frame_rmse("loc") <= 1.2 * map_frame_rmse("slam")
