@@ -379,7 +379,14 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         else:
             out = self.backend.system.process(frame, used)
         if out.state == TrackingState.OK and out.T_world_cam is not None:
-            self.publish_pose(item.stamp_ns, out)
+            # A relocalised frame or a new map jumps at once; a loop correction or a merge moves the map after
+            # this frame was tracked, so the next frame is the first in the moved map (`_rebuild_path`, below).
+            system = self.backend.system
+            self.publish_pose(item.stamp_ns, out.T_world_cam, out.n_inliers, out.relocalised or out.new_map,
+                              system.tracker.velocity)  # fmt: skip
+            if len(system.merges) != self._n_merges:
+                self._n_merges = len(system.merges)
+                self.frames_out.map_moved()
             self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
         else:
             self.frames_out.on_lost(item.stamp_ns)
@@ -418,20 +425,14 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             self._kf_sent_s[packet.keyframe.id] = time.monotonic()
         self.keyframe_pub.publish(msg)
 
-    def publish_pose(self, stamp_ns: int, out: Any) -> None:
-        """TF (`Rep105Outputs`), then pose, odometry with covariance and path (`PoseOutputs`) of the base frame
-        (the camera's while its mounting is unknown). A pose that is not continuous with the last says so, so
-        that its jump goes into map -> odom: a relocalised frame or a new map at once; a loop correction or a
-        merge moves the map after this frame was tracked, so the next frame is the first in the moved map."""
-        system = self.backend.system
-        moved = out.relocalised or out.new_map
-        T_map_pose, child = self.frames_out.on_tracked(stamp_ns, out.T_world_cam, moved,  # noqa: N806
-                                                       system.tracker.velocity)  # fmt: skip
-        self.poses_out.publish(stamp_ns, T_map_pose, child, self.covariance.covariance(out.n_inliers))
+    def publish_pose(self, stamp_ns: int, T_world_cam: Any, n_inliers: int = 0, map_moved: bool = False,  # noqa: N803
+                     T_prev_cur_cam: Any = None) -> None:  # noqa: N803  # fmt: skip
+        """TF (`Rep105Outputs`), then pose, odometry with its covariance from `n_inliers`, and path (`PoseOutputs`),
+        of the base frame (the camera's while its mounting is unknown). `map_moved`: the pose is not continuous
+        with the last (its jump goes into map -> odom); `T_prev_cur_cam`: the camera motion tracking measured."""
+        T_map_pose, child = self.frames_out.on_tracked(stamp_ns, T_world_cam, map_moved, T_prev_cur_cam)  # noqa: N806
+        self.poses_out.publish(stamp_ns, T_map_pose, child, self.covariance.covariance(n_inliers))
         self.published_poses += 1
-        if len(system.merges) != self._n_merges:
-            self._n_merges = len(system.merges)
-            self.frames_out.map_moved()
 
     def _rebuild_path(self) -> None:
         """After a loop closure: the path becomes the optimised (final) trajectory so far; the map moved under
