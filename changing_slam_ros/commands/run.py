@@ -34,7 +34,8 @@ from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.slam.tracking import TrackingConfig
-from changing_slam_ros.errors import EvalError
+from changing_slam_ros.core.slam.localization import Mode
+from changing_slam_ros.errors import ConfigError, EvalError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.map_file import load_map, save_map
 from changing_slam_ros.io.moving_objects_file import write_moving_objects
@@ -51,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-in", metavar="MAP", help="start from a map saved by an earlier run (its DIR/map.npz): "
                         "relocalise in it first (tracking.loaded_map_grace_s), poses in its frame, objects and "
                         "beliefs carried over")
+    parser.add_argument("--localization", action="store_true", help="with --map-in: localisation only, the "
+                        "loaded map is never changed (no keyframes, points or objects added or moved, no loops; "
+                        "beliefs not updated); object_sightings.json lists the map's objects seen at their place")
     add_dynamic_arguments(parser)
     add_object_arguments(parser)
 
@@ -67,7 +71,10 @@ def main(args: argparse.Namespace) -> int:
     - `timing.json`            per-stage milliseconds (count, mean, p50, p90, p99, max);
     - `trajectory.png`         the final trajectory against ground truth (when it exists);
     - `moving_objects.json`, `moving_objects/object_<id>.txt`  moving objects and their trajectories (TUM), with
-                               `dynamic: movers: enabled: true` (`io.moving_objects_file`).
+                               `dynamic: movers: enabled: true` (`io.moving_objects_file`);
+    - `object_sightings.json`  with `--localization`: the loaded map's objects found at their mapped place (frames
+                               in view, present, missing; `core/slam/localization.Sightings`). The map is only read
+                               there, so `map.npz` is the loaded file byte for byte.
     """
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.dataset_config import load_dataset_settings, settings_from_mapping
@@ -82,6 +89,8 @@ def main(args: argparse.Namespace) -> int:
     else:
         settings = load_dataset_settings(None)
     config = system_config_from_mapping(data, where)
+    if args.localization and not args.map_in:
+        raise ConfigError("--localization needs --map-in: the map to localise in")
     loaded = load_map(args.map_in) if args.map_in else None  # a bad map fails before any frame is read
     source = open_dataset(args.source, settings)
     closing = None if args.no_loop else _loop_closing(data, where)
@@ -90,7 +99,8 @@ def main(args: argparse.Namespace) -> int:
     system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=dynamic.filter,
                         object_layer=objects)
     if loaded is not None:
-        system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
+        system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects,
+                              Mode.LOCALIZATION if args.localization else Mode.MAPPING)
     loops = LoopLog()
 
     n_total = len(source) if not args.max_frames else min(args.max_frames, len(source))
@@ -107,7 +117,9 @@ def main(args: argparse.Namespace) -> int:
     write_tum_trajectory(out / "trajectory.txt", final)
     write_tum_trajectory(out / "trajectory_online.txt", online)
     write_tum_trajectory(out / "keyframes.txt", system.keyframe_trajectory())
-    save_map(out / "map.npz", system.atlas, objects, system.tracker.next_kf_id)
+    # Localisation: the object layer never ran, so the objects go back as they were read.
+    saved_objects = loaded.objects if args.localization and loaded is not None else objects
+    save_map(out / "map.npz", system.atlas, saved_objects, system.tracker.next_kf_id)
     timing = system.timing_summary()
     metrics: dict[str, Any] = {
         "source": str(args.source),
@@ -125,6 +137,10 @@ def main(args: argparse.Namespace) -> int:
     }
     if args.map_in:
         metrics["multi_session"] = multi_session_summary(system, args.map_in)
+    if args.localization:
+        sightings = [s.as_dict() for _, s in sorted(system.sightings.by_object.items())]
+        atomic_write_text(out / "object_sightings.json", json.dumps(sightings, indent=2) + "\n")
+        metrics["localization"] = {"objects_seen": len(sightings), "frames_lost": len(system.records) - system.n_tracked()}
     gt = source.groundtruth
     if gt is not None and len(final) >= 3:
         metrics.update(evaluate(gt, final, online, out, args.no_plot))

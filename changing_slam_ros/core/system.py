@@ -29,8 +29,10 @@ from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter, Dynamic
 from changing_slam_ros.core.features.frame import Frame
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.slam.local_mapping import LocalMapper, MappingConfig, MappingStats
+from changing_slam_ros.core.slam.localization import Mode, Sightings
 from changing_slam_ros.core.slam.loop_closing import MapMerge
 from changing_slam_ros.core.slam.map_merging import MergeResult, merge_maps, move_frame
+from changing_slam_ros.core.objects.map_object import MapObject
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
 from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo
@@ -39,6 +41,7 @@ from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.slam.tracking import KeyframeCandidates, Tracker, TrackingConfig, TrackingState, TrackResult
 from changing_slam_ros.core.geometry.trajectory import Trajectory
+from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 
@@ -96,6 +99,9 @@ class FrameOutput:
     timings_ms: dict[str, float]
     dynamic: DynamicFrame | None = None  # the dynamic filter's verdict on the frame's keypoints (before subsetting)
     objects: ObjectLayerResult | None = None  # the object layer's work on this frame's new keyframe
+    relocalised: bool = False  # tracking was lost and found the map again on this frame (the pose jumps)
+    new_map: bool = False  # this frame started a new map in the Atlas (poses from here are in its frame)
+    objects_seen: tuple[int, ...] = ()  # localisation: MapObjects present at their mapped place (`Sightings`)
 
 
 class SlamSystem:
@@ -129,17 +135,33 @@ class SlamSystem:
         self.refinement: DeferredRefinement | None = None  # real time with late detections: final poses refined
         if refine.enabled and dynamic_filter is not None:
             self.refinement = DeferredRefinement(refine, dynamic_filter.config.tracker_config().classification)
+        self.mode = Mode.MAPPING
+        self.sightings = Sightings()  # localisation: the map's objects seen at their mapped place, per frame
+        self.loaded_objects: dict[int, list[MapObject]] = {}  # localisation from a saved map: its objects, as saved
+
+    def set_mode(self, mode: Mode) -> None:
+        """`Mode.LOCALIZATION`: from the next frame on the map is only read (`core/slam/localization.py`);
+        needs a map with keyframes. `Mode.MAPPING`: SLAM again (a lost tracker may then start a new map)."""
+        if mode is Mode.LOCALIZATION and self.atlas.n_keyframes == 0:
+            raise ConfigError("localization mode needs a map: load one (--map-in / map_file) or map first")
+        self.mode = mode
+        self.tracker.localization = mode is Mode.LOCALIZATION
 
     def start_from_map(self, atlas: Atlas, next_keyframe_id: int,
-                       objects: dict[int, SavedObjectMap] | None = None) -> None:
+                       objects: dict[int, SavedObjectMap] | None = None, mode: Mode = Mode.MAPPING) -> None:
         """Multi-session: continue a saved Atlas (`io.map_file.load_map`) before the first frame. The keyframe
         index gets every loaded keyframe (bag-of-words rebuilt from its descriptors, inactive points masked),
         tracking relocalises against `atlas.current` first (`TrackingConfig.loaded_map_grace_s`), and the object
-        layer starts from the saved objects and beliefs. Poses stay in the loaded map's frame."""
+        layer starts from the saved objects and beliefs. Poses stay in the loaded map's frame.
+        `Mode.LOCALIZATION`: the map is only read from the first frame on; the saved objects are kept as they are
+        (`loaded_objects`, for `sightings`) instead of starting a new object-layer session, which would decay
+        their beliefs and the active flags of their points."""
         if self.records:
             raise RuntimeError("start_from_map must be called before the first frame")
         self.atlas.adopt(atlas)
-        if self.object_layer is not None and self.object_layer.enabled:  # first: it may deactivate points
+        if mode is Mode.LOCALIZATION:
+            self.loaded_objects = {map_id: list(saved.objects) for map_id, saved in (objects or {}).items()}
+        elif self.object_layer is not None and self.object_layer.enabled:  # first: it may deactivate points
             for map_id, saved in (objects or {}).items():
                 self.object_layer.load_objects(map_id, saved, next_keyframe_id, self.atlas.maps[map_id].points)
         refresh = getattr(self.loop_closer, "refresh_active_points", None)
@@ -150,6 +172,13 @@ class SlamSystem:
             if refresh is not None:
                 refresh(m)
         self.tracker.start_from_map(next_keyframe_id)
+        self.set_mode(mode)
+
+    def map_objects(self, map_id: int) -> list[MapObject]:
+        """The MapObjects of a map: as loaded for localisation, else the object layer's."""
+        if map_id in self.loaded_objects:
+            return self.loaded_objects[map_id]
+        return [] if self.object_layer is None else self.object_layer.objects(map_id)
 
     def _extractor_for(self, camera: CameraIntrinsics) -> OrbExtractor:
         if self._extractor is None or camera != self._camera:
@@ -171,6 +200,10 @@ class SlamSystem:
         if dyn is not None:
             self._after_dynamic(dyn, res)
         self._record(frame, res)  # relative to the reference keyframe, before mapping moves it
+        seen: list[int] = []
+        if self.mode is Mode.LOCALIZATION and res.state == TrackingState.OK:
+            seen = self.sightings.update(frame.stamp_ns, res.T_world_cam, rgbd.camera, rgbd.depth_m,
+                                         self.map_objects(self.atlas.current.id))  # fmt: skip
         if self.refinement is not None:
             self._keep_for_refinement(frame, rgbd, res)
         t2 = time.perf_counter()
@@ -206,7 +239,7 @@ class SlamSystem:
         if res.new_keyframe is not None:
             self.timings_ms["local_mapping_per_keyframe"].append(timings["local_mapping"])
         return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings, dyn,
-                           objects)
+                           objects, relocalised=res.relocalised, new_map=res.new_map, objects_seen=tuple(seen))
 
     def _try_merge(self, kf: Keyframe) -> None:
         """A place of an older map seen from the current one: weld the maps (`map_merging`); frame records,

@@ -31,6 +31,8 @@ from changing_slam_msgs.msg import DetectionArray, LoopCorrection, MapObjectArra
 from changing_slam_msgs.msg import ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.rep105 import PoseCovarianceModel
+from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.slam.tracking import TrackingState
 from changing_slam_ros.errors import SlamError
@@ -49,6 +51,8 @@ from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
+from changing_slam_ros.nodes.tracking_mode import ModeControl
+from changing_slam_ros.nodes.tracking_tf import Rep105Outputs
 from changing_slam_ros.nodes.tracking_detections import DetectionInputs
 from changing_slam_ros.nodes.tracking_params import TRACKING_PARAMETERS
 from changing_slam_ros.nodes.tracking_replica import ReplicaInputs
@@ -173,8 +177,18 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
 
-        self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], p["odom_frame"], p["camera_frame"],
-                                     p["publish_tf"])  # pose, odometry, path, TF  # fmt: skip
+        self.frames_out = Rep105Outputs(self, p)  # TF: map -> odom (-> base_frame with visual odometry)
+        self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], self.frames_out.base_frame)
+        self.covariance = PoseCovarianceModel(p["pose_sigma_m"], p["pose_sigma_rad"], p["pose_sigma_inliers"])
+        self._n_merges = 0
+        objects = None if self.backend is None or self.backend.objects is None else self.backend.objects
+        self.mode_control = ModeControl(self, p["mode"], lambda: None if self.backend is None else self.backend.system,
+                                        None if objects is None else objects.config.association, p["map_frame"],
+                                        output_qos)  # fmt: skip
+        if self.mode_control.mode is Mode.LOCALIZATION and self.backend is not None:
+            ok, why = self.mode_control.apply(Mode.LOCALIZATION)
+            if not ok:
+                raise SlamError(f"tracking: parameter mode: {why}")
         self.keyframe_pub = self.create_publisher(KeyframeMsg, "~/keyframes", QoSProfile(depth=100))
         self.object_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
@@ -215,7 +229,8 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
 
             self.split.start_from_map(loaded, object_layer_for(cfg, self.params["objects"]))
         else:
-            self.backend.system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
+            self.backend.system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects,
+                                               Mode.parse(self.params["mode"]))  # fmt: skip
         atlas = self.backend.system.atlas
         self.get_logger().info(f"tracking: {atlas.n_keyframes} keyframes in {len(atlas.maps)} maps loaded from "
                                f"{map_file}; relocalising in map {atlas.current.id} first")  # fmt: skip
@@ -364,8 +379,18 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         else:
             out = self.backend.system.process(frame, used)
         if out.state == TrackingState.OK and out.T_world_cam is not None:
-            self.publish_pose(item.stamp_ns, out.T_world_cam)
+            # A relocalised frame or a new map jumps at once; a loop correction or a merge moves the map after
+            # this frame was tracked, so the next frame is the first in the moved map (`_rebuild_path`, below).
+            system = self.backend.system
+            self.publish_pose(item.stamp_ns, out.T_world_cam, out.n_inliers, out.relocalised or out.new_map,
+                              system.tracker.velocity)  # fmt: skip
+            if len(system.merges) != self._n_merges:
+                self._n_merges = len(system.merges)
+                self.frames_out.map_moved()
             self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
+        else:
+            self.frames_out.on_lost(item.stamp_ns)
+        self.mode_control.after_frame(item.stamp_ns, out)
         if out.loop_corrected:
             self._rebuild_path()
         if packet is not None:
@@ -400,13 +425,19 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             self._kf_sent_s[packet.keyframe.id] = time.monotonic()
         self.keyframe_pub.publish(msg)
 
-    def publish_pose(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
-        """Pose, odometry, path and TF (odom = map until loop corrections separate them; `PoseOutputs`)."""
-        self.poses_out.publish(stamp_ns, T_world_cam)
+    def publish_pose(self, stamp_ns: int, T_world_cam: Any, n_inliers: int = 0, map_moved: bool = False,  # noqa: N803
+                     T_prev_cur_cam: Any = None) -> None:  # noqa: N803  # fmt: skip
+        """TF (`Rep105Outputs`), then pose, odometry with its covariance from `n_inliers`, and path (`PoseOutputs`),
+        of the base frame (the camera's while its mounting is unknown). `map_moved`: the pose is not continuous
+        with the last (its jump goes into map -> odom); `T_prev_cur_cam`: the camera motion tracking measured."""
+        T_map_pose, child = self.frames_out.on_tracked(stamp_ns, T_world_cam, map_moved, T_prev_cur_cam)  # noqa: N806
+        self.poses_out.publish(stamp_ns, T_map_pose, child, self.covariance.covariance(n_inliers))
         self.published_poses += 1
 
     def _rebuild_path(self) -> None:
-        """After a loop closure: the path becomes the optimised (final) trajectory so far."""
+        """After a loop closure: the path becomes the optimised (final) trajectory so far; the map moved under
+        the robot (the next pose's jump goes into map -> odom)."""
+        self.frames_out.map_moved()
         traj = self.backend.system.final_trajectory()
         if len(traj) == 0:
             return

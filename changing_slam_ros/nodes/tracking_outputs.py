@@ -12,13 +12,12 @@ import time
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped, TransformStamped
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry, Path as PathMsg
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
-from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from changing_slam_msgs.msg import MovingObjectArray
@@ -26,7 +25,6 @@ from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.nodes.conversions import (
     make_header,
     matrix_to_pose,
-    matrix_to_transform,
     moving_object_markers,
     moving_objects_to_msg,
     rgb_to_image,
@@ -37,35 +35,33 @@ CLASS_RGB = {0: (0, 220, 0), 1: (0, 120, 255), 2: (255, 0, 0), 3: (160, 160, 160
 
 
 class PoseOutputs:
-    """~/pose, ~/odometry, ~/path (the online poses so far) and TF map->odom (identity) -> odom->camera."""
+    """~/pose, ~/odometry (with covariance) and ~/path (the online poses so far), for the base frame when its
+    mounting is known (else the camera). TF is `tracking_tf.Rep105Outputs`."""
 
-    def __init__(self, node: Node, qos: QoSProfile | int, map_frame: str, odom_frame: str, camera_frame: str,
-                 publish_tf: bool) -> None:  # fmt: skip
-        self.map_frame, self.odom_frame, self.camera_frame = map_frame, odom_frame, camera_frame
+    def __init__(self, node: Node, qos: QoSProfile | int, map_frame: str, child_frame: str) -> None:
+        self.map_frame, self.child_frame = map_frame, child_frame
         self.pose_pub = node.create_publisher(PoseStamped, "~/pose", qos)
         self.odom_pub = node.create_publisher(Odometry, "~/odometry", qos)
         self.path_pub = node.create_publisher(PathMsg, "~/path", qos)
-        self.tf_pub = node.create_publisher(TFMessage, "/tf", 100) if publish_tf else None
         self.path = PathMsg(header=Header(frame_id=map_frame))
 
-    def publish(self, stamp_ns: int, T_world_cam: Any) -> None:  # noqa: N803
+    def publish(self, stamp_ns: int, T_map_pose: Any, child_frame: str | None = None,  # noqa: N803
+                covariance: Any = None) -> None:  # fmt: skip
+        """One pose of `child_frame` (default: the one given at construction) in the map; `covariance` (6, 6)
+        in ROS order (x, y, z, rotations), m^2 and rad^2, goes into the odometry message."""
         header = make_header(stamp_ns, self.map_frame)
-        pose = PoseStamped(header=header, pose=matrix_to_pose(T_world_cam))
+        pose = PoseStamped(header=header, pose=matrix_to_pose(T_map_pose))
         self.pose_pub.publish(pose)
         if self.odom_pub.get_subscription_count() > 0:
-            odom = Odometry(header=header, child_frame_id=self.camera_frame)
+            odom = Odometry(header=header, child_frame_id=child_frame or self.child_frame)
             odom.pose.pose = pose.pose
+            if covariance is not None:
+                odom.pose.covariance = np.asarray(covariance, np.float64).ravel()
             self.odom_pub.publish(odom)
         self.path.header.stamp = header.stamp
         self.path.poses.append(pose)
         if self.path_pub.get_subscription_count() > 0:
             self.path_pub.publish(self.path)
-        if self.tf_pub is not None and self.tf_pub.get_subscription_count() > 0:
-            map_odom = TransformStamped(header=header, child_frame_id=self.odom_frame)
-            map_odom.transform = matrix_to_transform(np.eye(4))
-            odom_cam = TransformStamped(header=make_header(stamp_ns, self.odom_frame), child_frame_id=self.camera_frame)
-            odom_cam.transform = matrix_to_transform(T_world_cam)
-            self.tf_pub.publish(TFMessage(transforms=[map_odom, odom_cam]))
 
     def replace_path(self, stamps_s: Any, poses: Any) -> None:
         """The path becomes these poses (after a loop closure: the optimised trajectory so far; [] after a load)."""

@@ -16,7 +16,22 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("map_frame", "map", "REP-105 map frame"),
     ("odom_frame", "odom", "REP-105 odom frame"),
     ("camera_frame", "camera", "camera optical frame of the published pose"),
-    ("publish_tf", True, "publish map->odom->camera on /tf"),
+    ("base_frame", "", "REP-105 robot base frame (base_link): pose, odometry and TF are for it, with the "
+                       "camera's mounting base_frame -> camera_frame from /tf_static (the robot's URDF); "
+                       "empty = the camera frame is the base"),
+    ("odom_source", "visual", "who publishes odom -> base_frame: 'visual' = this node, from the visual "
+                              "estimate (map -> odom identity until a loop or relocalisation moves the map, "
+                              "then the correction); 'tf' = the robot (wheel odometry, an EKF), this node "
+                              "publishes only map -> odom = T_map_base * inv(T_odom_base at the image stamp)"),
+    ("publish_tf", True, "publish map -> odom (and with odom_source visual odom -> base_frame) on /tf"),
+    ("tf_timeout_s", 0.1, "odom_source tf: how long a frame waits for odom -> base_frame at its stamp "
+                          "(odometry arriving after the image) before map -> odom is left as it was (warns)"),
+    ("tf_cache_s", 10.0, "seconds of /tf kept for lookups at image stamps (tf2_ros's buffer when installed, "
+                         "else the package's own)"),
+    ("pose_sigma_m", 0.01, "odometry covariance: position 1-sigma (m) at pose_sigma_inliers tracking inliers; "
+                           "variance scales with pose_sigma_inliers / inliers"),
+    ("pose_sigma_rad", 0.01, "odometry covariance: rotation 1-sigma (rad) at pose_sigma_inliers inliers"),
+    ("pose_sigma_inliers", 100, "odometry covariance: inlier count at which the sigmas above hold"),
     ("ack_topic", "", "std_msgs/Header per processed frame and per accepted camera_info (bag_player lossless); "
                       "empty = off"),
     ("stats_period_s", 10.0, "seconds between log lines with frame and drop counts"),
@@ -73,6 +88,10 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
                                "sensor-data best effort: large images across processes on Fast DDS arrive only this way"),
     ("image_queue_depth", 2, "reliable_images: frames queued while one is processed (more = fewer drops "
                              "after slow keyframes, more latency)"),
+    ("mode", "mapping", "'mapping' (SLAM) or 'localization': the map (map_file) is only read: no keyframes, "
+                        "points or objects added or moved, no loops; tracking relocalises when lost; "
+                        "~/objects_seen lists the mapped objects present at their place. Also settable at run "
+                        "time, and by ~/set_mode (std_srvs/SetBool, true = localization)"),
     ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz) and "
                      "relocalise in it first; split backend: local_mapping and loop_closing load it too"),
 )  # fmt: skip

@@ -76,6 +76,8 @@ class TrackingStats:
                 "latency_ms_p90", "process_ms_median", "process_cpu_ms_median", "detections_received", "map_updates_applied", "map_update_latency_ms_median")  # fmt: skip
         out = {k: s[k] for k in keep}
         out["dropped"] = self.colour_in - self.published_poses
+        out.update(self.frames_out.diagnostic_values())  # tracking state, map -> odom jumps, odometry time-outs
+        out.update(self.mode_control.diagnostic_values())  # mapping / localization, objects present
         return out
 
     def _log_stats(self) -> None:

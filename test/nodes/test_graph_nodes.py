@@ -74,7 +74,7 @@ def test_tracking_publishes_pose_and_rep105_tf_from_a_camera_to_world_matrix(ros
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(tracking)
     executor.add_node(probe)
-    spin_until(executor, lambda: tracking.poses_out.pose_pub.get_subscription_count() > 0 and tracking.poses_out.tf_pub.get_subscription_count() > 0)
+    spin_until(executor, lambda: tracking.poses_out.pose_pub.get_subscription_count() > 0 and tracking.frames_out.tf_pub.get_subscription_count() > 0)
     T = np.eye(4)
     T[:3, 3] = [1.0, -2.0, 0.5]
     tracking.publish_pose(1305031102_175304000, T)

@@ -26,7 +26,7 @@ class Quiet(QuietQosEvents, Node):
 
 def test_the_path_keeps_every_pose_and_goes_out_only_to_subscribers(ros_context) -> None:
     node = Quiet("tracking", context=ros_context)
-    out = PoseOutputs(node, 10, "map", "odom", "camera", publish_tf=True)
+    out = PoseOutputs(node, 10, "map", "camera")
     assert len(list(node.waitables)) == 0  # no QoS-event handlers on these publishers (nodes/qos_events.py)
     poses = [make_pose(np.eye(3), np.array([0.1 * k, 0.0, 0.0])) for k in range(4)]
     for k in range(3):  # nobody listens: the path grows, nothing is built for odometry, path or TF

@@ -164,6 +164,9 @@ class Tracker:
         self.awaiting_loaded_map = False  # a loaded map: relocalise against it before starting a new one
         self._grace_start_ns: int | None = None
         self.loaded_map_relocalised_index = -1  # the frame that relocalised in the loaded map, -1 = not (yet)
+        # Localisation only: the map is read, never written (no keyframes, no new maps, no point statistics);
+        # a lost frame only tries relocalisation, for as long as it takes.
+        self.localization = False
 
     @property
     def map(self) -> SlamMap:
@@ -191,6 +194,8 @@ class Tracker:
     # 0. Entry point -------------------------------------------------------------------------------
     def track(self, frame: Frame) -> TrackResult:
         gap = self._time_gap(frame)
+        if self.state == TrackingState.NOT_INITIALISED and self.localization:
+            self.state = TrackingState.LOST  # nothing to initialise: the frame relocalises in the map
         if self.state == TrackingState.NOT_INITIALISED:
             return self._initialise(frame, self.last_good_pose)
         if self.state == TrackingState.OK:
@@ -215,6 +220,8 @@ class Tracker:
         self.n_lost += 1
         self.last_frame = frame
         self.velocity = None
+        if self.localization:
+            return TrackResult(TrackingState.LOST, None, 0, None)
         if self.awaiting_loaded_map:
             if self._within_grace(frame):
                 return TrackResult(TrackingState.LOST, None, 0, None)
@@ -356,11 +363,12 @@ class Tracker:
         T_cw = invert(frame.T_world_cam)
         self._search(frame, T_cw, local_ids, radius, ratio=0.8)
         visible = np.concatenate([matched, self._visible_rows])
-        m.points.n_visible[visible] += 1
         n = self._optimise(frame, T_cw)
-        found = frame.point_ids[frame.point_ids >= 0]
-        m.points.n_found[found] += 1
-        m.points.last_seen_frame[found] = frame.index
+        if not self.localization:  # the points' found ratio (culling) and recency belong to mapping
+            found = frame.point_ids[frame.point_ids >= 0]
+            m.points.n_visible[visible] += 1
+            m.points.n_found[found] += 1
+            m.points.last_seen_frame[found] = frame.index
         return n >= min_inliers
 
     # 4. Relocalisation ----------------------------------------------------------------------------
@@ -411,7 +419,7 @@ class Tracker:
             self.velocity = None
         frame.ref_kf_id = self.ref_kf_id
         n_inliers = int((frame.point_ids >= 0).sum())
-        kf = self._make_keyframe(frame) if self._need_keyframe(frame, n_inliers) else None
+        kf = self._make_keyframe(frame) if not self.localization and self._need_keyframe(frame, n_inliers) else None
         self.last_frame = frame
         self.last_good_pose = frame.T_world_cam
         return TrackResult(TrackingState.OK, frame.T_world_cam, n_inliers, kf)
