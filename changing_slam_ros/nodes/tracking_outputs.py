@@ -1,8 +1,8 @@
-"""What the tracking node publishes per frame besides keyframe packets: pose, odometry, path and TF
-(`PoseOutputs`), the class-agnostic movers (`MoverOutputs`) and the debug image (`debug_image`).
+"""What the tracking node publishes per frame besides keyframe packets and TF (`nodes/tracking_tf.py`): pose,
+odometry and path (`PoseOutputs`), the class-agnostic movers (`MoverOutputs`) and the debug image (`debug_image`).
 
 Per-frame outputs that nobody reads cost CPU on every frame (the path message grows by one pose per frame), so
-odometry, path, TF and the debug image are built only while something subscribes; all are volatile, so no
+odometry, path and the debug image are built only while something subscribes; all are volatile, so no
 late subscriber misses one. The pose itself always goes out (the graph's and the tests' main output).
 """
 
