@@ -42,6 +42,9 @@ def generate_launch_description() -> LaunchDescription:
     colour_topic = LaunchConfiguration("colour_topic")
     depth_topic = LaunchConfiguration("depth_topic")
     camera_info_topic = LaunchConfiguration("camera_info_topic")
+    base_frame = LaunchConfiguration("base_frame")
+    odom_source = LaunchConfiguration("odom_source")
+    mode = LaunchConfiguration("mode")
     # 'auto': what `changing-slam graph` gives the node in real time, the config's in lossless mode
     auto = {name: _auto(name, lossless) for name in MODE_DEFAULTS}
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
@@ -59,6 +62,12 @@ def generate_launch_description() -> LaunchDescription:
                               description="depth image registered to colour (32FC1 metres or 16UC1 millimetres)"),
         DeclareLaunchArgument("camera_info_topic", default_value="/camera/rgb/camera_info",
                               description="colour camera_info (intrinsics)"),
+        DeclareLaunchArgument("base_frame", default_value="",
+                              description="robot base frame (base_link): pose, odometry and TF for it; empty = camera"),
+        DeclareLaunchArgument("odom_source", default_value="visual",
+                              description="visual: tracking publishes odom -> base; tf: the robot does (wheel odometry)"),
+        DeclareLaunchArgument("mode", default_value="mapping",
+                              description="mapping, or localization in the map_file map (the map is never changed)"),
         DeclareLaunchArgument("rate", default_value="1.0", description="bag playback rate"),
         DeclareLaunchArgument("lossless", default_value="false", description="bag_player waits for tracking"),
         DeclareLaunchArgument("use_sim_time", default_value="true", description="follow /clock from the bag"),
@@ -94,7 +103,8 @@ def generate_launch_description() -> LaunchDescription:
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
                           "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
                           "detections_skip_late": real_time,
-                          "detections_wait_s": auto["detections_wait_s"]}, sim_time],
+                          "detections_wait_s": auto["detections_wait_s"], "base_frame": base_frame,
+                          "odom_source": odom_source, "mode": mode}, sim_time],
              remappings=[("/camera/rgb/image_color", colour_topic), ("/camera/depth/image", depth_topic),
                          ("/camera/rgb/camera_info", camera_info_topic)]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
