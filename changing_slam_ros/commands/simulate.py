@@ -19,6 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, default=640, help="image width (default 640)")
     parser.add_argument("--height", type=int, default=480, help="image height (default 480)")
     parser.add_argument("--shadows", action="store_true", help="cast shadows (about 4x slower)")
+    parser.add_argument("--sensor", choices=("scenario", "exact", "kinect", "realsense"), default="scenario",
+                        help="sensor model: the scenario's own (default; exact for the hand-made scenarios), "
+                             "exact, or Kinect- / RealSense-like noise, holes, blur and exposure changes")
     parser.add_argument("--mcap", type=Path, default=None,
                         help="also write an mcap (Image, CameraInfo, ground-truth PoseStamped) to this file")
     parser.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality of the mcap's colour (default 90)")
@@ -50,8 +53,11 @@ def main(args: argparse.Namespace) -> int:
     from changing_slam_ros.sim.sequence import RenderOptions, simulate
 
     scenario = build_scenario(args.scenario, args.seed)
+    from changing_slam_ros.sim.sensor_model import preset
+
+    sensor = None if args.sensor == "scenario" else preset(args.sensor)
     options = RenderOptions(width=args.width, height=args.height, frames=args.frames, fps=args.fps,
-                            shadows=args.shadows)
+                            shadows=args.shadows, sensor=sensor)
 
     def progress(done: int, total: int) -> None:
         if not args.quiet and (done == total or done % 25 == 0):

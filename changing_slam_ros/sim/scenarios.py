@@ -25,8 +25,9 @@ A seed jitters placements, walking paths, speeds and motion phases; the same see
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -42,6 +43,7 @@ from changing_slam_ros.sim.motions import carried_by_hand, changed, seated, walk
 from changing_slam_ros.sim.renderer import fovy_for_focal, intrinsics_for
 from changing_slam_ros.sim.room import default_room
 from changing_slam_ros.sim.scene import Room
+from changing_slam_ros.sim.sensor_model import EXACT, SensorModel
 from changing_slam_ros.sim.track import PoseKey, Track, pose_xyz_rpy, function_track
 
 F64 = npt.NDArray[np.float64]
@@ -65,6 +67,8 @@ class Scenario:
     fps: float
     fovy_deg: float = fovy_for_focal(DEFAULT_HEIGHT, DEFAULT_FY_PX)
     preview_t_s: float = 5.0  # a representative moment, for contact sheets
+    sensor: SensorModel = EXACT  # how the scene is seen (RenderOptions.sensor overrides it)
+    parameters: Mapping[str, Any] = field(default_factory=dict, compare=False)  # drawn values, written out
 
     def n_frames(self) -> int:
         return int(np.floor(self.duration_s * self.fps + 1e-9))
