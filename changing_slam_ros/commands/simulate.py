@@ -12,6 +12,8 @@ from changing_slam_ros.errors import SimError
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", nargs="?", help="scenario name (see --list)")
     parser.add_argument("--list", action="store_true", help="list the scenarios and exit")
+    parser.add_argument("--control", action="store_true",
+                        help="render the scenario's control (SCENARIO_control: the same scene without movers)")
     parser.add_argument("--out", type=Path, help="output folder (TUM layout plus ground truth)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--frames", type=int, default=None, help="render only the first N frames")
@@ -52,7 +54,12 @@ def main(args: argparse.Namespace) -> int:
         raise SimError("--out DIR is required")
     from changing_slam_ros.sim.sequence import RenderOptions, simulate
 
-    scenario = build_scenario(args.scenario, args.seed)
+    name = args.scenario
+    if args.control and not name.endswith("_control"):
+        name = f"{name}_control"
+        if name not in SCENARIOS:
+            raise SimError(f"--control: scenario {args.scenario!r} has no control ({name} is not a scenario)")
+    scenario = build_scenario(name, args.seed)
     from changing_slam_ros.sim.sensor_model import preset
 
     sensor = None if args.sensor == "scenario" else preset(args.sensor)

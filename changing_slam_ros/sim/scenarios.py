@@ -19,6 +19,7 @@ sees the old place empty (second east side) before it reaches the new one (secon
 larger box pushed slowly (3 cm/s) along the table, for the local-mapping (multi-frame) segmentation
 (`slow_mover_control`: the box stays).
 `walking_changing`: a short panning shot with a walker and an out-of-view move (the sample bag).
+`random_dynamic` / `random_dynamic_control`: one randomised scene per seed and its control (`random_dynamic.py`).
 
 A seed jitters placements, walking paths, speeds and motion phases; the same seed gives the same scenario.
 """
@@ -553,7 +554,18 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                                        lambda seed: _slow_mover(seed, pushed=False)),
     "walking_changing": ScenarioInfo("15 s pan with a walker and an out-of-view move (the sample bag)",
                                      _walking_changing),
+    "random_dynamic": ScenarioInfo("a randomised dynamic scene per seed: room, camera path, 1-4 people or "
+                                   "objects moving 0.6-3 m away, sensor model (sim/random_dynamic.py)",
+                                   lambda seed: _random_dynamic(seed, control=False)),
+    "random_dynamic_control": ScenarioInfo("random_dynamic's seed with the movers left out (its control)",
+                                           lambda seed: _random_dynamic(seed, control=True)),
 }
+
+
+def _random_dynamic(seed: int, control: bool) -> Scenario:
+    from changing_slam_ros.sim.random_dynamic import build_random_dynamic  # it builds on this module
+
+    return build_random_dynamic(seed, control=control)
 
 
 def build_scenario(name: str, seed: int = 0) -> Scenario:
