@@ -37,7 +37,7 @@ class CameraRanges:
     """Closed ranges of the camera draw. Sway amplitudes and periods span TUM fr3's hand-held speeds
     (walking_static 0.01 m/s to walking_halfsphere 0.22 m/s, up to 24 deg/s) and beyond."""
 
-    wall_distance_m: tuple[float, float] = (3.0, 6.0)  # eye to the wall it faces (capped by the room)
+    wall_distance_m: tuple[float, float] = (3.2, 4.5)  # eye to the wall it faces (capped by the room)
     eye_height_m: tuple[float, float] = (1.0, 1.6)
     robot_height_m: tuple[float, float] = (0.3, 1.0)
     target_height_m: tuple[float, float] = (0.6, 1.3)

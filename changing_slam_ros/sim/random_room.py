@@ -39,10 +39,10 @@ class RoomRanges:
     height_m: tuple[float, float] = (2.4, 3.2)
     posters: tuple[int, int] = (0, 4)
     furniture: tuple[int, int] = (0, 6)
-    lights: tuple[int, int] = (1, 4)
-    light_level: tuple[float, float] = (0.25, 0.85)
+    lights: tuple[int, int] = (2, 5)
+    light_level: tuple[float, float] = (0.6, 1.2)
     light_tilt_rad: tuple[float, float] = (0.0, 0.7)  # from straight down
-    ambient: tuple[float, float] = (0.3, 0.5)
+    ambient: tuple[float, float] = (0.38, 0.6)
     repetitive_wall_prob: float = 0.5  # chance that all four walls use repetitive photos
 
 

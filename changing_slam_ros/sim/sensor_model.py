@@ -278,8 +278,8 @@ def draw_sensor(rng: np.random.Generator) -> SensorModel:
     kind = rng.choice(["exact", "kinect", "kinect", "realsense", "realsense"])
     if kind == "exact":
         return EXACT
-    base = kinect_like(float(rng.uniform(0.0012, 0.0019)), float(rng.uniform(3.5, 5.0))) if kind == "kinect" else \
-        realsense_like(float(rng.uniform(0.002, 0.004)), float(rng.uniform(4.0, 7.0)))
+    base = kinect_like(float(rng.uniform(0.0012, 0.0019)), float(rng.uniform(4.5, 6.0))) if kind == "kinect" else \
+        realsense_like(float(rng.uniform(0.002, 0.004)), float(rng.uniform(5.0, 8.0)))
     return dataclasses.replace(
         base,
         dark_hole_prob=float(rng.uniform(0.2, 0.7)), dropout_prob=float(rng.uniform(0.0, 0.02)),
