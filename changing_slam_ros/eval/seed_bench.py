@@ -18,7 +18,7 @@ import shutil
 import subprocess
 import sys
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -163,39 +163,48 @@ def run_slam(sequence: Path, out_dir: Path, full: bool, extra: tuple[str, ...] =
 def run_seed_bench(spec: SeedBenchSpec, seeds: list[int], out_dir: Path, cache_dir: Path, jobs: int = 1,
                    timing_seeds: int = 2, reuse_runs: bool = False,
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Render, run and score every seed; returns (and writes to out_dir/bench.json) the per-seed figures and
-    the summary."""
+    """Render, run and score every seed (one seed per job: its renders, then its runs); returns, and writes to
+    out_dir/bench.json, the per-seed figures and the summary. bench.json is rewritten after every finished
+    seed (`complete` false until the end), so an interrupted benchmark leaves the seeds it finished."""
     say = progress or (lambda _msg: None)
     out_dir, cache_dir = Path(out_dir), Path(cache_dir)
-    names = [spec.scenario] + ([spec.control] if spec.control else [])
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futures = {(n, s): pool.submit(render_cached, spec, n, s, cache_dir) for s in seeds for n in names}
-        folders = {k: f.result() for k, f in futures.items()}
-        say(f"rendered {len(folders)} sequences into {cache_dir}")
+    kinds = [k for k in RUN_KINDS if spec.control or not k.startswith("control")]
+    folders: dict[tuple[str, int], Path] = {}
 
-        def task(seed: int, kind: str) -> RunResult:
+    def one_seed(seed: int) -> SeedResult:
+        folders[(spec.scenario, seed)] = render_cached(spec, spec.scenario, seed, cache_dir)
+        if spec.control:
+            folders[(spec.control, seed)] = render_cached(spec, spec.control, seed, cache_dir)
+        result = SeedResult(seed, {})
+        for kind in kinds:
             name = spec.control if kind.startswith("control") else spec.scenario
             assert name is not None
-            run_dir = out_dir / "runs" / f"s{seed}_{kind}"
-            result = run_slam(folders[(name, seed)], run_dir, kind.endswith("full"), spec.full_args,
-                              keypoint_log=(kind == "full"), reuse=reuse_runs)
-            say(f"seed {seed} {kind}: ATE {_cm(result.ate_rmse_m)}, {result.lost} lost")
-            return result
+            result.runs[kind] = run_slam(folders[(name, seed)], out_dir / "runs" / f"s{seed}_{kind}",
+                                         kind.endswith("full"), spec.full_args, keypoint_log=(kind == "full"),
+                                         reuse=reuse_runs)
+        seq = folders[(spec.scenario, seed)]
+        result.keypoints = score_keypoints(seq, out_dir / "runs" / f"s{seed}_full" / "keypoints.npz")
+        result.coverage_median, result.coverage_max = mover_coverage(seq)
+        result.description = _description(seq)
+        say(f"seed {seed}: plain {_cm(result.runs['plain'].ate_rmse_m)}, full {_cm(result.runs['full'].ate_rmse_m)}"
+            f" ({result.runs['plain'].lost} / {result.runs['full'].lost} lost)")
+        return result
 
-        kinds = [k for k in RUN_KINDS if spec.control or not k.startswith("control")]
-        run_futures = {(s, k): pool.submit(task, s, k) for s in seeds for k in kinds}
-        runs = {key: f.result() for key, f in run_futures.items()}
-    results = []
-    for s in seeds:
-        r = SeedResult(s, {k: runs[(s, k)] for k in kinds})
-        seq = folders[(spec.scenario, s)]
-        r.keypoints = score_keypoints(seq, out_dir / "runs" / f"s{s}_full" / "keypoints.npz")
-        r.coverage_median, r.coverage_max = mover_coverage(seq)
-        r.description = _description(seq)
-        results.append(r)
-    cpu = _cpu_figures(spec, seeds, folders, runs, out_dir, jobs, timing_seeds, reuse_runs)
-    doc = {"scenario": spec.scenario, "control": spec.control, "seeds": seeds, "jobs": jobs,
-           "render": spec.render_args(), "full_args": list(spec.full_args),
+    results: list[SeedResult] = []
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        for future in as_completed([pool.submit(one_seed, s) for s in seeds]):
+            results.append(future.result())
+            results.sort(key=lambda r: r.seed)
+            _write(out_dir, spec, seeds, jobs, results, None)
+    cpu = _cpu_figures(spec, seeds, folders, {(r.seed, k): v for r in results for k, v in r.runs.items()},
+                       out_dir, jobs, timing_seeds, reuse_runs)
+    return _write(out_dir, spec, seeds, jobs, results, cpu)
+
+
+def _write(out_dir: Path, spec: SeedBenchSpec, seeds: list[int], jobs: int, results: list[SeedResult],
+           cpu: dict[str, Any] | None) -> dict[str, Any]:
+    doc = {"scenario": spec.scenario, "control": spec.control, "seeds": seeds, "complete": cpu is not None,
+           "jobs": jobs, "render": spec.render_args(), "full_args": list(spec.full_args),
            "per_seed": [_seed_dict(r) for r in results], "summary": summarise(results), "cpu_ms_per_frame": cpu}
     atomic_write_text(out_dir / "bench.json", json.dumps(doc, indent=1) + "\n")
     return doc
