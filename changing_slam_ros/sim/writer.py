@@ -7,6 +7,7 @@ Layout of `out_dir`:
 - `masks/<stamp>.png`: uint8 instance ids, 0 = room, i + 1 = object i of `objects.json`.
 - `objects.json`: every object's class, box and pose per frame (null while absent), and the changes.
 - `detections.json`: oracle detections per frame (see `oracle.py`).
+`sequence.py` adds `sensor.json` (the sensor model, unless exact) and `scenario.json` (a random family's draws).
 Every file is written atomically.
 """
 
