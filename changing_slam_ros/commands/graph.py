@@ -47,14 +47,13 @@ import os
 import random
 import signal
 import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from changing_slam_ros.commands.graph_outputs import detection_median_ms, evaluate, read_json, write_outputs_mcap
-from changing_slam_ros.commands.graph_process import NodeProcess, node_argv
+from changing_slam_ros.commands.graph_process import NodeProcess, child_env, node_argv, python_argv
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
@@ -69,6 +68,7 @@ READY_MARKERS = {
 # What nodes.map_resync logs when a (re)started map owner has its map back from tracking, or starts empty.
 RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 BACKENDS = ("split", "in_process")
+MAPS_DIR = "maps"  # in DIR: the map_dir of local_mapping's and object_map's SaveMap / LoadMap
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
 # What the graph gives its nodes unless an option says otherwise, as node parameter values: (in real time, with
@@ -249,9 +249,9 @@ class Graph:
             load_map(args.map_in)  # a bad map fails here, before any process starts
             self.map_in = str(Path(args.map_in).resolve())
         domain = os.environ.get("ROS_DOMAIN_ID") or str(random.SystemRandom().randint(1, 99))
-        self.env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        self.env = child_env(dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                         PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0",
-                        ROS_LOG_DIR=str(self.logs / "ros"))  # fmt: skip
+                        ROS_LOG_DIR=str(self.logs / "ros")))  # fmt: skip
         # One OpenBLAS thread per node (unless set): six processes share the cores, and a second BLAS thread per
         # process only spins on the small products tracking and mapping do (in-process tracking + mapping on
         # the sim bag: 6.6 -> 5.9 s CPU, 9.6 -> 8.5 s wall for 150 frames).
@@ -268,12 +268,13 @@ class Graph:
         if a.object_map:
             remaps = {"/tracking/semantic_map": "/local_mapping/semantic_map"} if split else None
             self.nodes["object_map"] = NodeProcess("object_map", node_argv("object_map_node", {
-                "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
+                "config": self.config, "map_file": str(self.out / "semantic_map_node.json"),
+                "map_dir": str(self.out / MAPS_DIR)}, remaps), self.logs)  # fmt: skip
         if split:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
             solver = a.ba_solver or mode_default("ba_solver", a.lossless)
             mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
-                       "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
+                       "update_subscribers": 2, "map_out": str(self.out / "map.npz"), "map_dir": str(self.out / MAPS_DIR),
                        "ba_solver": "" if solver == "config" else solver}  # fmt: skip
             self.nodes["local_mapping"] = NodeProcess(
                 "local_mapping", node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
@@ -375,10 +376,16 @@ class Graph:
 
     def _call_load_map(self, path: str, at_s: float) -> None:
         """Start one LoadMap call (`nodes.map_service_call`) without waiting for it; `_finish_load_calls` collects it."""
+        import shutil
+
         log = self.logs / f"load_map_{len(self.load_calls)}.log"
         print(f"graph: --load-map: LoadMap {path} at {at_s:.1f} s", flush=True)
+        # local_mapping's LoadMap reads only inside its map_dir: the map goes there first
+        name = f"load_{len(self.load_calls)}_{Path(path).name}"
+        (self.out / MAPS_DIR).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, self.out / MAPS_DIR / name)
         with open(log, "wb") as f:
-            proc = subprocess.Popen([sys.executable, "-m", "changing_slam_ros.nodes.map_service_call", "load", path,
+            proc = subprocess.Popen([*python_argv(), "-m", "changing_slam_ros.nodes.map_service_call", "load", name,
                                      "--timeout", "60"], stdout=f, stderr=subprocess.STDOUT, env=self.env)  # fmt: skip
         self.load_calls.append({"path": path, "at_s": round(at_s, 2), "proc": proc, "log": log})
 

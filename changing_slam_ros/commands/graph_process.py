@@ -62,9 +62,25 @@ class NodeProcess:
         return self.proc.returncode
 
 
+def python_argv() -> list[str]:
+    """The interpreter command of a node process: `-P` keeps the current folder off `sys.path`, so a module
+    planted where `changing-slam graph` is run (an `evil.py` beside a bag) is never imported by a node."""
+    return [sys.executable, "-P"]
+
+
+def child_env(env: dict[str, str]) -> dict[str, str]:
+    """`env` for node processes: PYTHONSAFEPATH=1 (the current folder off `sys.path` of any Python they start
+    too) and this package's own root first on PYTHONPATH, so the nodes run the code the graph runs."""
+    import changing_slam_ros
+
+    root = str(Path(changing_slam_ros.__file__).resolve().parent.parent)
+    paths = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+    return dict(env, PYTHONSAFEPATH="1", PYTHONPATH=os.pathsep.join([root, *(p for p in paths if p != root)]))
+
+
 def node_argv(module: str, params: dict[str, Any], remaps: dict[str, str] | None = None,
                positional: list[str] | None = None) -> list[str]:  # fmt: skip
-    argv = [sys.executable, "-m", f"changing_slam_ros.nodes.{module}", *(positional or []), "--ros-args"]
+    argv = [*python_argv(), "-m", f"changing_slam_ros.nodes.{module}", *(positional or []), "--ros-args"]
     for key, value in params.items():
         if isinstance(value, bool):
             text = "true" if value else "false"

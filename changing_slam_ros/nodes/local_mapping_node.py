@@ -89,6 +89,8 @@ class LocalMappingNode(Node):
             ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
             ("map_out", "", "on shutdown, save the whole map here (map.npz format of `changing-slam run`, atomic); "
                             "also the default path of ~/save_map"),
+            ("map_dir", "", "folder the paths of ~/save_map and ~/load_map requests must lie in (names ending .npz; "
+                            "an existing file is replaced only when it is a map file); empty = request paths refused"),
             ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
             ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
@@ -235,23 +237,35 @@ class LocalMappingNode(Node):
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # beliefs and active flags are the object layer's, which runs here (see the module doc)
 
+    def _request_path(self, name: str, for_write: bool) -> Path:
+        """A SaveMap / LoadMap path: a name confined to `map_dir` (`io.map_dir`: any peer may call the services)."""
+        from changing_slam_ros.io.map_dir import MapDir, is_metric_map
+
+        service = "SaveMap" if for_write else "LoadMap"
+        return MapDir(self.params["map_dir"], (".npz",), is_metric_map, service).resolve(name, for_write)
+
     def on_save_map(self, request: Any, response: Any) -> Any:
-        path = request.path or self.params["map_out"]
-        if not path:
+        if not request.path and not self.params["map_out"]:
             response.success, response.message = False, "local_mapping: no path given and no map_out parameter"
             return response
+        path = request.path or self.params["map_out"]
         try:
-            self.save_map(Path(path))
+            target = self._request_path(request.path, for_write=True) if request.path else Path(path)
+            self.save_map(target)
             response.success = True
-            response.message = f"local_mapping: saved {self.owner.atlas.n_keyframes} keyframes to {path}"
+            response.message = f"local_mapping: saved {self.owner.atlas.n_keyframes} keyframes to {target}"
         except (SlamError, OSError) as err:
             response.success, response.message = False, f"local_mapping: map not saved to {path}: {err}"
+            self.get_logger().warning(response.message)
         return response
 
     def on_load_map(self, request: Any, response: Any) -> Any:
         """~/load_map: continue from a saved map (see the module doc)."""
         path = request.path
         try:
+            if not path:
+                raise SlamError("LoadMap request: path is empty")
+            path = str(self._request_path(path, for_write=False))
             self.load_map(path)
         except (SlamError, OSError, ValueError) as err:
             response.success, response.message = False, f"local_mapping: map not loaded (running map kept): {err}"

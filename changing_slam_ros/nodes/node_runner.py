@@ -11,6 +11,7 @@ as a normal stop, also when they arrive while the node is still starting, prints
 from __future__ import annotations
 
 import importlib
+import re
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -42,25 +43,36 @@ def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]
     return values
 
 
-def message_class(msgtype: str) -> Any:
-    """The Python class of ROS 2 type `pkg/msg/Name` (also `pkg/srv/Name`); ImportError when not installed."""
-    try:
-        from rosidl_runtime_py.utilities import get_message  # type: ignore[import-not-found]
+# The interface packages whose Python classes a type name may select: the ones package.xml depends on, their
+# dependencies and our own. A type name read from a bag only picks a class out of these; it never names a module
+# to import (a bag naming `this/msg/Zen` would otherwise import Python's `this`).
+INTERFACE_PACKAGES = frozenset({
+    "builtin_interfaces", "std_msgs", "std_srvs", "sensor_msgs", "geometry_msgs", "nav_msgs", "visualization_msgs",
+    "diagnostic_msgs", "rosgraph_msgs", "tf2_msgs", "changing_slam_msgs", "rcl_interfaces", "lifecycle_msgs",
+    "action_msgs", "unique_identifier_msgs", "type_description_interfaces", "service_msgs",
+})  # fmt: skip
+_TYPE_NAME = re.compile(r"^([a-z][a-z0-9_]*)/(?:(msg|srv)/)?([A-Z][A-Za-z0-9]*)$")
 
-        return get_message(msgtype)
-    except ImportError:
-        pass
-    parts = msgtype.split("/")
-    if len(parts) == 2:  # ROS 1 style pkg/Name
-        parts = [parts[0], "msg", parts[1]]
-    if len(parts) != 3:
+
+def message_class(msgtype: str) -> Any:
+    """The Python class of ROS 2 type `pkg/msg/Name` (also `pkg/srv/Name`, ROS 1 style `pkg/Name`).
+
+    Only packages in `INTERFACE_PACKAGES` are looked up; any other name raises ImportError naming the type, and
+    nothing is imported for it. (The graph starts nodes with `python -P`, so the current folder cannot shadow
+    an interface package either.)
+    """
+    match = _TYPE_NAME.match(msgtype)
+    if match is None:
         raise ImportError(f"{msgtype}: not a ROS 2 type name (expected package/msg/Name)")
-    package, kind, name = parts
+    package, kind, name = match.group(1), match.group(2) or "msg", match.group(3)
+    if package not in INTERFACE_PACKAGES:
+        raise ImportError(f"{msgtype}: package {package} is not an allowed interface package "
+                          f"({', '.join(sorted(INTERFACE_PACKAGES))})")  # fmt: skip
     module = importlib.import_module(f"{package}.{kind}")
-    try:
-        return getattr(module, name)
-    except AttributeError as err:
-        raise ImportError(f"{msgtype}: {package}.{kind} has no {name}") from err
+    cls = getattr(module, name, None)
+    if not isinstance(cls, type) or not hasattr(cls, "get_fields_and_field_types"):
+        raise ImportError(f"{msgtype}: {package}.{kind} has no message type {name}")
+    return cls
 
 
 def run_node(
