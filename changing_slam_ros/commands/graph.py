@@ -47,13 +47,14 @@ import os
 import random
 import signal
 import subprocess
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from changing_slam_ros.commands.graph_outputs import detection_median_ms, evaluate, read_json, write_outputs_mcap
-from changing_slam_ros.commands.graph_process import NodeProcess, child_env, node_argv, python_argv
+from changing_slam_ros.commands.graph_process import NodeProcess, child_env, node_argv, python_argv, stop_all
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
@@ -131,7 +132,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local_mapping's local BA solver (default: schur in real time, the numpy Schur-complement "
                              "LM that solves gtsam's problem at ~0.35x the CPU; the config's, gtsam unless set, in "
                              "--lossless, so that the graph repeats `changing-slam run`)")
-    parser.add_argument("--max-restarts", type=int, default=2, metavar="N", help="restarts per node (default 2)")
+    parser.add_argument("--max-restarts", type=int, default=2, metavar="N",
+                        help="restarts per node (default 2); a node that dies once more, dies twice in a row with "
+                             "the same error, or dies while (re)starting stops the graph: every process is stopped "
+                             "within 10 s, the node's last log lines and log path are printed, exit 1")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
     parser.add_argument("--backend", choices=BACKENDS, default="split",
                         help="split: local_mapping and loop_closing in their own processes (default); "
@@ -226,6 +230,16 @@ def _parse_kills(specs: list[str]) -> list[tuple[str, float]]:
     return _parse_at(specs, "--kill", "NODE@SECONDS, e.g. object_map@5")
 
 
+class NodeFailed(SlamError):
+    """A node died in a way a restart does not mend (crash loop, death while starting); the graph stops at once."""
+
+    def __init__(self, node: NodeProcess, why: str) -> None:
+        failure = node.failure()
+        super().__init__(f"graph: {node.name} {why}" + (f" ({failure})" if failure else "")
+                         + f"; every process stopped; log {node.log_path}")  # fmt: skip
+        self.node = node
+
+
 class Graph:
     """The processes of one run; `run()` returns the summary dict."""
 
@@ -258,6 +272,7 @@ class Graph:
         self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.nodes: dict[str, NodeProcess] = {}
         self.restarts: dict[str, int] = {}
+        self._failures: dict[str, str] = {}  # node -> the error it last died with (`NodeProcess.failure`)
         self.cpu = PlayCpu()  # CPU seconds per process during playback (graph_summary.json)
         self._build()
 
@@ -329,8 +344,7 @@ class Graph:
         deadline = time.monotonic() + timeout_s
         while marker and marker not in node.log_text():
             if not node.running():
-                raise SlamError(f"graph: {node.name} exited with {node.proc.returncode if node.proc else '?'} "
-                                f"while starting; see {node.log_path}")  # fmt: skip
+                raise NodeFailed(node, f"exited with {node.proc.returncode if node.proc else '?'} while starting")
             if time.monotonic() > deadline:
                 raise SlamError(f"graph: {node.name} not up after {timeout_s:.0f} s; see {node.log_path}")
             time.sleep(0.1)
@@ -361,18 +375,26 @@ class Graph:
                     self._call_load_map(path, now - first_message_s)
                     pending_loads.remove((path, at_s))
             for node in self.nodes.values():
-                if node.running():
-                    continue
-                code = node.proc.returncode if node.proc is not None else -1
-                node.exit_codes.append(code)
-                if self.restarts.get(node.name, 0) >= self.args.max_restarts:
-                    raise SlamError(f"graph: {node.name} died (exit {code}) and was restarted "
-                                    f"{self.args.max_restarts} times; see {node.log_path}")  # fmt: skip
-                self.restarts[node.name] = self.restarts.get(node.name, 0) + 1
-                print(f"graph: {node.name} died (exit {code}); restarting ({self.restarts[node.name]})", flush=True)
-                self._start(node, 180.0)
+                if not node.running():
+                    self._restart(node, killed=any(name == node.name for name, _ in self.kills))
             self.cpu.sample(self._pids())
             time.sleep(0.2)
+
+    def _restart(self, node: NodeProcess, killed: bool) -> None:
+        """Restart a dead node, or raise NodeFailed when that cannot help: it died more than --max-restarts
+        times, or with the same error as the last time (a bad config, say: the next start fails alike)."""
+        code = node.proc.returncode if node.proc is not None else -1
+        node.exit_codes.append(code)
+        failure = "" if killed else node.failure()
+        if self.restarts.get(node.name, 0) >= self.args.max_restarts:
+            raise NodeFailed(node, f"died (exit {code}) and was restarted {self.args.max_restarts} times (--max-restarts)")
+        if failure and failure == self._failures.get(node.name):
+            raise NodeFailed(node, f"died twice with the same error (exit {code}); a restart will not help")
+        self._failures[node.name] = failure
+        self.restarts[node.name] = self.restarts.get(node.name, 0) + 1
+        print(f"graph: {node.name} died (exit {code}){': ' + failure if failure else ''}; restarting "
+              f"({self.restarts[node.name]}/{self.args.max_restarts}); log {node.log_path}", flush=True)  # fmt: skip
+        self._start(node, 180.0)
 
     def _call_load_map(self, path: str, at_s: float) -> None:
         """Start one LoadMap call (`nodes.map_service_call`) without waiting for it; `_finish_load_calls` collects it."""
@@ -456,8 +478,18 @@ class Graph:
             self.cpu.sample(self._pids(with_player=False))  # the work on the last frames counts too
             self._wait_resynced(120.0)
             self.map_loads = self._finish_load_calls(90.0)
-        finally:
-            codes = self.shutdown()
+        except NodeFailed as err:
+            stop_all([*self.nodes.values(), self.player])
+            for c in self.load_calls:
+                c["proc"].kill()
+            lines = err.node.last_lines(12)
+            print(f"graph: {err.node.name}'s last log lines ({err.node.log_path}):\n"
+                  + "\n".join(f"  {ln[:300]}" for ln in lines), file=sys.stderr, flush=True)  # fmt: skip
+            raise
+        except BaseException:
+            self.shutdown()
+            raise
+        codes = self.shutdown()
         return self._summary(play_s, up_s, codes)
 
     # -- results --------------------------------------------------------------------------------

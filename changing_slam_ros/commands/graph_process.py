@@ -46,6 +46,20 @@ class NodeProcess:
         except OSError:
             return ""
 
+    def last_lines(self, n: int = 12) -> list[str]:
+        """The last `n` non-empty lines of the current log (what a node printed before it died)."""
+        return [ln for ln in self.log_text().splitlines() if ln.strip()][-n:]
+
+    def failure(self) -> str:
+        """The error a dead node ended with: the last line of a Python traceback or an `error:` line; "" if none."""
+        lines = self.last_lines(40)
+        for ln in reversed(lines):
+            text = ln.strip()
+            if text.startswith("error:") or (": " in text and text.split(":", 1)[0].endswith(("Error", "error",
+                                                                                               "Exception"))):
+                return text[:300]
+        return ""
+
     def stop(self, sig: int, wait_s: float) -> int | None:
         """Send `sig`, wait up to `wait_s`; returns the exit code or None while it still runs."""
         if self.proc is None:
@@ -94,3 +108,23 @@ def node_argv(module: str, params: dict[str, Any], remaps: dict[str, str] | None
     for src, dst in (remaps or {}).items():
         argv += ["-r", f"{src}:={dst}"]
     return argv
+
+
+def stop_all(nodes: list[NodeProcess], budget_s: float = 8.0) -> dict[str, int | None]:
+    """Stop every running process at once: SIGINT, then SIGTERM, then SIGKILL, all within about `budget_s`
+    (a crash loop: nothing is waited for one node after another). Returns name -> exit code."""
+    import signal
+    import time
+
+    steps = ((signal.SIGINT, 0.5 * budget_s), (signal.SIGTERM, 0.3 * budget_s), (signal.SIGKILL, 0.2 * budget_s))
+    for sig, wait_s in steps:
+        alive = [n for n in nodes if n.running()]
+        for node in alive:
+            try:
+                node.proc.send_signal(sig)  # type: ignore[union-attr]
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + wait_s
+        while any(n.running() for n in alive) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    return {n.name: (n.proc.returncode if n.proc is not None else None) for n in nodes}
