@@ -53,7 +53,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from changing_slam_ros.commands.graph_outputs import detection_median_ms, evaluate, read_json, write_outputs_mcap
+from changing_slam_ros.commands.graph_outputs import (
+    detection_median_ms,
+    evaluate,
+    lossless_gaps,
+    read_json,
+    write_outputs_mcap,
+)
 from changing_slam_ros.commands.graph_process import NodeProcess, child_env, node_argv, python_argv, stop_all
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
@@ -525,6 +531,7 @@ class Graph:
             "detections_received": stats.get("detections_received"),
             "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
         }  # fmt: skip
+        summary["lossless_incomplete"] = lossless_gaps(self.player.log_text(), stats, summary["local_mapping"]) if self.args.lossless else []
         summary.update(self._cpu_summary())
         summary.update(evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = write_outputs_mcap(self.bag, self.config, self.out)
@@ -568,6 +575,8 @@ def main(args: argparse.Namespace) -> int:
         + (f", detection {s['detection_rate_hz']:.1f} Hz" if s.get("detection_node") and s.get("detection_rate_hz") else "")
         + (f", restarts {s['restarts']}" if s["restarts"] else "")
     )
+    if s.get("lossless_incomplete"):
+        print("graph: warning: lossless run incomplete: " + "; ".join(s["lossless_incomplete"]), file=sys.stderr)
     cpu = s.get("cpu_ms_per_bag_frame") or {}
     if cpu:
         print("CPU ms per bag frame during playback: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items()))

@@ -430,6 +430,15 @@ class LocalMappingNode(Node):
         out.update(summarise_ms(t["diff"], "diff"))
         return out
 
+    def work_pending(self) -> str:
+        """What a stop still waits for (`node_runner.drain_work`): queued keyframes, and the loop verdict the
+        last mapped keyframe awaits (wait_for_loop_results), so that every keyframe received is mapped and every
+        verdict applied before the map and stats are written; "" when nothing."""
+        parts = [f"{len(self.queue)} queued keyframes"] if self.queue else []
+        if self.awaiting_loop_for >= 0:
+            parts.append(f"the loop verdict on keyframe {self.awaiting_loop_for}")
+        return " and ".join(parts)
+
     def finish(self) -> list[Path]:
         if self._finished:
             return []

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import importlib
 import re
+import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -75,17 +77,64 @@ def message_class(msgtype: str) -> Any:
     return cls
 
 
+class StopRequest:
+    """SIGINT / SIGTERM as a request to stop between callbacks, not an exception inside one.
+
+    rclpy's own handlers shut the context down from another thread and Python raises KeyboardInterrupt at
+    whatever line the main thread is on: a keyframe half mapped is lost (received, never in the map). Here the
+    first signal only sets `requested` and calls `on_request` (wake the executor, or shut the context down for a
+    `body` such as the player's loop); a second signal raises KeyboardInterrupt (stop now).
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self.on_request: Callable[[], None] | None = None
+        self._previous = {sig: signal.signal(sig, self._handle) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+        if self.on_request is not None:
+            self.on_request()
+
+    def restore(self) -> None:
+        for sig, previous in self._previous.items():
+            signal.signal(sig, previous)
+
+
+def drain_work(node: Node, executor: SingleThreadedExecutor, stop: StopRequest, timeout_s: float) -> None:
+    """After a stop request, spin while the node says it still waits for work it started (`work_pending()`:
+    a description, or "" when done), so that what was sent to it is finished before its outputs are written."""
+    pending = getattr(node, "work_pending", None)
+    if pending is None or not pending():
+        return
+    node.get_logger().info(f"{node.get_name()}: stopping after {pending()}")
+    deadline = time.monotonic() + timeout_s
+    while (what := pending()) and rclpy.ok():
+        if time.monotonic() > deadline:
+            node.get_logger().warning(f"{node.get_name()}: stopping without {what} (not done after {timeout_s:.0f} s)")
+            return
+        executor.spin_once(timeout_sec=0.1)
+
+
 def run_node(
     make_node: Callable[[list[str]], Node],
     args: Sequence[str] | None = None,
     body: Callable[[Node, SingleThreadedExecutor], int] | None = None,
+    drain_timeout_s: float = 90.0,
 ) -> int:
     """Init rclpy, build the node from the non-ROS command-line arguments, spin (or run `body`), shut down.
 
+    A first SIGINT / SIGTERM ends spinning between callbacks; the node then finishes the work it announced
+    (`drain_work`, at most `drain_timeout_s`) and `destroy_node` writes its outputs with the context still up.
     Returns the process exit code: 0 on a normal end or Ctrl-C/SIGTERM, 1 on a `SlamError`.
     """
+    from rclpy.signals import SignalHandlerOptions
+
     argv = list(sys.argv if args is None else args)
-    rclpy.init(args=argv)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopRequest()
     node: Node | None = None
     code = 0
     try:
@@ -94,9 +143,15 @@ def run_node(
         node = make_node(non_ros)
         executor.add_node(node)
         if body is None:
-            executor.spin()
+            stop.on_request = executor.wake
+            while not stop.requested and rclpy.ok():
+                executor.spin_once(timeout_sec=0.25)
+            if stop.requested:
+                drain_work(node, executor, stop, drain_timeout_s)
         else:
-            code = body(node, executor)
+            stop.on_request = rclpy.try_shutdown  # the body's loop checks the context
+            if not stop.requested:
+                code = body(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
     except SlamError as err:
@@ -105,9 +160,12 @@ def run_node(
     except Exception:
         if rclpy.ok():
             raise
-        code = 0  # SIGINT/SIGTERM arrived while the node was starting: rcl calls fail on the shut-down context
+        code = 0  # stopped while the node was starting: rcl calls fail on the shut-down context
     finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            if node is not None:
+                node.destroy_node()
+        finally:
+            stop.restore()
+            rclpy.try_shutdown()
     return code

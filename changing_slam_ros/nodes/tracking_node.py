@@ -119,6 +119,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.detections_in = 0
         self.update_latency_ms: list[float] = []  # keyframe published -> its map update applied
         self._awaiting: dict[str, Any] | None = None  # wait_for_map_updates: what the held ack waits for
+        self.map_update_waits_timed_out = 0  # held acks sent after map_update_timeout_s without update / verdict
         self._kf_sent_s: dict[int, float] = {}
         self._relays_seen: set[int] = set()
         self.epochs = LoadEpochs.of("updates", "loops")  # local_mapping's ~/load_map (see nodes/map_load.py)
@@ -423,6 +424,13 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         """~/moving_objects and ~/moving_object_markers (`MoverOutputs`): the movers tracked long enough."""
         if self.movers is not None and self.movers_out is not None:
             self.movers_out.publish(self.movers, stamp_ns)
+
+    def work_pending(self) -> str:
+        """What a stop still waits for (`node_runner.drain_work`): the map update and loop verdict of the last
+        keyframe sent (wait_for_map_updates), so its map is in the trajectory written; "" when nothing."""
+        if self._awaiting is not None:
+            return f"the map update and loop verdict of keyframe {self._awaiting['kf']}"
+        return ""
 
     def finish(self) -> list[Path]:
         """Process frames still waiting, then write the outputs to `output_dir` (once; no-op without it)."""
