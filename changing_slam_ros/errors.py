@@ -31,5 +31,9 @@ class MapFileError(SlamError):
     """A saved map file is missing, corrupt or of an unsupported version."""
 
 
+class OutputError(SlamError):
+    """A run's results cannot be written (disk full, permissions changed during the run)."""
+
+
 class SimError(SlamError):
     """A simulator scenario or its rendering cannot be produced."""

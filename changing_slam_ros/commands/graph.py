@@ -45,6 +45,7 @@ import argparse
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -64,6 +65,7 @@ from changing_slam_ros.commands.graph_process import NodeProcess, child_env, nod
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
+from changing_slam_ros.io.output_dir import OutputDir
 
 READY_MARKERS = {
     "object_map": "object_map: started",
@@ -251,9 +253,6 @@ class Graph:
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
-        self.out = Path(args.out).resolve()
-        self.logs = self.out / "logs"
-        self.logs.mkdir(parents=True, exist_ok=True)
         self.bag = str(Path(args.bag).resolve())
         self.info = inspect_bag(self.bag)
         self.config = str(Path(args.config).resolve()) if args.config and Path(args.config).is_file() else args.config
@@ -268,6 +267,12 @@ class Graph:
 
             load_map(args.map_in)  # a bad map fails here, before any process starts
             self.map_in = str(Path(args.map_in).resolve())
+        # Everything is written into a fresh folder beside --out, which replaces it when the run is complete
+        # (`io.output_dir`); an interrupted run leaves --out as it was and its partial results aside.
+        self.out_dir = OutputDir.prepare(Path(args.out).resolve(), "--out")
+        self.out = self.out_dir.work
+        self.logs = self.out / "logs"
+        self.logs.mkdir(parents=True, exist_ok=True)
         domain = os.environ.get("ROS_DOMAIN_ID") or str(random.SystemRandom().randint(1, 99))
         self.env = child_env(dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                         PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0",
@@ -280,7 +285,11 @@ class Graph:
         self.restarts: dict[str, int] = {}
         self._failures: dict[str, str] = {}  # node -> the error it last died with (`NodeProcess.failure`)
         self.cpu = PlayCpu()  # CPU seconds per process during playback (graph_summary.json)
-        self._build()
+        try:
+            self._build()
+        except BaseException:
+            shutil.rmtree(self.out, ignore_errors=True)
+            raise
 
     def _build(self) -> None:
         a, info = self.args, self.info
@@ -404,8 +413,6 @@ class Graph:
 
     def _call_load_map(self, path: str, at_s: float) -> None:
         """Start one LoadMap call (`nodes.map_service_call`) without waiting for it; `_finish_load_calls` collects it."""
-        import shutil
-
         log = self.logs / f"load_map_{len(self.load_calls)}.log"
         print(f"graph: --load-map: LoadMap {path} at {at_s:.1f} s", flush=True)
         # local_mapping's LoadMap reads only inside its map_dir: the map goes there first
@@ -535,7 +542,8 @@ class Graph:
         summary.update(self._cpu_summary())
         summary.update(evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = write_outputs_mcap(self.bag, self.config, self.out)
-        summary["map_out"] = str(self.out / "map.npz") if (self.out / "map.npz").is_file() else None
+        summary["map_out"] = str(self.out_dir.path_after_commit(self.out / "map.npz")) \
+            if (self.out / "map.npz").is_file() else None  # fmt: skip
         movers = read_json(self.out / "moving_objects.json")
         summary["moving_objects"] = len(movers["objects"]) if movers else None
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
@@ -563,8 +571,14 @@ def main(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)  # `timeout`/kill: still stop the children
     try:
         s = graph.run()
+    except BaseException:
+        kept = graph.out_dir.abandon()
+        if kept is not None:
+            print(f"graph: stopped; partial results kept in {kept} ({args.out} unchanged)", file=sys.stderr)
+        raise
     finally:
         signal.signal(signal.SIGTERM, previous)
+    graph.out_dir.commit()
     ate_text = f"ATE RMSE {s['ate_rmse_m'] * 100:.2f} cm (online {s.get('ate_online_rmse_m', float('nan')) * 100:.2f} cm)" \
         if "ate_rmse_m" in s else f"no ATE ({s.get('evaluation_error', 'no ground truth')})"  # fmt: skip
     lat = s["latency_ms_median"]
@@ -580,5 +594,5 @@ def main(args: argparse.Namespace) -> int:
     cpu = s.get("cpu_ms_per_bag_frame") or {}
     if cpu:
         print("CPU ms per bag frame during playback: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items()))
-    print(f"results in {graph.out}")
+    print(f"results in {graph.out_dir.target}")
     return 0

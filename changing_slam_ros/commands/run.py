@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import queue
+import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -47,9 +48,10 @@ from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.slam.tracking import TrackingConfig
-from changing_slam_ros.errors import EvalError
+from changing_slam_ros.errors import EvalError, OutputError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.map_file import load_map, save_map
+from changing_slam_ros.io.output_dir import OutputDir
 from changing_slam_ros.io.moving_objects_file import write_moving_objects
 from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
 
@@ -84,6 +86,24 @@ def main(args: argparse.Namespace) -> int:
     config = system_config_from_mapping(data, where)
     loaded = load_map(args.map_in) if args.map_in else None  # a bad map fails before any frame is read
     source = open_dataset(args.source, settings)
+    out_dir = OutputDir.prepare(args.out, "--out")  # checked (and staged) before the first frame
+    try:
+        code = _run(args, data, where, config, loaded, source, out_dir.work)
+        out_dir.commit()
+    except BaseException as err:
+        kept = out_dir.abandon()
+        if kept is not None:
+            print(f"run: stopped; partial results kept in {kept} ({args.out} unchanged)", file=sys.stderr)
+        if isinstance(err, OSError):
+            raise OutputError(f"--out {args.out}: results not written: {err}") from err
+        raise
+    print(f"results in {out_dir.target}")
+    return code
+
+
+def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: SystemConfig, loaded: Any,
+         source: Any, out: Path) -> int:
+    """Process every frame and write the results into `out` (the staging folder of `OutputDir`)."""
     closing = None if args.no_loop else _loop_closing(data, where)
     dynamic = dynamic_setup(args, data, where)
     objects = object_layer_setup(args, data, where)
@@ -100,8 +120,6 @@ def main(args: argparse.Namespace) -> int:
             loops.record(closing, system)
     wall_s = time.perf_counter() - t0
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     final = system.final_trajectory()
     online = system.online_trajectory()
     write_tum_trajectory(out / "trajectory.txt", final)
@@ -142,7 +160,6 @@ def main(args: argparse.Namespace) -> int:
     if "ate_rmse_m" in metrics:
         line += f", ATE RMSE {metrics['ate_rmse_m'] * 100:.2f} cm (online {metrics['ate_online_rmse_m'] * 100:.2f} cm)"
     print(line)
-    print(f"results in {out}")
     return 0
 
 

@@ -86,12 +86,19 @@ def test_cli_prints_the_failure_on_one_line_and_exits_1(tmp_path, capsys, monkey
         return made[-1]
 
     monkeypatch.setattr(graph_command, "Graph", fake_graph)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "graph_summary.json").write_text("{}\n")  # an earlier run's results
     rc = cli.main(["graph", str(BAG), "--out", str(tmp_path / "out")])
     assert rc == 1
     lines = capsys.readouterr().err.splitlines()
     final = [ln for ln in lines if ln.startswith("changing-slam graph: error:")]
     assert len(final) == 1 and "graph: tracking died twice with the same error" in final[0]
     assert "Traceback" not in "\n".join(ln for ln in lines if not ln.startswith("  "))
+    # --out holds the earlier results, untouched; this run's logs are kept aside, where the message says
+    assert (tmp_path / "out" / "graph_summary.json").read_text() == "{}\n"
+    log = Path(final[0].rsplit("log ", 1)[1])
+    assert log.is_file() and "RuntimeError" in log.read_text() and log.parent.parent.name.startswith("out.incomplete-")
+    assert any(ln.startswith(f"graph: stopped; partial results kept in {log.parent.parent}") for ln in lines)
 
 
 def test_stop_all_ends_processes_that_ignore_sigint_and_sigterm_within_its_budget(tmp_path):
