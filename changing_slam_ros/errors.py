@@ -6,6 +6,8 @@ Messages name the object (file, topic, field) and say what was expected. The CLI
 
 from __future__ import annotations
 
+import os
+
 
 class SlamError(Exception):
     """Base of every error the project raises on bad input or configuration."""
@@ -37,3 +39,14 @@ class OutputError(SlamError):
 
 class SimError(SlamError):
     """A simulator scenario or its rendering cannot be produced."""
+
+
+def describe_decode_error(path: str | os.PathLike[str], err: UnicodeDecodeError) -> str:
+    """Where a file stops being UTF-8: "line L, byte 0xNN" (for one-line errors naming file and line)."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read()
+    except OSError:
+        raw = err.object if isinstance(err.object, bytes) else b""
+    line = raw[: err.start].count(b"\n") + 1
+    return f"line {line}: byte 0x{raw[err.start]:02x} is not UTF-8" if err.start < len(raw) else f"line {line}"

@@ -256,6 +256,10 @@ class Graph:
         self.bag = str(Path(args.bag).resolve())
         self.info = inspect_bag(self.bag)
         self.config = str(Path(args.config).resolve()) if args.config and Path(args.config).is_file() else args.config
+        if self.config:
+            from changing_slam_ros.nodes.slam_backend import load_backend_config
+
+            load_backend_config(self.config)  # a bad config fails here, before any process starts
         self.detection = _uses_detections(self.config) if args.detection is None else args.detection
         self.kills = _parse_kills(args.kill)
         self.loads = _parse_loads(getattr(args, "load_map", []))

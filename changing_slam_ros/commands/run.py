@@ -42,7 +42,7 @@ from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dy
 from changing_slam_ros.commands.objects_options import (
     LoopLog, add_object_arguments, object_layer_setup, write_object_outputs,
 )
-from changing_slam_ros.config import find_config, load_yaml, section
+from changing_slam_ros.config import load_config, section
 from changing_slam_ros.core.slam.local_mapping import MappingConfig
 from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
@@ -77,9 +77,7 @@ def main(args: argparse.Namespace) -> int:
     data: dict[str, Any] = {}
     where = "defaults"
     if args.config:
-        path = find_config(args.config)
-        data = load_yaml(path)
-        where = str(path)
+        data, where = load_config(args.config)
         settings = settings_from_mapping(data, where)
     else:
         settings = load_dataset_settings(None)

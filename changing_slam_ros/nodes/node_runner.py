@@ -22,7 +22,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
-from changing_slam_ros.errors import SlamError
+from changing_slam_ros.errors import ConfigError, SlamError
 
 
 # A parameter spec: (name, default, description). Use Parameter.Type.STRING_ARRAY (etc.) as the default of
@@ -30,14 +30,32 @@ from changing_slam_ros.errors import SlamError
 ParamSpec = tuple[str, Any, str]
 
 
+_TYPE_WORDS = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
+               "string_array": "a list of strings", "double_array": "a list of numbers"}
+
+
+def undeclared_parameters(node: Node) -> list[str]:
+    """Names given to the node (`-p name:=value`, parameter overrides) that it never declared: misspellings."""
+    overrides = getattr(node, "_parameter_overrides", {}) or {}
+    return sorted(n for n in overrides if not node.has_parameter(n) and not n.startswith("qos_overrides."))
+
+
 def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
     """Declare every parameter with its description and default; returns name -> value (arrays as lists)."""
     from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.parameter import Parameter
 
+    from rclpy.exceptions import InvalidParameterTypeException
+
     values: dict[str, Any] = {}
     for name, default, description in specs:
-        param = node.declare_parameter(name, default, ParameterDescriptor(description=description))
+        try:
+            param = node.declare_parameter(name, default, ParameterDescriptor(description=description))
+        except InvalidParameterTypeException as err:
+            expected = default.name.lower() if isinstance(default, Parameter.Type) else type(default).__name__
+            given = getattr(err, "args", ("",))[0].split("' to '", 1)[-1].split("' of type", 1)[0]
+            raise ConfigError(f"{node.get_name()}: parameter {name}: expected {_TYPE_WORDS.get(expected, expected)}, "
+                              f"got {given!r} ({description})") from err  # fmt: skip
         value = param.value
         if isinstance(default, Parameter.Type):
             value = [] if value is None else list(value)
@@ -141,6 +159,9 @@ def run_node(
         non_ros = rclpy.utilities.remove_ros_args(argv)[1:]
         executor = SingleThreadedExecutor()
         node = make_node(non_ros)
+        if unknown := undeclared_parameters(node):
+            node.get_logger().warning(f"{node.get_name()}: unknown parameter(s) {', '.join(unknown)} ignored "
+                                      "(`ros2 param list` or the node's docs name the known ones)")  # fmt: skip
         executor.add_node(node)
         if body is None:
             stop.on_request = executor.wake
