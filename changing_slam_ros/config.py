@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from changing_slam_ros.errors import ConfigError, describe_decode_error
+from changing_slam_ros.errors import ConfigError, utf8_error
 
 T = TypeVar("T")
 
@@ -53,7 +53,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     except OSError as err:
         raise ConfigError(f"{p}: cannot read config ({err.strerror})") from err
     except UnicodeDecodeError as err:
-        raise ConfigError(f"{p}: not UTF-8 text ({describe_decode_error(p, err)})") from err
+        raise ConfigError(utf8_error(p, err, "text")) from err
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as err:

@@ -41,12 +41,13 @@ class SimError(SlamError):
     """A simulator scenario or its rendering cannot be produced."""
 
 
-def describe_decode_error(path: str | os.PathLike[str], err: UnicodeDecodeError) -> str:
-    """Where a file stops being UTF-8: "line L, byte 0xNN" (for one-line errors naming file and line)."""
+def utf8_error(path: str | os.PathLike[str], err: UnicodeDecodeError, what: str) -> str:
+    """`path:line: not UTF-8 <what> (byte 0xNN)`: where a file stops being UTF-8, for a one-line error."""
     try:
         with open(path, "rb") as f:
             raw = f.read()
     except OSError:
         raw = err.object if isinstance(err.object, bytes) else b""
     line = raw[: err.start].count(b"\n") + 1
-    return f"line {line}: byte 0x{raw[err.start]:02x} is not UTF-8" if err.start < len(raw) else f"line {line}"
+    byte = f" (byte 0x{raw[err.start]:02x})" if err.start < len(raw) else ""
+    return f"{path}:{line}: not UTF-8 {what}{byte}"
