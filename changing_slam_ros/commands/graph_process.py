@@ -31,8 +31,14 @@ class NodeProcess:
         log = open(self.log_path, "wb")  # noqa: SIM115 - the child keeps writing it
         try:
             increment = self.nice
+
+            def before_exec() -> None:
+                _stop_with_parent()
+                if increment:
+                    os.nice(increment)
+
             self.proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
-                                         preexec_fn=(lambda: os.nice(increment)) if increment else None)  # fmt: skip
+                                         preexec_fn=before_exec)  # fmt: skip
         finally:
             log.close()
         self.starts += 1
@@ -74,6 +80,18 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 return None
         return self.proc.returncode
+
+
+def _stop_with_parent() -> None:
+    """In a node process before exec: SIGTERM when the graph process dies (Linux PR_SET_PDEATHSIG), so a graph
+    killed with SIGKILL leaves no node running; the node then stops as on Ctrl-C and writes what it has."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass  # not Linux: the nodes outlive a killed graph
 
 
 def python_argv() -> list[str]:

@@ -47,8 +47,10 @@ def main(args: argparse.Namespace) -> int:
         raise SimError("no scenario given; run `changing-slam simulate --list` to see them")
     if args.out is None:
         raise SimError("--out DIR is required")
+    from changing_slam_ros.io.output_dir import check_output_folder
     from changing_slam_ros.sim.sequence import RenderOptions, simulate
 
+    check_output_folder(args.out, "--out")
     scenario = build_scenario(args.scenario, args.seed)
     options = RenderOptions(width=args.width, height=args.height, frames=args.frames, fps=args.fps,
                             shadows=args.shadows)

@@ -119,6 +119,34 @@ class OutputDir:
         return None
 
 
+def check_output_file(path: str | Path, option: str) -> Path:
+    """A file about to be written (convert's OUT.mcap): its folder created and writable, and the path not a
+    folder; ConfigError naming `option` and the path otherwise, before any work starts."""
+    p = Path(path).absolute()
+    if p.is_dir():
+        raise ConfigError(f"{option} {path}: is a folder")
+    _writable_folder(p.parent, option, path)
+    return p
+
+
+def check_output_folder(path: str | Path, option: str) -> Path:
+    """A folder about to be filled (simulate's --out): created when missing, writable, not a file."""
+    p = Path(path).absolute()
+    if p.exists() and not p.is_dir():
+        raise ConfigError(f"{option} {path}: exists and is not a folder")
+    _writable_folder(p, option, path)
+    return p
+
+
+def _writable_folder(folder: Path, option: str, given: str | Path) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ConfigError(f"{option} {given}: cannot create {folder} ({err.strerror})") from err
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {given}: {folder} is not writable")
+
+
 def _clean_superseded(target: Path) -> None:
     """Remove results a committed run replaced but had no time to delete; drop a stale marker in the target."""
     for p in target.parent.glob(f"{target.name}.incomplete-*"):

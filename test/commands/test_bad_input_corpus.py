@@ -138,6 +138,16 @@ CASES: list[Case] = [
     Case("convert-config-typo", {"bad.yaml": "dataset:\n  depth_scal: 5\n"},
          lambda d: ["convert", str(BAG), str(d / "o.mcap"), "--config", str(d / "bad.yaml")],
          lambda d: ["bad.yaml", "depth_scal"]),  # fmt: skip
+    Case("convert-out-parent-is-file", {"taken": "a file\n"},
+         lambda d: ["convert", str(BAG), str(d / "taken" / "o.mcap")], lambda d: ["OUT.mcap", "taken"]),
+    Case("convert-out-is-folder", {"o.mcap/keep": "x\n"},
+         lambda d: ["convert", str(BAG), str(d / "o.mcap")], lambda d: ["o.mcap", "is a folder"]),
+    Case("simulate-out-is-file", {"taken": "a file\n"},
+         lambda d: ["simulate", "static", "--out", str(d / "taken"), "--frames", "2"],
+         lambda d: ["--out", "taken", "not a folder"]),
+    Case("simulate-out-parent-is-file", {"taken": "a file\n"},
+         lambda d: ["simulate", "static", "--out", str(d / "taken" / "x"), "--frames", "2"],
+         lambda d: ["--out", "taken"]),
     # graph options checked before any process starts
     Case("graph-nice", {}, lambda d: ["graph", str(BAG), "--out", str(d / "o"), "--nice", "tracking=99"],
          lambda d: ["--nice tracking=99"]),  # fmt: skip
