@@ -112,3 +112,18 @@ def test_stop_all_ends_processes_that_ignore_sigint_and_sigterm_within_its_budge
     codes = stop_all(nodes, budget_s=4.0)
     assert time.monotonic() - t0 < 5.0
     assert codes == {"local_mapping": -9, "loop_closing": -9}
+
+
+def test_lossless_gaps_name_what_a_lossless_run_did_not_finish():
+    from changing_slam_ros.commands.graph_outputs import lossless_gaps
+
+    complete = {"map_update_waits_timed_out": 0, "keyframes_without_map_update": 0}
+    player = "[INFO] bag_player: finished: 87 messages in 9.1 s (CPU 0.4 s), 0 ack timeouts"
+    assert lossless_gaps(player, complete, {"keyframes_received": 21, "keyframes_mapped": 21}) == []
+    gaps = lossless_gaps(player.replace("0 ack", "2 ack"), {"map_update_waits_timed_out": 1,
+                         "keyframes_without_map_update": 2}, {"keyframes_received": 23, "keyframes_mapped": 21})  # fmt: skip
+    assert gaps == ["2 frames went out without tracking's ack (ack timeout)",
+                    "tracking went on without 1 map updates / loop verdicts",
+                    "2 keyframes sent never came back as a map update",
+                    "local_mapping received 23 keyframes and mapped 21"]  # fmt: skip
+    assert lossless_gaps(player, {}, None) == ["tracking wrote no tracking_stats.json"]
