@@ -142,7 +142,8 @@ class LocalMappingNode(Node):
         self.loads = 0
         self.ba_stops = 0  # local BAs ended early because a keyframe arrived (ba_yields_to_keyframes)
         self.keyframe_sub = self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
-        self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, keyframe_qos)
+        self.loop_sub = self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections",
+                                                 self.on_loop_correction, keyframe_qos)  # fmt: skip
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
         self.update_pub = self.create_publisher(MapUpdate, "~/map_updates", keyframe_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
@@ -432,10 +433,11 @@ class LocalMappingNode(Node):
 
     def work_pending(self) -> str:
         """What a stop still waits for (`node_runner.drain_work`): queued keyframes, and the loop verdict the
-        last mapped keyframe awaits (wait_for_loop_results), so that every keyframe received is mapped and every
-        verdict applied before the map and stats are written; "" when nothing."""
+        last mapped keyframe awaits (wait_for_loop_results) while loop_closing is there to give it, so that every
+        keyframe received is mapped and every verdict applied before the map and stats are written; "" when
+        nothing."""
         parts = [f"{len(self.queue)} queued keyframes"] if self.queue else []
-        if self.awaiting_loop_for >= 0:
+        if self.awaiting_loop_for >= 0 and self.count_publishers(self.loop_sub.topic_name) > 0:  # loop_closing up
             parts.append(f"the loop verdict on keyframe {self.awaiting_loop_for}")
         return " and ".join(parts)
 

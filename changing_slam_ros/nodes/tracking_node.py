@@ -170,8 +170,9 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.create_subscription(image_type, self.depth_topic, self.on_depth, image_qos, event_callbacks=warn())
         self.create_subscription(DetectionArray, "/detection/detections", self.on_detections, 10)
         self.create_subscription(Header, "/detection/skipped", self.on_detections_skipped, 10)
-        self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
-        self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
+        self.update_sub = self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
+        self.loop_sub = self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections",
+                                                 self.on_loop_correction, 10)  # fmt: skip
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
 
         self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], p["odom_frame"], p["camera_frame"],
@@ -427,8 +428,10 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
 
     def work_pending(self) -> str:
         """What a stop still waits for (`node_runner.drain_work`): the map update and loop verdict of the last
-        keyframe sent (wait_for_map_updates), so its map is in the trajectory written; "" when nothing."""
-        if self._awaiting is not None:
+        keyframe sent (wait_for_map_updates) while local_mapping and loop_closing are there to send them, so its
+        map is in the trajectory written; "" when nothing."""
+        senders = (self.update_sub, self.loop_sub) if self.split is not None else ()
+        if self._awaiting is not None and all(self.count_publishers(s.topic_name) > 0 for s in senders):
             return f"the map update and loop verdict of keyframe {self._awaiting['kf']}"
         return ""
 
