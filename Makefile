@@ -12,11 +12,12 @@ PYTEST_ARGS ?=
 
 MSG_SOURCES := $(shell find msg_defs -type f -not -path '*/build/*' 2>/dev/null)
 
-.PHONY: setup run test test-quick clean distclean help
+.PHONY: setup run test test-quick node-reference clean distclean help
 
 help:
 	@echo "make run         run the pipeline on the bundled sample ($(SAMPLE)) into $(OUT)"
 	@echo "make test        the whole test suite (make test-quick skips slow system tests)"
+	@echo "make node-reference  regenerate docs/nodes.md from the nodes (test/nodes/test_node_reference.py checks it)"
 	@echo "make clean       remove build outputs (keeps .venv)"
 
 setup: $(STAMPS)/apt $(STAMPS)/venv $(STAMPS)/interfaces $(STAMPS)/package
@@ -54,6 +55,9 @@ test: setup
 
 test-quick: setup
 	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+node-reference: setup
+	$(PY) tools/gen_node_reference.py
 
 clean:
 	rm -rf build install log .pytest_cache $(STAMPS)/interfaces

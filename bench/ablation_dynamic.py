@@ -1,4 +1,4 @@
-"""Issue 5's ablation on simulated walking scenarios: camera ATE and fraction of keypoints kept per row.
+"""Ablation of the dynamic-scene filter on simulated walking scenarios: camera ATE and fraction of keypoints kept per row.
 
 Rows (cumulative, `DynamicConfig` switches): plain (dynamic handling off) / +detection_filtering /
 +repopulation / +ekf_doc / +segmentation, with the simulator's oracle boxes and/or the shipped

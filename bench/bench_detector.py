@@ -8,13 +8,10 @@ from other processes hits all settings alike and the ratios hold even when the a
 images are the real TUM fr3_walking frames in `../shared/data/tum_fr3_walking_frames/` (a random image when
 absent). Per part: pre-processing (input tensor), `session.run`, post-processing (decoding, NMS), as
 `Detector.last_timing` reports them; CPU = process CPU time per frame, all threads together (spinning counts);
-load = constructing the `Detector` (session creation; the first start of a
+load = constructing the `Detector` (creating its onnxruntime session; the first start of a
 cached setting prepares its graph, later ones load it, so run twice to see both).
 
-The baseline (first row) is session 6's default: the graph cut before its NMS, not slimmed, no spinning. The
-other rows: the slimmed graph (`detector.slim_graph`) without spinning, with spinning, with spinning bounded to
-`--spin-us` microseconds, and on one thread; `--graph-nms` adds the graph's own NMS (20-45 s to load). At the
-end every setting's detections are compared with the baseline's on all images (class lists, boxes, scores).
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -106,6 +103,13 @@ def compare(reference: Detector, other: Detector, images: list[tuple[str, np.nda
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    The baseline (first row) is the graph cut before its NMS, not slimmed, no spinning. The
+    other rows: the slimmed graph (`detector.slim_graph`) without spinning, with spinning, with spinning bounded to
+    `--spin-us` microseconds, and on one thread; `--graph-nms` adds the graph's own NMS (20-45 s to load). At the
+    end every setting's detections are compared with the baseline's on all images (class lists, boxes, scores).
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="", help="ONNX detector (default: the shipped SSD-MobileNetV2)")
     parser.add_argument("--frames", type=int, default=30, help="timed frames per setting")

@@ -9,11 +9,7 @@ in turn, so load from other processes hits all alike: compare the ratios. CPU = 
 and the 10 TUM fr1_xyz frames in `../shared/data/tum_fr1_xyz_first10/rgb` (calibration images of the shipped
 INT8 model).
 
-Agreement, per image set, all classes: each fp32 detection is matched to the unmatched INT8 detection of its
-class with the highest IoU (>= 0.5), best fp32 score first. Printed: matched / fp32 detections (recall against
-fp32), matched / INT8 detections (precision against fp32), median and smallest IoU of the matches, median and
-largest score difference, largest box-corner difference (px). `--sims` adds simulator renders (every `--stride`
--th frame). Prints, never asserts.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -100,6 +96,14 @@ def sim_frames(folder: Path, stride: int) -> list[np.ndarray]:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    Agreement, per image set, all classes: each fp32 detection is matched to the unmatched INT8 detection of its
+    class with the highest IoU (>= 0.5), best fp32 score first. Printed: matched / fp32 detections (recall against
+    fp32), matched / INT8 detections (precision against fp32), median and smallest IoU of the matches, median and
+    largest score difference, largest box-corner difference (px). `--sims` adds simulator renders (every `--stride`
+    -th frame). Prints, never asserts.
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--int8", type=Path, default=DEFAULT_INT8, help="INT8 model")
     parser.add_argument("--frames", type=int, default=60, help="timed frames per detector")

@@ -1,7 +1,7 @@
 """Per-frame cost of keypoint classification + repopulation + association + object EKFs (prints, never asserts).
 
 A rendered 640x480 scene: wall, two persons, two chairs (one pushed) and a tv, 1000 random keypoints, a
-camera sliding sideways; the target in issue 5 is <= 5 ms per frame added to tracking.
+camera sliding sideways; the target is <= 5 ms per frame added to tracking.
 
     .venv/bin/python bench/bench_dynamic.py [--frames 300] [--keypoints 1000]
 """

@@ -9,11 +9,9 @@ between the configs so that other load on a shared machine hits them alike. `--g
 passed to every `graph` run: for thread counts from the configs, `--graph-arg=--detector-threads --graph-arg=-1`
 (in real time `graph` gives the detector one thread whatever the config says). Per config it prints the median
 over runs of the detection rate, CPU per detection, tracking CPU per tracked frame, total CPU per bag frame,
-poses, latency and ATE (`bench_graph_cpu.figures`). Table in docs/dynamic_integration.md, "Session 7: detector
-speed".
+poses, latency and ATE (`bench_graph_cpu.figures`).
 
-`--variant "LABEL: OPTIONS"` (repeatable) compares sets of `graph` options instead, all on the first config, e.g.
-`--variant "fp32: --detector-model ssd_mobilenet_v2_coco" --variant "int8: " --variant "int8 15Hz: --detection-max-hz 15"`.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -34,6 +32,11 @@ KEYS = (
 
 
 def main() -> None:
+    """Parse the options, measure, print the table.
+
+    `--variant "LABEL: OPTIONS"` (repeatable) compares sets of `graph` options instead, all on the first config, e.g.
+    `--variant "fp32: --detector-model ssd_mobilenet_v2_coco" --variant "int8: " --variant "int8 15Hz: --detection-max-hz 15"`.
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("bag")
     parser.add_argument("configs", nargs="+", help="config names or YAML paths")

@@ -11,8 +11,7 @@ plays until the player exits. Measuring from outside works the same on trees old
 that other load on a shared machine hits both alike. Per tree it prints the median over runs of: CPU ms per bag
 frame per process and in total (budget at 30 Hz on two cores: 66 ms), tracking CPU per tracked frame,
 detection CPU per detection, poses, latency median and ATE. Wall-clock figures (poses, latency) at 1x depend
-on the machine's load; CPU figures much less. Table in docs/architecture.md, "Session 6: CPU per frame in the
-graph".
+on the machine's load; CPU figures much less.
 """
 
 from __future__ import annotations

@@ -8,20 +8,10 @@ Each run is `changing-slam run BAG --config NAME --out TMP` in a child process (
 library is not changed for it), timed in thread CPU time (`time.thread_time_ns`, not wall time: the machine is
 shared), with OPENBLAS_NUM_THREADS=1 as in the graph (`changing-slam graph` sets it for its nodes). Time is exclusive: a stage called inside another is counted in the innermost one only. Stages:
 
-- `create`: points from depth (`LocalMapper._create_points`); `triangulate`: from depth-less keypoints;
-- `fuse`: fusion with the covisible keyframes (`_fuse` without the two below); `fuse_search`: its projection
-  searches (`matcher.search_by_projection` with the keyframe's k-d tree built); `refresh`: descriptors, normals and
-  scale distances of the touched points (`map_fusion.refresh_points`, called by fusion and triangulation);
-- `connections`: covisibility updates; `cull_points`, `segmentation`, `cull_keyframes`;
-- `ba_build`: local BA outside the solver and the two helpers below (window, observations, values, write
-  back, outlier erasure); `ba_factors`: building the gtsam factors; `ba_chi2`: the two reprojection-error
-  passes; `ba_solve`: gtsam's Levenberg-Marquardt (construction, i.e. initial error and ordering, included),
-  or with `mapping.ba_solver: schur` the numpy solver (`schur_lm.solve`);
-- `other`: the rest of `LocalMapper.process`; `mapping` = the sum of the above (what the local_mapping node's
-  `LocalMapper` costs per keyframe); `objects`: the object layer per keyframe (`SlamSystem._after_objects`).
-
 Per tree: the median over runs of ms per keyframe per stage, keyframes, ATE and the sha256 of trajectory.txt
-(an exact change keeps it). Table in docs/architecture.md, "Session 7: local mapping CPU".
+(an exact change keeps it).
+
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -156,6 +146,20 @@ def report(name: str, runs: list[dict[str, Any]]) -> dict[str, float]:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    - `create`: points from depth (`LocalMapper._create_points`); `triangulate`: from depth-less keypoints;
+    - `fuse`: fusion with the covisible keyframes (`_fuse` without the two below); `fuse_search`: its projection
+      searches (`matcher.search_by_projection` with the keyframe's k-d tree built); `refresh`: descriptors, normals and
+      scale distances of the touched points (`map_fusion.refresh_points`, called by fusion and triangulation);
+    - `connections`: covisibility updates; `cull_points`, `segmentation`, `cull_keyframes`;
+    - `ba_build`: local BA outside the solver and the two helpers below (window, observations, values, write
+      back, outlier erasure); `ba_factors`: building the gtsam factors; `ba_chi2`: the two reprojection-error
+      passes; `ba_solve`: gtsam's Levenberg-Marquardt (construction, i.e. initial error and ordering, included),
+      or with `mapping.ba_solver: schur` the numpy solver (`schur_lm.solve`);
+    - `other`: the rest of `LocalMapper.process`; `mapping` = the sum of the above (what the local_mapping node's
+      `LocalMapper` costs per keyframe); `objects`: the object layer per keyframe (`SlamSystem._after_objects`).
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bag")
     parser.add_argument("--config", default="sim")

@@ -9,28 +9,7 @@ Each run is `changing-slam run BAG --config NAME --out TMP` in a child process (
 as in the graph. Time is exclusive (a stage inside another counts in the innermost only). Stages, all of the
 `SlamMapLoopClosing` that `SlamSystem` drives (the loop_closing node runs the same calls on its replica):
 
-- `add`: indexing a new keyframe (`SlamMapLoopClosing.add`) minus the two below; `quantise`:
-  `Vocabulary.transform` (descriptor -> word through the tree); `bow`: the tf-idf histogram of words;
-- `refresh`: `refresh_active_points` (after object states change) minus `active_mask` (the per-keyframe mask of
-  usable keypoints, `_active_mask`, also used by `process`) and the re-indexing it triggers (`add`/`quantise`/`bow`);
-- `process`: `SlamMapLoopClosing.process` minus `query` (the database query, `KeyframeDatabase._query`),
-  `verify` (geometric verification), `correct` (pose graph, `LoopCloser._correct`), `apply` (writing a
-  correction into the map) and `global_ba`; `merge`: `detect_merge_in` (Atlas); `erase`;
-- `loop` = the sum of the above: the loop_closing node's core per keyframe (its replica upkeep excluded);
-- `reloc`: `candidates` (tracking's relocalisation query on its own index), reported apart.
-
-With `--split` the run is the split graph's three sides chained in the lossless order in one process
-(`nodes.split_chains.ChainedGraph`, the same config and detections as `changing-slam run`), and what is timed is
-the loop_closing node's work per keyframe: the stages above on its replica plus `msg_in` (CDR deserialisation and
-`packet_from_msg` / `update_from_msg` of the keyframe packet and the map updates: each is serialised by the
-sender's conversion first, untimed), `replica` (`LoopSide.on_keyframe` / `on_update` around the core),
-`apply_delta` (the owner's delta into the replica) and `msg_out` (`loop_result_to_msg` + serialisation). Not
-included: rclpy's executor and DDS. The digests are then of the chain's tracking trajectory.
-
-Per tree: keyframes, frames, calls of `refresh`, the median over runs of CPU ms per keyframe per stage and of
-`loop` per bag frame, and digests: sha256 of trajectory.txt and keyframes.txt, of every loop found (query,
-match, T_match_query bytes) and of every database query's result (ids, scores, accumulated scores: equal digests
-mean identical query results, call by call).
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -276,6 +255,31 @@ def report(name: str, runs: list[dict[str, Any]]) -> dict[str, float]:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    - `add`: indexing a new keyframe (`SlamMapLoopClosing.add`) minus the two below; `quantise`:
+      `Vocabulary.transform` (descriptor -> word through the tree); `bow`: the tf-idf histogram of words;
+    - `refresh`: `refresh_active_points` (after object states change) minus `active_mask` (the per-keyframe mask of
+      usable keypoints, `_active_mask`, also used by `process`) and the re-indexing it triggers (`add`/`quantise`/`bow`);
+    - `process`: `SlamMapLoopClosing.process` minus `query` (the database query, `KeyframeDatabase._query`),
+      `verify` (geometric verification), `correct` (pose graph, `LoopCloser._correct`), `apply` (writing a
+      correction into the map) and `global_ba`; `merge`: `detect_merge_in` (Atlas); `erase`;
+    - `loop` = the sum of the above: the loop_closing node's core per keyframe (its replica upkeep excluded);
+    - `reloc`: `candidates` (tracking's relocalisation query on its own index), reported apart.
+
+    With `--split` the run is the split graph's three sides chained in the lossless order in one process
+    (`nodes.split_chains.ChainedGraph`, the same config and detections as `changing-slam run`), and what is timed is
+    the loop_closing node's work per keyframe: the stages above on its replica plus `msg_in` (CDR deserialisation and
+    `packet_from_msg` / `update_from_msg` of the keyframe packet and the map updates: each is serialised by the
+    sender's conversion first, untimed), `replica` (`LoopSide.on_keyframe` / `on_update` around the core),
+    `apply_delta` (the owner's delta into the replica) and `msg_out` (`loop_result_to_msg` + serialisation). Not
+    included: rclpy's executor and DDS. The digests are then of the chain's tracking trajectory.
+
+    Per tree: keyframes, frames, calls of `refresh`, the median over runs of CPU ms per keyframe per stage and of
+    `loop` per bag frame, and digests: sha256 of trajectory.txt and keyframes.txt, of every loop found (query,
+    match, T_match_query bytes) and of every database query's result (ids, scores, accumulated scores: equal digests
+    mean identical query results, call by call).
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bag")
     parser.add_argument("--config", default="sim")

@@ -2,20 +2,10 @@
 
     .venv/bin/python bench/bench_movers.py SIM_DIR [--frames 720] [--baseline REV] [--inputs FILE.npz]
 
-1. Inputs: the system (`config/sim.yaml` with `dynamic: movers: enabled: true`, no detector) runs once on
-   SIM_DIR (e.g. `changing-slam simulate unknown_mover --out SIM_DIR`) and the mover stage's inputs are recorded
-   per frame: keypoints, descriptors, depths and the pose camera tracking returned. `--inputs FILE.npz` keeps
-   them (recorded when the file is absent, reused when present).
-2. Replay: a `MoverTracker` of this checkout and one of `--baseline` (its `changing_slam_ros` package taken
-   from git into a temporary folder under another name) get the same inputs, frame by frame in turn, so load
-   from other processes hits both alike. Printed: process CPU ms per frame (median, p90, mean) of each, the
-   segmentation's share, and whether the two flag the same keypoints as moving and export the same tracks.
-   `--variant 'KEY=VALUE ...'` adds a tracker of this checkout with those `MoverConfig` settings (repeatable;
-   `--baseline none` leaves the baseline out); `--score` scores each against SIM_DIR's ground truth
-   (moving-keypoint precision / recall, object ATE; see `score`).
-
 The replay feeds both the poses recorded with this checkout's tracking; flags that agree everywhere mean the
 system's run (tracking only sees the flags) is the same with either.
+
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -170,6 +160,20 @@ def _import_core(package: str, module: str) -> Any:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    1. Inputs: the system (`config/sim.yaml` with `dynamic: movers: enabled: true`, no detector) runs once on
+       SIM_DIR (e.g. `changing-slam simulate unknown_mover --out SIM_DIR`) and the mover stage's inputs are recorded
+       per frame: keypoints, descriptors, depths and the pose camera tracking returned. `--inputs FILE.npz` keeps
+       them (recorded when the file is absent, reused when present).
+    2. Replay: a `MoverTracker` of this checkout and one of `--baseline` (its `changing_slam_ros` package taken
+       from git into a temporary folder under another name) get the same inputs, frame by frame in turn, so load
+       from other processes hits both alike. Printed: process CPU ms per frame (median, p90, mean) of each, the
+       segmentation's share, and whether the two flag the same keypoints as moving and export the same tracks.
+       `--variant 'KEY=VALUE ...'` adds a tracker of this checkout with those `MoverConfig` settings (repeatable;
+       `--baseline none` leaves the baseline out); `--score` scores each against SIM_DIR's ground truth
+       (moving-keypoint precision / recall, object ATE; see `score`).
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sim_dir", help="a simulated folder with a mover, e.g. unknown_mover")
     parser.add_argument("--frames", type=int, default=720)

@@ -6,7 +6,7 @@ A node with N publishers and M subscriptions (std_msgs/Header, nothing sent) and
 SingleThreadedExecutor; each spin_once is one wake-up (wait set built, waited, the timer's callback run).
 Prints the process CPU time per spin for: a bare node, the node with rclpy's default event handlers (two per
 publisher and subscription), and without them (`nodes/qos_events.py`). CPU time, not wall time: the machine
-may be shared. Figures in docs/architecture.md, "Session 6: CPU per frame in the graph".
+may be shared.
 """
 
 from __future__ import annotations

@@ -151,7 +151,7 @@ def bench_unknown_mover(args: argparse.Namespace) -> None:
 
 
 def bench_dai_loop(args: argparse.Namespace) -> None:
-    """The whole Dai loop on unknown_mover, the prototype of session 1 (the system's loop is now
+    """The whole Dai loop on unknown_mover as a stand-alone prototype (the system's loop is
     `core/movers/mover_tracking.py`, scored by `bench/eval_movers_sim.py`): ORB tracks at
     30 Hz (ground-truth camera poses), a 5-keyframe segmentation every 0.1 s whose targets become objects,
     eq. 12 merging into the objects tracked at that stamp, eq. 7 every frame and eq. 11 at keyposes.

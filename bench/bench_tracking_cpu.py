@@ -9,23 +9,7 @@ dynamic stage with the simulator's oracle boxes) and measures the thread CPU tim
 Time is exclusive: a stage called inside another (pose optimisation inside local-map tracking) is
 counted once, in the innermost stage. Stages:
 
-- `features`: ORB extraction, undistortion, depth lookup (`OrbExtractor.extract`);
-- `dynamic`: the dynamic stage before and after tracking (keypoint classification, object EKFs);
-- `matching`: frame-to-frame projection search (+ reference-keyframe fallback);
-- `pose_opt`: every pose optimisation;
-- `local_map`: local keyframes, local points and their projection search;
-- `keyframe`: keyframe decision and creation;
-- `reloc`: relocalisation (matching + PnP; its optimisation and local map go to their stages);
-- `other`: the rest of `process` outside local mapping, objects and loop closing (feature subset,
-  frame records, re-anchoring);
-- `tracking` = the sum of the above: the per-frame CPU of the tracking thread;
-- `local_mapping`, `objects`, `loop_closing`: per frame, for scale (not part of tracking).
-
-`--baseline REF` extracts `git archive REF` into a temporary folder and runs the same benchmark on it
-(`--tree`), alternating runs, then prints the ratio current / baseline per stage and whether the two
-online trajectories are bit-identical (an exact rewrite keeps them so). With `--repeats R` each stage
-takes its smallest per-frame mean over R runs (CPU time only grows under contention).
-`--cprofile N` prints cProfile's top N functions by own time over one extra run (overhead included).
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -186,6 +170,26 @@ def report(cur: dict[str, Any], base: dict[str, Any] | None) -> None:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    - `features`: ORB extraction, undistortion, depth lookup (`OrbExtractor.extract`);
+    - `dynamic`: the dynamic stage before and after tracking (keypoint classification, object EKFs);
+    - `matching`: frame-to-frame projection search (+ reference-keyframe fallback);
+    - `pose_opt`: every pose optimisation;
+    - `local_map`: local keyframes, local points and their projection search;
+    - `keyframe`: keyframe decision and creation;
+    - `reloc`: relocalisation (matching + PnP; its optimisation and local map go to their stages);
+    - `other`: the rest of `process` outside local mapping, objects and loop closing (feature subset,
+      frame records, re-anchoring);
+    - `tracking` = the sum of the above: the per-frame CPU of the tracking thread;
+    - `local_mapping`, `objects`, `loop_closing`: per frame, for scale (not part of tracking).
+
+    `--baseline REF` extracts `git archive REF` into a temporary folder and runs the same benchmark on it
+    (`--tree`), alternating runs, then prints the ratio current / baseline per stage and whether the two
+    online trajectories are bit-identical (an exact rewrite keeps them so). With `--repeats R` each stage
+    takes its smallest per-frame mean over R runs (CPU time only grows under contention).
+    `--cprofile N` prints cProfile's top N functions by own time over one extra run (overhead included).
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default="redkitchen", help="redkitchen, walking, or a TUM folder (sim config)")
     parser.add_argument("--frames", type=int, default=300)

@@ -1,4 +1,4 @@
-"""Offline study of MapObject centroid / box estimators (issue 6 target: centroids within 10 cm). Prints, never asserts.
+"""Offline study of MapObject centroid / box estimators (target: centroids within 10 cm). Prints, never asserts.
 
 The layer's centroid is the mean of an object's points (`MapObject.set_points`), its 3D box the median of the
 5 % extremes per axis (`box_extent`). Both lean toward what the points over-represent: parts seen from many
@@ -8,29 +8,10 @@ runs (`changing-slam run ... --objects`: object_map.json with every object's poi
 with the static map points, trajectory.txt) and recomputes, per object of the semantic map, the centroid and
 box with candidate estimators, each a property a robot would want for any object:
 
-- `mean`: the current estimator (reproduces bench/changing_scenes.py's visible-surface column);
-- `vox`: voxel-weighted mean: points binned in `--voxel` cubes, each occupied voxel counts once (its points'
-  mean), so a part seen from many keyframes does not outweigh the rest of the surface;
-- `plane`: points within `--plane-dist` of one of the room's large planes (floor, walls, table top) are
-  structure, not object. The planes are fitted by RANSAC + least squares to the run's *static* map points (map
-  points with no object, not culled), never to the object's own points; a plane must hold `--plane-min-frac`
-  of them;
-- `clu`: the largest connected cluster of the object's points (points closer than `--cluster-radius` linked);
-- `med`: per-axis median; `trim`: mean of the points within the 80th percentile of distance to the median;
-- `own`: points within `--own-dist` of the points of another object with a smaller box are that object's (the
-  teddy bear on a chair);
-- combinations (`plane+vox` etc., filters first, then the aggregate);
-- `core`: what the object layer now computes (core/objects/object_point_weights.py with the `objects:` defaults; the
-  same rule as `own+plane+vox`, its box over the kept points rather than over the voxel means).
-
-Each object is then compared with its visible-surface centroid (bench/changing_scenes.py's cache
-ROOT/runs/SCENARIO.surface_centroids.json) after the same object-placing alignment the bench uses
-(`trajectory_alignment`), matched to ground truth the same way (semantic map at belief >= 0.5, same class
-within 0.3 m of the box centre, recomputed per estimator). Box IoU: the robust box of the kept points (for
-`vox`, of the voxel means).
-
     .venv/bin/python bench/centroid_estimators.py --root /tmp/h5/F/root --tag=-objects-trunc \\
         --scenarios static one_chair changing shift replacing vanishing [--per-object]
+
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -219,6 +200,29 @@ def _box(name: str, kept: F64, p: Params) -> tuple[F64, F64]:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    - `mean`: the current estimator (reproduces bench/changing_scenes.py's visible-surface column);
+    - `vox`: voxel-weighted mean: points binned in `--voxel` cubes, each occupied voxel counts once (its points'
+      mean), so a part seen from many keyframes does not outweigh the rest of the surface;
+    - `plane`: points within `--plane-dist` of one of the room's large planes (floor, walls, table top) are
+      structure, not object. The planes are fitted by RANSAC + least squares to the run's *static* map points (map
+      points with no object, not culled), never to the object's own points; a plane must hold `--plane-min-frac`
+      of them;
+    - `clu`: the largest connected cluster of the object's points (points closer than `--cluster-radius` linked);
+    - `med`: per-axis median; `trim`: mean of the points within the 80th percentile of distance to the median;
+    - `own`: points within `--own-dist` of the points of another object with a smaller box are that object's (the
+      teddy bear on a chair);
+    - combinations (`plane+vox` etc., filters first, then the aggregate);
+    - `core`: what the object layer now computes (core/objects/object_point_weights.py with the `objects:` defaults; the
+      same rule as `own+plane+vox`, its box over the kept points rather than over the voxel means).
+
+    Each object is then compared with its visible-surface centroid (bench/changing_scenes.py's cache
+    ROOT/runs/SCENARIO.surface_centroids.json) after the same object-placing alignment the bench uses
+    (`trajectory_alignment`), matched to ground truth the same way (semantic map at belief >= 0.5, same class
+    within 0.3 m of the box centre, recomputed per estimator). Box IoU: the robust box of the kept points (for
+    `vox`, of the voxel means).
+    """
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, required=True, help="folder with the rendered scenarios and runs/")
     ap.add_argument("--tag", default="-objects-trunc", help="run folder suffix: ROOT/runs/SCENARIO+TAG")

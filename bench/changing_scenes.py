@@ -1,28 +1,5 @@
-"""Issue 6's table: changing-scene scenarios with the object layer on and off (oracle detections, loop closing on),
+"""The changing-scenes table: scenarios with the object layer on and off (oracle detections, loop closing on),
 and the plain engine (no detections, no dynamic filter, no layer: the ORB-SLAM3-like baseline of the paper).
-
-Per scenario and mode: camera ATE (final trajectory, SE(3)-aligned: RMSE, median, and the RMSE of the online
-trajectory), the RMSE relative to the `static` run of the
-same mode, loops accepted and how many are wrong (relative pose of the two keyframes off by more than 10 cm or
-5 degrees from ground truth), the largest loop error, and the semantic map against the simulator's objects at
-the last frame: the semantic map as shipped (belief >= `semantic_min_belief`, 0.5: also the objects seen in
-one pass only, flagged unconfirmed) and its confirmed part (belief >= `belief_threshold`): matched / stale (a
-removed or moved-away object kept) / spurious / missed, the present fixed-background objects (`structure`:
-the table, never a MapObject by design, see eval/object_metrics.py), the present objects the oracle detector
-never reports (`unseen`, hidden the whole run: changing's book under the teddy bear; not counted as missed),
-mean centroid error and mean 3D IoU of
-the matches, and the object layer's milliseconds per keyframe. Prints, never asserts. The object columns are
-recomputed here from each run's object_map.json (the current config's thresholds), not read from an older
-run's metrics.json.
-
-Centroids are compared two ways (`eval/object_metrics.py`): with the ground-truth box centre (the volume
-centre; what metrics.json reports) and, fairly, with the ground-truth *visible-surface* centroid (the mean of
-the object's mask pixels back-projected with the simulator's depth and ground-truth poses over the frames
-where it stood at its final place): a MapObject's centroid is a (weighted, docs/changing_scenes.md session 6)
-mean of surface points, so an object seen from one side has its centroid on that side however good the points are. The bench recomputes the object
-metrics from each run's object_map.json and trajectory.txt with the same SE(3) alignment as `changing-slam run`.
-
-Each cell is one `changing-slam run` (the same command a user types), whose metrics.json is read back:
 
     changing-slam simulate one_chair --out /tmp/simobj/one_chair --seed 0 --width 320 --height 240
     changing-slam run /tmp/simobj/one_chair --config sim --out /tmp/simobj/runs/one_chair-objects --detections oracle --objects
@@ -34,8 +11,7 @@ Each cell is one `changing-slam run` (the same command a user types), whose metr
     .venv/bin/python bench/changing_scenes.py --root /tmp/simobj --scenarios vanishing shift --views
         # frame ranges where each object is in full view (how many passes the robot makes past each place)
 
-Runs whose metrics.json already exists under ROOT/runs are reused unless --rerun; --render renders missing
-scenarios first.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -250,6 +226,34 @@ def _fmt(v: Any) -> str:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    Per scenario and mode: camera ATE (final trajectory, SE(3)-aligned: RMSE, median, and the RMSE of the online
+    trajectory), the RMSE relative to the `static` run of the
+    same mode, loops accepted and how many are wrong (relative pose of the two keyframes off by more than 10 cm or
+    5 degrees from ground truth), the largest loop error, and the semantic map against the simulator's objects at
+    the last frame: the semantic map as shipped (belief >= `semantic_min_belief`, 0.5: also the objects seen in
+    one pass only, flagged unconfirmed) and its confirmed part (belief >= `belief_threshold`): matched / stale (a
+    removed or moved-away object kept) / spurious / missed, the present fixed-background objects (`structure`:
+    the table, never a MapObject by design, see eval/object_metrics.py), the present objects the oracle detector
+    never reports (`unseen`, hidden the whole run: changing's book under the teddy bear; not counted as missed),
+    mean centroid error and mean 3D IoU of
+    the matches, and the object layer's milliseconds per keyframe. Prints, never asserts. The object columns are
+    recomputed here from each run's object_map.json (the current config's thresholds), not read from an older
+    run's metrics.json.
+
+    Centroids are compared two ways (`eval/object_metrics.py`): with the ground-truth box centre (the volume
+    centre; what metrics.json reports) and, fairly, with the ground-truth *visible-surface* centroid (the mean of
+    the object's mask pixels back-projected with the simulator's depth and ground-truth poses over the frames
+    where it stood at its final place): a MapObject's centroid is a (weighted: core/objects/object_point_weights.py)
+    mean of surface points, so an object seen from one side has its centroid on that side however good the points are. The bench recomputes the object
+    metrics from each run's object_map.json and trajectory.txt with the same SE(3) alignment as `changing-slam run`.
+
+    Each cell is one `changing-slam run` (the same command a user types), whose metrics.json is read back:
+
+    Runs whose metrics.json already exists under ROOT/runs are reused unless --rerun; --render renders missing
+    scenarios first.
+    """
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("/tmp/simobj"))
     ap.add_argument("--scenarios", nargs="+", default=SCENARIOS)

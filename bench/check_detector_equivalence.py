@@ -1,4 +1,4 @@
-"""Do two detector settings give the same detections? The 152-frame check of docs/dynamic_integration.md.
+"""Do two detector settings give the same detections? A check over 152 real frames.
 
     .venv/bin/python bench/check_detector_equivalence.py [--graph-nms] [--every 10] [--per-folder 30] [FOLDER ...]
 

@@ -1,4 +1,4 @@
-"""Issue 6: which safeguard stops a loop closed on a moved object? `one_chair_closeup`, six ways.
+"""Which safeguard stops a loop closed on a moved object? `one_chair_closeup`, six ways.
 
 `one_chair_closeup` (sim/scenarios.py) puts the printed chair with the teddy bear 0.7 m ahead of the robot's first
 corner (A, facing east) and moves it, out of view, 0.7 m ahead of the second corner (B, facing north): the last
@@ -6,20 +6,12 @@ views before each corner show the chair as large and from the same side, against
 uses the chair's points for place recognition can verify a loop between a B view and an A view whose relative pose
 is the chair's, 90 deg and about a metre off the truth.
 
-Three modes as in `bench/changing_scenes.py` (plain: no detections, no dynamic filter, no layer; no-objects:
-oracle detections and the dynamic filter, no layer; objects: the object layer on), each with the loop drift gate
-(`loop.drift_gate`) on (default config) and off (`--config` with `loop: {drift_gate: {enabled: false}}`).
-
-Per run: ATE (final trajectory, SE(3)-aligned, as `changing-slam run` reports it), loops accepted and wrong
-(> 10 cm or 5 deg from the ground-truth relative pose of the two keyframes), and per loop its frames, its error and
-the error the *chair hypothesis* would have: the relative pose that makes the chair at A in the match view
-coincide with the chair at B in the query view (ground-truth poses). A loop whose error is close to that
-hypothesis's and far from zero was verified on the moved chair. Prints, never asserts.
-
     changing-slam simulate one_chair_closeup --out ROOT/one_chair_closeup --seed 0 --width 320 --height 240
     nice -n 10 .venv/bin/python bench/closeup_wrong_loop.py --root ROOT [--rerun] [--modes plain objects ...]
 
 Runs go to ROOT/runs/one_chair_closeup-MODE[-nogate]; existing metrics.json files are reused unless --rerun.
+
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -79,6 +71,18 @@ def chair_hypothesis_error(scenario: Any, t_match: float, t_query: float, actor:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    Three modes as in `bench/changing_scenes.py` (plain: no detections, no dynamic filter, no layer; no-objects:
+    oracle detections and the dynamic filter, no layer; objects: the object layer on), each with the loop drift gate
+    (`loop.drift_gate`) on (default config) and off (`--config` with `loop: {drift_gate: {enabled: false}}`).
+
+    Per run: ATE (final trajectory, SE(3)-aligned, as `changing-slam run` reports it), loops accepted and wrong
+    (> 10 cm or 5 deg from the ground-truth relative pose of the two keyframes), and per loop its frames, its error and
+    the error the *chair hypothesis* would have: the relative pose that makes the chair at A in the match view
+    coincide with the chair at B in the query view (ground-truth poses). A loop whose error is close to that
+    hypothesis's and far from zero was verified on the moved chair. Prints, never asserts.
+    """
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", type=Path, default=Path("/tmp/closeup"))
     ap.add_argument("--scenario", default="one_chair_closeup")

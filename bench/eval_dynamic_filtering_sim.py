@@ -1,20 +1,12 @@
 """Keypoint filtering against simulated ground truth (prints a table, never asserts).
 
-For each walking scenario, frames are rendered with the simulator, ORB keypoints detected, oracle detections
-taken from the instance masks, and `DynamicObjectTracker` run with the ground-truth camera pose. A keypoint's
-truth is the actor under its pixel: a moving actor (person) = dynamic, anything else = static. Reported:
-- `leak`: dynamic keypoints used for tracking / dynamic keypoints (must be ~0);
-- `kept`: static keypoints used for tracking / static keypoints;
-- `kept_in_person_boxes`: static keypoints inside person boxes used (what repopulation recovers);
-The "plain" system (no dynamic handling) uses every keypoint: leak 100 %, kept 100 %.
-`--variants +detection_filtering +repopulation +ekf_doc` gives the keypoint-level rows of issue 5's ablation.
-- `ms`: classification + association + EKF per frame.
-
     .venv/bin/python bench/eval_dynamic_filtering_sim.py [--scenarios walking_xyz ...] [--step 5] [--variants ...]
         [--detector oracle|ssd]
 
 `--detector ssd` runs the shipped SSD-MobileNetV2 on the rendered colour images instead of the oracle boxes
 (score >= 0.3), which also reports the detector's person recall on the simulated people.
+
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -37,7 +29,7 @@ from changing_slam_ros.sim.scene import SceneSpec
 WALKING = ["walking_xyz", "walking_static", "walking_rpy", "walking_halfsphere", "sitting_xyz"]
 BASE = KeypointClassificationConfig()
 NO_EKF = 10**9  # min_updates never reached: movable objects are never found static
-# Ablation rows of issue 5 at keypoint level (ATE needs the tracking integration):
+# The ablation's rows (bench/ablation_dynamic.py) at keypoint level (ATE needs the tracking integration):
 ABLATION: dict[str, DynamicObjectsConfig] = {
     "+detection_filtering": DynamicObjectsConfig(classification=replace(BASE, repopulation=False), min_updates=NO_EKF),
     "+repopulation": DynamicObjectsConfig(min_updates=NO_EKF),
@@ -56,6 +48,18 @@ VARIANTS: dict[str, KeypointClassificationConfig] = {
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    For each walking scenario, frames are rendered with the simulator, ORB keypoints detected, oracle detections
+    taken from the instance masks, and `DynamicObjectTracker` run with the ground-truth camera pose. A keypoint's
+    truth is the actor under its pixel: a moving actor (person) = dynamic, anything else = static. Reported:
+    - `leak`: dynamic keypoints used for tracking / dynamic keypoints (must be ~0);
+    - `kept`: static keypoints used for tracking / static keypoints;
+    - `kept_in_person_boxes`: static keypoints inside person boxes used (what repopulation recovers);
+    The "plain" system (no dynamic handling) uses every keypoint: leak 100 %, kept 100 %.
+    `--variants +detection_filtering +repopulation +ekf_doc` gives the keypoint-level rows of the ablation (`bench/ablation_dynamic.py`).
+    - `ms`: classification + association + EKF per frame.
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenarios", nargs="+", default=WALKING)
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), help=f"of {', '.join([*ABLATION, *VARIANTS])}")

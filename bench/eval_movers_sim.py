@@ -9,16 +9,7 @@ Two uses:
     # score an existing `changing-slam run` output (moving_objects.json) against SIM_DIR
     .venv/bin/python bench/eval_movers_sim.py SIM_DIR --run-dir RUN_DIR
 
-Counting (the first use): every keypoint with depth of every frame while the mover is carried (its
-ground-truth pose changes between neighbouring frames) is positive when the instance mask under it is
-the mover's; "flagged" = `DynamicFrame.moving` (the keypoints camera tracking was not allowed to use
-because the mover tracker put them on a moving object). Precision = flagged on the mover / flagged;
-recall = flagged on the mover / on the mover.
-
-Object error: each exported object's poses E_k (SLAM world) are mapped to the ground-truth world by the
-SE(3) alignment S of the online camera trajectory (object BA used the online camera poses); the object
-frame differs from the simulator's by a constant rigid Y (our origin is the centre of the segmented
-points), estimated as the mean of G_k^-1 S E_k; error_k = |position of S E_k - position of G_k Y|.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -157,6 +148,19 @@ def score_run_dir(args: argparse.Namespace) -> None:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    Counting (the first use): every keypoint with depth of every frame while the mover is carried (its
+    ground-truth pose changes between neighbouring frames) is positive when the instance mask under it is
+    the mover's; "flagged" = `DynamicFrame.moving` (the keypoints camera tracking was not allowed to use
+    because the mover tracker put them on a moving object). Precision = flagged on the mover / flagged;
+    recall = flagged on the mover / on the mover.
+
+    Object error: each exported object's poses E_k (SLAM world) are mapped to the ground-truth world by the
+    SE(3) alignment S of the online camera trajectory (object BA used the online camera poses); the object
+    frame differs from the simulator's by a constant rigid Y (our origin is the centre of the segmented
+    points), estimated as the mean of G_k^-1 S E_k; error_k = |position of S E_k - position of G_k Y|.
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sim_dir", help="folder written by `changing-slam simulate unknown_mover`")
     parser.add_argument("--frames", type=int, default=0, help="frames to run (0 = all)")

@@ -6,18 +6,7 @@ Runs `SlamSystem` (no detector, loop closing off: the code `changing-slam run SI
 --detections none --no-loop` runs; `--movers` adds the dynamic filter with the config's `dynamic:` section)
 and prints:
 
-- per keyframe segmentation window: the window's map points; a point is positive when the instance mask
-  under its keypoint, in the newest window keyframe that measures it, is the mover's and the mover moved more
-  than --moved-m between the point's first and last measurement in the window (a point on the box seen only
-  while it rests is a correct static point: a negative, also counted on its own); flagged = put on an object
-  target (culled). Precision, recall over the windows in which the mover moves (between the window's first
-  and last keyframe) and over every window of the run (a point counts once per window it is in); and per
-  map point: of the points positive in some window, the share culled (in that window or a later one);
-- tracking: per frame while the mover moves, the share of the pose's inlier matches that lie on the mover
-  (what `mapping.segmentation` is there to keep out);
-- CPU ms per keyframe of the segmentation step (window building + eq. 5), and local mapping's wall ms;
-- camera ATE (online and final trajectory, SE(3) chordal alignment as `eval.moving_objects`).
-With `mapping.segmentation.enabled` false, only the tracking and ATE lines mean anything.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -38,6 +27,21 @@ from changing_slam_ros.eval.moving_objects import ObjectTruth, camera_alignment,
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    - per keyframe segmentation window: the window's map points; a point is positive when the instance mask
+      under its keypoint, in the newest window keyframe that measures it, is the mover's and the mover moved more
+      than --moved-m between the point's first and last measurement in the window (a point on the box seen only
+      while it rests is a correct static point: a negative, also counted on its own); flagged = put on an object
+      target (culled). Precision, recall over the windows in which the mover moves (between the window's first
+      and last keyframe) and over every window of the run (a point counts once per window it is in); and per
+      map point: of the points positive in some window, the share culled (in that window or a later one);
+    - tracking: per frame while the mover moves, the share of the pose's inlier matches that lie on the mover
+      (what `mapping.segmentation` is there to keep out);
+    - CPU ms per keyframe of the segmentation step (window building + eq. 5), and local mapping's wall ms;
+    - camera ATE (online and final trajectory, SE(3) chordal alignment as `eval.moving_objects`).
+    With `mapping.segmentation.enabled` false, only the tracking and ATE lines mean anything.
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sim_dir", help="folder written by `changing-slam simulate slow_mover` (or another with one class -1 mover)")
     parser.add_argument("--config", default=str(REPO / "config" / "sim.yaml"))

@@ -2,28 +2,16 @@
 
 At 1x the detection node cannot keep up with 30 Hz tracking: it takes the newest image when it is free (~10 Hz on
 two cores), and its boxes reach tracking ~0.1-0.2 s after the image. Tracking does not wait: a frame without its
-own detections uses the newest earlier ones carried forward (`core.late_detections`). This bench runs the offline
+own detections uses the newest earlier ones carried forward (`core.dynamic.late_detections`). This bench runs the offline
 system (`changing-slam run`'s SlamSystem, the shipped config) on a bag with exactly that cadence: the detector's
 boxes of frame j (j = 0, EVERY, 2 EVERY, ...) become usable at frame j + DELAY, and every frame uses the newest
-usable set carried forward with the setting under test. Unlike a 1x graph run it is repeatable (no scheduling,
-no dropped frames), so carry settings can be compared on the same footing; the row "every frame, no delay" is
-the offline run itself. Prints a table, never asserts.
+usable set carried forward with the setting under test. Repeatable, unlike a 1x graph run. Prints a table,
+never asserts.
 
     nice .venv/bin/python bench/late_detections.py /tmp/rt/wxyz30s.mcap --config sim \\
         --cadences 3:4 3:3 2:4 4:5 3:5 --settings grow1 grow0.5 grow0.5+extrapolate
 
-A setting is `grow<G>` (grow_widths_per_s G) with `+extrapolate` to move boxes on at their edges' velocity and
-`+flow<F>` to move them by their image motion between the detections' image and the frame (`core.box_flow`)
-and grow a moved box by F widths/s instead (a box whose motion is not measured: as without +flow), e.g.
-`grow0.5+flow0.25`; `+hull` joins a moved box with where it was before growing; `+refine` (or `+refine<G>`, G the
-interpolated boxes' growth in widths/s, default 0.25) turns `tracking.deferred_refinement` on: each detection set
-is handed to `SlamSystem.refine_with_detections` when it becomes usable, so the frames it brackets with the set
-before get their final pose optimised again without the keypoints in the interpolated person boxes
-(`core.deferred_refinement`), in the map as it is then (`current_map`); `+refinetracked[G]`: only the frames with
-matches on a person, in the map as they were tracked in. Every row prints the final ATE (trajectory.txt's, what the tables compare) and the
-online one. Detections are computed once per bag (every frame) and reused by every row. With +flow the CPU time of
-`carried_forward` per carried frame (`time.process_time`) is printed too; with +refine that of the refinement per
-detection set and its counters.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -170,6 +158,24 @@ def run_command_args(bag: str, out: str, config: str) -> argparse.Namespace:
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    Unlike a 1x graph run it is repeatable (no scheduling, no dropped frames), so carry settings can be compared
+    on the same footing; the row "every frame, no delay" is the offline run itself.
+
+    A setting is `grow<G>` (grow_widths_per_s G) with `+extrapolate` to move boxes on at their edges' velocity and
+    `+flow<F>` to move them by their image motion between the detections' image and the frame (`core.box_flow`)
+    and grow a moved box by F widths/s instead (a box whose motion is not measured: as without +flow), e.g.
+    `grow0.5+flow0.25`; `+hull` joins a moved box with where it was before growing; `+refine` (or `+refine<G>`, G the
+    interpolated boxes' growth in widths/s, default 0.25) turns `tracking.deferred_refinement` on: each detection set
+    is handed to `SlamSystem.refine_with_detections` when it becomes usable, so the frames it brackets with the set
+    before get their final pose optimised again without the keypoints in the interpolated person boxes
+    (`core.deferred_refinement`), in the map as it is then (`current_map`); `+refinetracked[G]`: only the frames with
+    matches on a person, in the map as they were tracked in. Every row prints the final ATE (trajectory.txt's, what the tables compare) and the
+    online one. Detections are computed once per bag (every frame) and reused by every row. With +flow the CPU time of
+    `carried_forward` per carried frame (`time.process_time`) is printed too; with +refine that of the refinement per
+    detection set and its counters.
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bag", help="bag or dataset folder with ground truth")
     parser.add_argument("--config", default="sim", help="config name or file (default sim)")

@@ -1,9 +1,4 @@
-"""Issue 6's multi-session figures: run `static`, save its map, run `shift` from that map (oracle boxes).
-
-Prints, never asserts: when the second run relocalised in the saved map (frame, seconds), its ATE after SE(3)
-alignment and, more telling, in the saved map's frame without re-alignment (the first session's alignment to
-the simulator's world frame, shared by both scenarios, applied as it is), and per moved object the belief and
-distance of the map objects at its old and its new place (`eval.multi_session`).
+"""Multi-session figures: run `static`, save its map, run `shift` from that map (oracle boxes).
 
     changing-slam simulate static --out /tmp/simobj/static --seed 0 --width 320 --height 240
     changing-slam simulate shift --out /tmp/simobj/shift --seed 0 --width 320 --height 240
@@ -15,13 +10,7 @@ which runs (when their metrics.json is missing, or with --rerun)
     changing-slam run /tmp/simobj/shift --out /tmp/ms/shift-from-static --config sim --detections oracle --objects \\
         --map-in /tmp/ms/static/map.npz
 
-`--second shift_final`: the second session runs in the `shift` room as it stands after every move, from its
-first frame (each object frozen at its last pose of `shift`; same seed, camera path and rate), rendered by this
-script into ROOT/shift_final when missing. In `shift` itself the objects move during the second session, so
-the robot passes each new place once after the move, and Algorithm 1 raises a belief only on a long-term
-re-observation: new places end at 0.5 there. In `shift_final` the room changed *between* the sessions (the
-multi-session case of issue 6), the robot sees each new place on both laps, and the new places can be
-confirmed. The old and new places are still those of `shift`'s ground truth.
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -108,6 +97,21 @@ def evaluate(root: Path, out: Path, rerun: bool, second_scene: str = "shift", co
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    Prints, never asserts: when the second run relocalised in the saved map (frame, seconds), its ATE after SE(3)
+    alignment and, more telling, in the saved map's frame without re-alignment (the first run's alignment to
+    the simulator's world frame, shared by both scenarios, applied as it is), and per moved object the belief and
+    distance of the map objects at its old and its new place (`eval.multi_session`).
+
+    `--second shift_final`: the second run is in the `shift` room as it stands after every move, from its
+    first frame (each object frozen at its last pose of `shift`; same seed, camera path and rate), rendered by this
+    script into ROOT/shift_final when missing. In `shift` itself the objects move during the second run, so
+    the robot passes each new place once after the move, and Algorithm 1 raises a belief only on a long-term
+    re-observation: new places end at 0.5 there. In `shift_final` the room changed *between* the runs (the
+    multi-session case: the room changed while the robot was away), the robot sees each new place on both laps, and the new places can be
+    confirmed. The old and new places are still those of `shift`'s ground truth.
+    """
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--root", type=Path, default=Path("/tmp/simobj"), help="folder holding static/ and shift/")
     ap.add_argument("--out", type=Path, default=Path("/tmp/ms"), help="where the two runs go")

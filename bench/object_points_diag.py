@@ -1,18 +1,11 @@
-"""Where a run's object centroid errors come from (issue 6, docs/changing_scenes.md session 4). Prints, never asserts.
+"""Where a run's object centroid errors come from. Prints, never asserts.
 
 For each object of the run's semantic map matched to the simulator's ground truth (`changing-slam run` output with
 `object_map.json`, `map.npz` and `trajectory.txt`; the scenario folder with `objects.json` and `masks/`):
 
-- the centroid error against the visible-surface centroid (bench/changing_scenes.py's cache
-  ROOT/runs/SCENARIO.surface_centroids.json) with the object-placing alignment (`trajectory_alignment`, camera
-  axes weighed) and with the position-only one (`lever_m` 0);
-- the **perfect-pose** centroid: every anchored object point (map.npz `obj_anchor_*`: keyframe id and position in
-  that camera's frame) re-expressed with its keyframe's ground-truth pose: what the layer's points give without
-  any SLAM error;
-- where the points came from: each anchored point projected back into its keyframe and labelled with the
-  simulator's instance mask at that pixel (own object, room, other objects).
-
     .venv/bin/python bench/object_points_diag.py --root ROOT --scenario shift --run ROOT/runs/shift-objects
+
+The rows and the method: `main`.
 """
 
 from __future__ import annotations
@@ -26,6 +19,17 @@ import numpy as np
 
 
 def main() -> int:
+    """Parse the options, measure, print the table.
+
+    - the centroid error against the visible-surface centroid (bench/changing_scenes.py's cache
+      ROOT/runs/SCENARIO.surface_centroids.json) with the object-placing alignment (`trajectory_alignment`, camera
+      axes weighed) and with the position-only one (`lever_m` 0);
+    - the **perfect-pose** centroid: every anchored object point (map.npz `obj_anchor_*`: keyframe id and position in
+      that camera's frame) re-expressed with its keyframe's ground-truth pose: what the layer's points give without
+      any SLAM error;
+    - where the points came from: each anchored point projected back into its keyframe and labelled with the
+      simulator's instance mask at that pixel (own object, room, other objects).
+    """
     import cv2
 
     from changing_slam_ros.commands.objects_options import aligned_objects, trajectory_alignment

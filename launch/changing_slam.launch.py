@@ -1,26 +1,14 @@
 """The changing_slam_ros node graph, for machines with a full ROS 2 install (`ros2 launch` is not on PyPI).
 
     ros2 launch changing_slam_ros changing_slam.launch.py bag:=bags/tum_fr1_xyz_first10.mcap config:=tum_fr1
+    ros2 launch changing_slam_ros changing_slam.launch.py config:=realsense_d435 use_sim_time:=false \
+        colour_topic:=/camera/camera/color/image_raw camera_info_topic:=/camera/camera/color/camera_info \
+        depth_topic:=/camera/camera/aligned_depth_to_color/image_raw
 
-Arguments: bag (empty = no player: live camera), config, rate, lossless (bag_player waits for tracking's
-per-frame acks), use_sim_time (default true with a bag: nodes follow bag_player's /clock), map_file (multi-session:
-start tracking, local_mapping and loop_closing from a `changing-slam run` map.npz), map_out, and five arguments whose
-default `auto` is what `changing-slam graph` gives the nodes (`changing_slam_ros.commands.graph.MODE_DEFAULTS`):
-in real time its measured real-time settings, with lossless:=true the config's, so that the graph repeats
-`changing-slam run`:
-- detector_threads: onnxruntime threads of the detection node (auto: 1 in real time, ~10 % less CPU per detection
-  where the nodes share few cores; -1 = the config's);
-- detector_model: a shipped detector by name (auto: ssd_mobilenet_v2_coco_int8 in real time, the static INT8 SSD at
-  ~0.4x the CPU; empty = the config's);
-- detection_max_hz: detect at most this often by image stamp (auto: 15 in real time; 0 = as often as the detector is
-  free; keep 0 with lossless);
-- detections_wait_s: longest wait of tracking for a detected frame's boxes (auto: 0.05 s in real time; the detector
-  announces the frames it skips, which do not wait; 10 s with lossless);
-- ba_solver: local BA of local_mapping, gtsam or schur (auto: schur in real time, the numpy Schur-complement LM at
-  ~0.35x the CPU; empty = the config's).
-Out of lossless mode tracking runs the newest frame first (frame_policy latest) and does not wait while detections
-keep arriving later than detections_wait_s.
-Without ROS 2 launch, `changing-slam graph BAG` (issue 7) starts the same processes.
+Without a bag the graph runs on live topics. The arguments whose default is `auto` take what
+`changing-slam graph` gives the nodes (`commands.graph.MODE_DEFAULTS`): its measured real-time settings, or
+with lossless:=true the config's, so that the graph repeats `changing-slam run`. Each argument's description
+says what it sets; `changing-slam graph BAG` starts the same processes without ROS 2 launch.
 """
 
 from launch import LaunchDescription
@@ -51,6 +39,9 @@ def generate_launch_description() -> LaunchDescription:
     use_sim_time = LaunchConfiguration("use_sim_time")
     map_file = LaunchConfiguration("map_file")
     map_out = LaunchConfiguration("map_out")
+    colour_topic = LaunchConfiguration("colour_topic")
+    depth_topic = LaunchConfiguration("depth_topic")
+    camera_info_topic = LaunchConfiguration("camera_info_topic")
     # 'auto': what `changing-slam graph` gives the node in real time, the config's in lossless mode
     auto = {name: _auto(name, lossless) for name in MODE_DEFAULTS}
     real_time = PythonExpression(["'", lossless, "' != 'true'"])
@@ -62,6 +53,12 @@ def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
         DeclareLaunchArgument("bag", default_value="", description="bag or mcap to replay; empty = live input"),
         DeclareLaunchArgument("config", default_value="tum_fr1", description="config name or YAML path"),
+        DeclareLaunchArgument("colour_topic", default_value="/camera/rgb/image_color",
+                              description="colour image topic (sensor_msgs/Image)"),
+        DeclareLaunchArgument("depth_topic", default_value="/camera/depth/image",
+                              description="depth image registered to colour (32FC1 metres or 16UC1 millimetres)"),
+        DeclareLaunchArgument("camera_info_topic", default_value="/camera/rgb/camera_info",
+                              description="colour camera_info (intrinsics)"),
         DeclareLaunchArgument("rate", default_value="1.0", description="bag playback rate"),
         DeclareLaunchArgument("lossless", default_value="false", description="bag_player waits for tracking"),
         DeclareLaunchArgument("use_sim_time", default_value="true", description="follow /clock from the bag"),
@@ -92,12 +89,14 @@ def generate_launch_description() -> LaunchDescription:
         Node(package=PACKAGE, executable="detection", name="detection", output="screen",
              parameters=[{"config": config, "intra_op_threads": auto["detector_threads"],
                           "model": auto["detector_model"], "max_rate_hz": auto["detection_max_hz"]}, sim_time],
-             remappings=[("image", "/camera/rgb/image_color")]),
+             remappings=[("image", colour_topic)]),
         Node(package=PACKAGE, executable="tracking", name="tracking", output="screen",
              parameters=[{"config": config, "ack_topic": ack_topic, "in_process_backend": False,
                           "wait_for_map_updates": lossless, "map_file": map_file, "frame_policy": frame_policy,
                           "detections_skip_late": real_time,
-                          "detections_wait_s": auto["detections_wait_s"]}, sim_time]),
+                          "detections_wait_s": auto["detections_wait_s"]}, sim_time],
+             remappings=[("/camera/rgb/image_color", colour_topic), ("/camera/depth/image", depth_topic),
+                         ("/camera/rgb/camera_info", camera_info_topic)]),
         Node(package=PACKAGE, executable="local_mapping", name="local_mapping", output="screen",
              parameters=[{"config": config, "wait_for_loop_results": lossless, "map_file": map_file,
                          "map_out": map_out, "ba_solver": auto["ba_solver"]}, sim_time]),

@@ -7,36 +7,10 @@
         [--backend split|in_process] [--map-in PREVIOUS/map.npz]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
-`tracking`, `local_mapping`, `loop_closing` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node --ros-args ...` processes on a
-ROS domain of their own (a random ROS_DOMAIN_ID unless ROS_DOMAIN_ID is set, discovery limited to this
-machine), waits until each node says it is up, plays the bag, waits for the player to finish, asks tracking to
-write its outputs (SIGINT, then waits), stops the rest (SIGINT, then SIGTERM, then SIGKILL), evaluates the
-trajectory against the bag's ground truth and prints a summary. A node that dies before the end is restarted
-(at most --max-restarts times per node); `--kill object_map@5` kills a node on purpose after 5 s (fault test).
-
-Backends: `split` (default): tracking tracks against a replica of the map, `local_mapping` owns the map (local
-BA, object layer) and `loop_closing` closes loops, exchanging keyframe packets, map updates and loop results
-(`nodes/split_backend.py`); with --lossless tracking acknowledges a keyframe frame only once its map update
-and loop verdict are in, so the run repeats the offline order of work. `in_process`: tracking runs the whole
-`SlamSystem` itself (`nodes/slam_backend.py`) and local_mapping / loop_closing are not started.
-
-DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, tracking_stats.json (from
-tracking), semantic_map.json, local_mapping_stats.json and map.npz (from local_mapping, the split backend's map owner: the
-whole map in `changing-slam run`'s format, for a later `--map-in`; semantic_map.json from tracking when in_process), outputs.mcap (the trajectories and the ground truth as PoseStamped topics,
-for evo and Foxglove, written after the run), semantic_map_node.json (object_map's saved map), logs/<node>.log (one per
-process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops, latency, ATE, restarts, CPU seconds per
-process during playback: `commands/process_cpu.py`), and with the
-config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's class-agnostic
-movers; in outputs.mcap as /moving_objects/object_<id>/pose, /tracking/moving_objects, /tracking/moving_object_markers).
-Drops: colour frames in the bag that did not become a pose (not received, not paired, or not tracked).
-
-Multi-session (`--map-in PREVIOUS/map.npz`, as `changing-slam run --map-in`): tracking, local_mapping and
-loop_closing each load the map file at start (`nodes/split_backend.py`: replica + relocalisation index, the
-owned map + saved objects, the keyframe database), tracking relocalises in the loaded current map first and
-the poses stay in its frame; local_mapping publishes the loaded semantic map, so object_map starts from it.
-`--load-map MAP@S` does the same mid-run: S seconds after the player's first message it calls local_mapping's LoadMap
-(`nodes/map_service_call.py`); local_mapping replaces its map, tracking and loop_closing follow its load marker,
-and tracking relocalises in the loaded map. graph_summary.json `map_loads` holds each call's reply.
+`tracking`, `local_mapping`, `loop_closing` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node`
+processes on a ROS domain of their own, plays the bag, stops the nodes, evaluates the trajectory against the
+bag's ground truth and prints a summary (`Graph`). Process handling is in `commands/graph_process.py`, the
+outputs read back and written after the run in `commands/graph_outputs.py`; the nodes: docs/nodes.md.
 """
 
 from __future__ import annotations
@@ -81,7 +55,7 @@ MAPS_DIR = "maps"  # in DIR: the map_dir of local_mapping's and object_map's Sav
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
 # What the graph gives its nodes unless an option says otherwise, as node parameter values: (in real time, with
-# --lossless). Real time: measured settings for six processes on few cores (docs/architecture.md, sessions 9-11):
+# --lossless). Real time: settings measured for six processes on two cores (bench/bench_graph_configs.py):
 # one onnxruntime thread, the static INT8 SSD capped at 15 Hz by image stamp, tracking waiting up to 50 ms for a
 # detected frame's boxes (the detector announces the frames it skips), the numpy Schur-complement BA solver.
 # Lossless: the config's (-1, '' = the config's; every frame detected and waited for), so that the graph repeats
@@ -249,7 +223,39 @@ class NodeFailed(SlamError):
 
 
 class Graph:
-    """The processes of one run; `run()` returns the summary dict."""
+    """The processes of one run; `run()` returns the summary dict.
+
+    The nodes run on a random ROS_DOMAIN_ID unless ROS_DOMAIN_ID is set, discovery limited to this machine. It
+    waits until each node says it is up, plays the bag, waits for the player to finish, asks tracking to write
+    its outputs (SIGINT, then waits) and stops the rest (SIGINT, then SIGTERM, then SIGKILL). A node that dies
+    before the end is restarted (at most --max-restarts times per node); `--kill object_map@5` kills a node on
+    purpose after 5 s (fault test).
+
+    Backends: `split` (default): tracking tracks against a replica of the map, `local_mapping` owns the map
+    (local BA, object layer) and `loop_closing` closes loops, exchanging keyframe packets, map updates and loop
+    results (`nodes/split_backend.py`); with --lossless tracking acknowledges a keyframe frame only once its
+    map update and loop verdict are in, so the run repeats the offline order of work. `in_process`: tracking
+    runs the whole `SlamSystem` itself (`nodes/slam_backend.py`) and local_mapping / loop_closing are not started.
+
+    DIR receives: trajectory.txt (final), trajectory_online.txt, keyframes.txt, tracking_stats.json (from
+    tracking), semantic_map.json, local_mapping_stats.json and map.npz (from local_mapping, the split backend's
+    map owner: the whole map in `changing-slam run`'s format, for a later `--map-in`; semantic_map.json from
+    tracking when in_process), outputs.mcap (the trajectories and the ground truth as PoseStamped topics, for
+    evo and Foxglove, written after the run), semantic_map_node.json (object_map's saved map),
+    logs/<node>.log (one per process start, `.1`, `.2` for restarts), graph_summary.json (frames, drops,
+    latency, ATE, restarts, CPU seconds per process during playback: `commands/process_cpu.py`), and with the
+    config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's
+    class-agnostic movers; in outputs.mcap as /moving_objects/object_<id>/pose, /tracking/moving_objects,
+    /tracking/moving_object_markers). Drops: colour frames in the bag that did not become a pose (not
+    received, not paired, or not tracked).
+
+    Multi-session (`--map-in PREVIOUS/map.npz`, as `changing-slam run --map-in`): tracking, local_mapping and
+    loop_closing each load the map file at start, tracking relocalises in the loaded current map first and the
+    poses stay in its frame; local_mapping publishes the loaded semantic map, so object_map starts from it.
+    `--load-map MAP@S` does the same mid-run: S seconds after the player's first message it calls
+    local_mapping's LoadMap (`nodes/map_service_call.py`); local_mapping replaces its map, tracking and
+    loop_closing follow its load marker. graph_summary.json `map_loads` holds each call's reply.
+    """
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args

@@ -1,21 +1,12 @@
 """Changing-scene options and outputs of `changing-slam run` (a helper of `commands/run.py`, not a subcommand).
 
-    --objects / --no-objects   the object layer (MapObjects, persistence beliefs, inactive points; issue 6)
+    --objects / --no-objects   the object layer (MapObjects, persistence beliefs, inactive points)
                                on (default, or `objects.enabled`) / off (every map point stays active)
 
-Config section read: `objects:` (`core.object_layer.ObjectLayerConfig`: `enabled` plus `ObjectMapConfig`).
-
-Outputs written into the run's folder when the layer is on:
-- `semantic_map.json`  the §4.8 semantic map (objects with belief >= the belief threshold), map frame;
-- `object_map.json`    every MapObject of the main map (points, beliefs; `io.semantic_map_file` object-map layout);
-- `semantic_map.png`   top view of every object over the final trajectory (low-belief objects dashed), seen
-                       along the first camera's down axis (a levelled start is assumed);
-- `objects.json` metrics (when the source folder holds the simulator's `objects.json`): the estimated
-  objects, moved into the ground-truth frame with the SE(3) alignment of the final trajectory, matched to
-  the objects present at the last frame (`eval.object_metrics.evaluate_objects`).
-Loops: every accepted loop (query and match keyframe stamps, verified T_match_query) is logged; with ground
-truth each gets its relative-pose error against the ground-truth relative pose of the two keyframes and is
-counted wrong above `WRONG_LOOP_M` / `WRONG_LOOP_DEG` (issue 6's 10 cm / 5 degrees).
+Config section read: `objects:` (`core.objects.object_layer.ObjectLayerConfig`: `enabled` plus `ObjectMapConfig`).
+Outputs (`write_object_outputs`): the semantic map (json, png), the object map, and object metrics against the
+simulator's ground truth. Every accepted loop is logged (`LoopRecord`); with ground truth each gets its
+relative-pose error (`loop_error`) and is counted wrong above `WRONG_LOOP_M` / `WRONG_LOOP_DEG`.
 """
 
 from __future__ import annotations
@@ -39,6 +30,7 @@ from changing_slam_ros.core.geometry.trajectory import Trajectory
 F64 = npt.NDArray[np.float64]
 # the map frame is the first camera's optical frame (x right, y down, z forward); the top view looks down its -y
 T_LEVEL_MAP = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+# a loop whose relative pose is off by more than this is wrong: the changing scenes' bound (10 cm / 5 degrees)
 WRONG_LOOP_M = 0.10
 WRONG_LOOP_DEG = 5.0
 MAX_STAMP_GAP_S = 0.02
@@ -46,7 +38,7 @@ POSE_LEVER_M = 1.0  # lever arm of the camera axes in the object-placing alignme
 
 
 def add_object_arguments(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("changing scenes (issue 6)")
+    group = parser.add_argument_group("changing scenes (object layer)")
     group.add_argument("--objects", action=argparse.BooleanOptionalAction, default=None,
                        help="object layer: MapObjects, persistence beliefs, inactive points (default on, or objects.enabled)")
 
@@ -179,7 +171,17 @@ def trajectory_alignment(gt: Trajectory, est: Trajectory, lever_m: float = POSE_
 
 def write_object_outputs(out: Path, layer: ObjectLayer, final: Trajectory, gt: Trajectory | None, source: str,
                          no_plot: bool) -> dict[str, Any]:
-    """Semantic map files, and object metrics against the simulator's ground truth when available (metrics.json `objects`)."""
+    """Semantic map files, and object metrics against the simulator's ground truth when available (metrics.json `objects`).
+
+    Written into `out` when the layer is on:
+    - `semantic_map.json`  the §4.8 semantic map (objects with belief >= the belief threshold), map frame;
+    - `object_map.json`    every MapObject of the main map (points, beliefs; `io.semantic_map_file` object-map layout);
+    - `semantic_map.png`   top view of every object over the final trajectory (low-belief objects dashed), seen
+                           along the first camera's down axis (a levelled start is assumed);
+    - `objects.json` metrics (when the source folder holds the simulator's `objects.json`): the estimated
+      objects, moved into the ground-truth frame with the SE(3) alignment of the final trajectory, matched to
+      the objects present at the last frame (`eval.object_metrics.evaluate_objects`).
+    """
     from changing_slam_ros.io.semantic_map_file import write_object_map, write_semantic_map
 
     result: dict[str, Any] = {"layer": layer.summary()}

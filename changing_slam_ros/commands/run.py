@@ -5,22 +5,9 @@
         [ablation switches]
 (dynamic-scene options: see `commands/dynamic_options.py`).
 
-SOURCE is anything `io.dataset.open_dataset` reads (TUM-layout folder, 7-Scenes, ROS 1/2 bag, mcap).
-DIR receives:
-- `trajectory.txt`         final poses (TUM), each frame re-expressed from its reference keyframe;
-- `trajectory_online.txt`  poses as tracking estimated them live;
-- `keyframes.txt`          keyframe poses (TUM);
-- `map.npz`                the map (versioned, `io.map_file`): every map of the Atlas with keyframes, points,
-                           graph and object map; `--map-in` starts a later run from it;
-- `metrics.json`           frames tracked, keyframes, loops, speed; ATE / RPE when ground truth exists;
-- `timing.json`            per-stage milliseconds (count, mean, p50, p90, p99, max);
-- `trajectory.png`         the final trajectory against ground truth (when it exists);
-- `moving_objects.json`, `moving_objects/object_<id>.txt`  moving objects and their trajectories (TUM), with
-                           `dynamic: movers: enabled: true` (`io.moving_objects_file`).
-Multi-session (`--map-in PREVIOUS/map.npz`): the run continues the saved Atlas; every frame first tries
-relocalisation against the saved current map (for `tracking.loaded_map_grace_s`, 2 s by default, then a new map
-is started), trajectories are in the saved map's frame, the object layer starts from the saved objects and
-beliefs, and metrics.json `multi_session` says when (frame index, seconds) the run relocalised.
+SOURCE is anything `io.dataset.open_dataset` reads (TUM-layout folder, 7-Scenes, ROS 1/2 bag, mcap). DIR
+receives the trajectories, keyframes, the map (`map.npz`), metrics and timing (see `main`). With
+`--map-in PREVIOUS/map.npz` the run continues a saved map (multi-session; see `multi_session_summary`).
 The run is deterministic for a given config (single-threaded OpenCV, seeded RNG, frames in order).
 """
 
@@ -71,6 +58,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Run SLAM over every frame of `args.source` and write into `args.out`:
+
+    - `trajectory.txt`         final poses (TUM), each frame re-expressed from its reference keyframe;
+    - `trajectory_online.txt`  poses as tracking estimated them live;
+    - `keyframes.txt`          keyframe poses (TUM);
+    - `map.npz`                the map (versioned, `io.map_file`): every map of the Atlas with keyframes, points,
+                               graph and object map; `--map-in` starts a later run from it;
+    - `metrics.json`           frames tracked, keyframes, loops, speed; ATE / RPE when ground truth exists;
+    - `timing.json`            per-stage milliseconds (count, mean, p50, p90, p99, max);
+    - `trajectory.png`         the final trajectory against ground truth (when it exists);
+    - `moving_objects.json`, `moving_objects/object_<id>.txt`  moving objects and their trajectories (TUM), with
+                               `dynamic: movers: enabled: true` (`io.moving_objects_file`).
+    """
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.dataset_config import load_dataset_settings, settings_from_mapping
 
@@ -163,7 +163,11 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
 
 def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:
     """metrics.json `multi_session`: the loaded map and when tracking relocalised in it (frame index, seconds after
-    the first frame; None when it never did and a new map was started)."""
+    the first frame; None when it never did and a new map was started).
+
+    With `--map-in` the run continues the saved Atlas: every frame first tries relocalisation against the saved
+    current map (for `tracking.loaded_map_grace_s`, 2 s by default, then a new map is started), trajectories are
+    in the saved map's frame, and the object layer starts from the saved objects and beliefs."""
     i = system.tracker.loaded_map_relocalised_index
     out: dict[str, Any] = {"map_in": str(map_in), "relocalised": i >= 0, "relocalised_frame": i if i >= 0 else None,
                            "relocalised_after_s": None}

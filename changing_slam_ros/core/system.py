@@ -118,7 +118,7 @@ class SlamSystem:
         self.loop_closer = loop_closer
         self.keyframe_index = keyframe_index
         self.dynamic_filter = dynamic_filter
-        self.object_layer = object_layer  # MapObjects and beliefs (issue 6); None = every point stays active
+        self.object_layer = object_layer  # MapObjects and beliefs (Changing-SLAM §4); None = every point stays active
         self._extractor: OrbExtractor | None = None
         self._camera: CameraIntrinsics | None = None
         self.records: list[FrameRecord] = []

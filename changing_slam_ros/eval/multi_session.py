@@ -1,7 +1,7 @@
-"""Multi-session evaluation (issue 6): a second run started from a first run's saved map, in a room that changed.
+"""Multi-session evaluation: a second run started from a first run's saved map, in a room that changed.
 
-Both sessions' ground truths share the simulator's world frame, and the second run reports its poses in the
-first run's map frame. The map-to-world transform `T_gt_map` is therefore fixed once, by the first session
+Both runs' ground truths share the simulator's world frame, and the second run reports its poses in the
+first run's map frame. The map-to-world transform `T_gt_map` is therefore fixed once, by the first run
 (SE(3) alignment of its final trajectory to its ground truth), and the second run is evaluated *without*
 re-aligning it: `map_frame_errors_m` is the honest "did it land in the old map" figure, next to the usual
 aligned ATE.

@@ -9,25 +9,7 @@ box centre: a large object seen from one side has its point centroid on that sid
 box centre sits nearer the middle). Per match: centroid error (estimated centroid to
 ground-truth box centre), box-centre error, and the 3D IoU of the two axis-aligned boxes.
 
-The ground-truth box centre is the centre of the object's volume, while a MapObject's centroid is the mean
-of surface points the camera saw: an object seen from one side only has its point centroid on that side even
-with perfect points (a 44 cm plant seen from the front: 17 cm). For a fair comparison pass
-`surface_centroids` (ground-truth name -> the mean of the object's *visible* surface at its final place, see
-`visible_surface_centroids`: its mask pixels back-projected with the simulator's depth and the ground-truth
-camera pose) and each match also reports `surface_centroid_error_m`, the estimated centroid against the
-same quantity in ground truth. Matching itself stays on the box centre.
-
-Fixed-background classes (`structure_class_ids`, by default the dynamic stage's `fixed_class_ids`: bed,
-dining table, toilet, oven, sink, refrigerator) are structure by our design: the dynamic filter hands their
-boxes to nobody, so they never become MapObjects and their points are ordinary map points. A present
-ground-truth object of such a class that no estimate matches is listed in `structure`, not in `missed`, so
-"every present object matched" means every present object the layer is built to map; an estimate that does
-match one (a config without the class in `fixed_class_ids`) still counts as a match.
-
-Unmatched estimates are split into `stale` (within `max_distance_m` of a place a same-class object
-occupied earlier in the sequence and has since left: a removed or moved object wrongly kept) and
-`spurious` (anything else). Present ground-truth objects left unmatched are `missed` (this includes
-objects the camera never saw; pass `only_names` to restrict the ground truth).
+Matching, surface centroids, structure classes and the stale / spurious / missed split: `evaluate_objects`.
 """
 
 from __future__ import annotations
@@ -168,9 +150,30 @@ def evaluate_objects(estimates: Iterable[SemanticObject], gt: GroundTruthObjects
                      surface_centroids: Mapping[str, F64] | None = None,
                      structure_class_ids: Iterable[int] | None = None) -> ObjectMetrics:
     """Match `estimates` to the ground truth present at `frame` (negative counts from the end).
-    `surface_centroids`: ground-truth name -> visible-surface centroid (3,) (see the module docstring).
+    `surface_centroids`: ground-truth name -> visible-surface centroid (3,) (see below).
     `structure_class_ids`: fixed-background classes, unmatched ones go to `structure` (None: the dynamic
-    stage's default `fixed_class_ids`; () counts them as missed)."""
+    stage's default `fixed_class_ids`; () counts them as missed).
+
+    The ground-truth box centre is the centre of the object's volume, while a MapObject's centroid is the mean
+    of surface points the camera saw: an object seen from one side only has its point centroid on that side even
+    with perfect points (a 44 cm plant seen from the front: 17 cm). For a fair comparison pass
+    `surface_centroids` (ground-truth name -> the mean of the object's *visible* surface at its final place, see
+    `visible_surface_centroids`: its mask pixels back-projected with the simulator's depth and the ground-truth
+    camera pose) and each match also reports `surface_centroid_error_m`, the estimated centroid against the
+    same quantity in ground truth. Matching itself stays on the box centre.
+
+    Fixed-background classes (`structure_class_ids`, by default the dynamic stage's `fixed_class_ids`: bed,
+    dining table, toilet, oven, sink, refrigerator) are structure by our design: the dynamic filter hands their
+    boxes to nobody, so they never become MapObjects and their points are ordinary map points. A present
+    ground-truth object of such a class that no estimate matches is listed in `structure`, not in `missed`, so
+    "every present object matched" means every present object the layer is built to map; an estimate that does
+    match one (a config without the class in `fixed_class_ids`) still counts as a match.
+
+    Unmatched estimates are split into `stale` (within `max_distance_m` of a place a same-class object
+    occupied earlier in the sequence and has since left: a removed or moved object wrongly kept) and
+    `spurious` (anything else). Present ground-truth objects left unmatched are `missed` (this includes
+    objects the camera never saw; pass `only_names` to restrict the ground truth).
+    """
     if match_on not in ("centroid", "box_center"):
         raise EvalError(f"match_on: expected 'centroid' or 'box_center', got {match_on!r}")
     n = len(gt.stamps_ns)

@@ -7,14 +7,7 @@ byte level with rosbags' `ros1_to_cdr`, using the bag's own ROS 1 definitions wi
 `std_msgs/Header` (the ROS 1 `seq` field is dropped), and ROS 1 type names are renamed to their ROS 2
 equivalents (`tf/tfMessage` -> `tf2_msgs/msg/TFMessage`).
 
-Usage::
-
-    with BagMessages(path) as bag:
-        for conn in bag.connections: ...
-        for msg in bag.messages(topics={"/camera/rgb/image_color"}):
-            image = bag.deserialize(msg)   # rosbags dataclass, ROS 2 wire layout
-
-Any unreadable, truncated or corrupt input raises `BagError` naming the file.
+Any unreadable, truncated or corrupt input raises `BagError` naming the file. Usage: `BagMessages`.
 """
 
 from __future__ import annotations
@@ -156,7 +149,13 @@ def _optional_errors() -> tuple[type[BaseException], ...]:
 
 
 class BagMessages:
-    """Context manager over one bag; see the module docstring."""
+    """Context manager over one bag (raw CDR messages, see the module docstring).
+
+        with BagMessages(path) as bag:
+            for conn in bag.connections: ...
+            for msg in bag.messages(topics={"/camera/rgb/image_color"}):
+                image = bag.deserialize(msg)   # rosbags dataclass, ROS 2 wire layout
+    """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)

@@ -38,7 +38,13 @@ TOPIC_PRESETS: dict[str, TopicSet] = {"tum": TUM_TOPICS, "realsense": REALSENSE_
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """`camera:` section: pinhole intrinsics (pixels) and plumb-bob distortion (k1 k2 p1 p2 k3)."""
+    """`camera:` section: pinhole intrinsics (pixels) and plumb-bob distortion (k1 k2 p1 p2 k3).
+
+    - `width` / `height`: the image size the intrinsics are for; another size scales them.
+    - `fx` / `fy`: focal lengths (pixels).
+    - `cx` / `cy`: principal point (pixels, 0 = the first pixel's centre).
+    - `dist`: distortion coefficients k1 k2 p1 p2 k3 (OpenCV's plumb bob); zeros for rectified images.
+    """
 
     width: int = 0
     height: int = 0
@@ -81,7 +87,7 @@ class DatasetConfig:
     - `offset_s`: added to depth stamps before pairing (associate.py `--offset`).
     - `gt_max_time_diff_s`: a frame gets the nearest ground-truth pose within this difference.
     - `topic_preset`: `auto` (detect TUM or RealSense names in the bag), `tum` or `realsense`;
-      `rgb_topic`, `depth_topic`, `camera_info_topic` override single names when non-empty.
+    - `rgb_topic`, `depth_topic`, `camera_info_topic`: override single names of the preset when non-empty.
     - `bag_intrinsics_from`: `camera_info` (the bag's latest CameraInfo, the config's camera when
       none was recorded) or `config` (the config's camera always; TUM bags carry the uncalibrated
       ROS default 525/525/319.5/239.5, so the TUM configs choose `config`).

@@ -9,12 +9,7 @@ rclpy messages alike). Decoding returns the project's two boundary types:
   from 16UC1 / mono16 millimetres and 32FC1 metres.
 
 `step` padding and `is_bigendian` are honoured. CompressedImage colour is any format OpenCV decodes
-(JPEG, PNG); compressed depth is either a 16-bit PNG (millimetres) or the image_transport
-`compressedDepth` format: a 12-byte header {int32 format, float32 depthQuantA, float32 depthQuantB}
-followed by a PNG, holding millimetres for 16UC1 and quantised inverse depth for 32FC1
-(depth = depthQuantA / (value - depthQuantB), value 0 = no reading).
-
-The inverse direction (`*_fields`, `encode_*`) returns field values for writers.
+(JPEG, PNG); compressed depth: `decode_compressed_depth`. The inverse direction (`*_fields`, `encode_*`) returns field values for writers.
 """
 
 from __future__ import annotations
@@ -167,7 +162,10 @@ def decode_compressed_depth(msg: Any, topic: str = "depth") -> F32:
     """`sensor_msgs/CompressedImage` depth -> (H, W) float32 metres, 0.0 = no reading.
 
     Accepts `compressedDepth` (PNG payload; RVL is not supported) and plain 16-bit PNG in
-    millimetres; a decoded float image is taken as metres.
+    millimetres; a decoded float image is taken as metres. image_transport's `compressedDepth` format is a
+    12-byte header {int32 format, float32 depthQuantA, float32 depthQuantB} followed by a PNG, holding
+    millimetres for 16UC1 and quantised inverse depth for 32FC1 (depth = depthQuantA / (value - depthQuantB),
+    value 0 = no reading).
     """
     fmt = str(msg.format)
     if "compressedDepth" in fmt:

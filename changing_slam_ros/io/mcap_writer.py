@@ -1,7 +1,6 @@
 """Write RGB-D sequences as a bare ROS 2 mcap file (profile `ros2`, CDR, `ros2msg` schemas embedded).
 
-The file opens in Foxglove and in rosbags, replays with `bag_player` and reads back with
-`BagRgbdReader`. Layout (TUM topic names, so the file looks like a converted TUM bag):
+Opens in Foxglove and rosbags, replays with `bag_player`, reads back with `BagRgbdReader`. TUM topic names:
 
 | topic | type | content |
 |---|---|---|
@@ -12,9 +11,7 @@ The file opens in Foxglove and in rosbags, replays with `bag_player` and reads b
 | `/camera/rgb/camera_info` | CameraInfo | intrinsics, one per frame |
 | `/ground_truth/pose` | PoseStamped | T_world_cam of the rgb optical frame in `world` |
 
-Colour and depth of a frame carry the colour stamp (the pair is already associated); log time =
-header stamp. The file is written to a temporary sibling and renamed on success: a failure never
-leaves a truncated file where a good one stood.
+Log time = header stamp; writes are atomic (`RgbdMcapWriter`).
 """
 
 from __future__ import annotations
@@ -52,7 +49,11 @@ WORLD_FRAME = "world"
 
 
 class RgbdMcapWriter:
-    """Context manager writing frames (and optional full-rate ground truth) to one mcap file."""
+    """Context manager writing frames (and optional full-rate ground truth) to one mcap file.
+
+    Colour and depth of a frame carry the colour stamp (the pair is already associated). The file is written to
+    a temporary sibling and renamed on success: a failure never leaves a truncated file where a good one stood.
+    """
 
     def __init__(
         self,

@@ -8,14 +8,9 @@ Layout (version 1):
     objects:                      # ordered by id
       - {id, class_id, class_name, centroid_m: [x, y, z], box_center_m: [x, y, z], box_size_m: [dx, dy, dz],
          belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
-Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`).
-Load errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
-
-The object map (every MapObject with its point ids, point positions, optional `point_weights` (one per point,
-the centroid's weights), boxes and persistence state, for a
-saved map that a later session starts from) has its own document, `object_map_to_dict` /
-`object_map_from_dict` (format "changing_slam_ros object map", version 1), meant to be embedded in the
-map file or written alone with `write_object_map` / `read_object_map`.
+Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`); load
+errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`). The object map (every MapObject with its points, weights, boxes and persistence state, for a saved map that a
+later run starts from) has its own document (`object_map_to_dict`, format "changing_slam_ros object map").
 """
 
 from __future__ import annotations
@@ -124,7 +119,8 @@ def semantic_map_from_dict(doc: Any, where: str) -> SemanticMap:
 
 
 def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
-    """Every field of every MapObject (ordered by id); points as [[id, x, y, z], ...]."""
+    """Every field of every MapObject (ordered by id); points as [[id, x, y, z], ...], optional `point_weights` (one
+    per point, the centroid's weights). Embedded in the map file, or written alone with `write_object_map`."""
     return {
         "format": OBJECT_MAP_FORMAT,
         "version": OBJECT_MAP_VERSION,
@@ -163,13 +159,13 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
         if not 0.0 <= belief <= 1.0:
             raise MapFileError(f"{w}.belief: expected within [0, 1], got {belief}")
         arr = np.asarray(pts, float).reshape(-1, 4)
-        weights = item.get("point_weights")  # optional (centroid weights, docs/changing_scenes.md session 6)
+        weights = item.get("point_weights")  # optional: the centroid's per-point weights (none = equal weights)
         if weights is not None and (
                 not isinstance(weights, list) or len(weights) != len(arr)
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0
                        for v in weights)):
             raise MapFileError(f"{w}.point_weights: expected {len(arr)} finite numbers >= 0, one per point")
-        view_sum, up_sum = _optional_vec3(item, "view_sum_w", w), _optional_vec3(item, "up_sum_w", w)  # session 7
+        view_sum, up_sum = _optional_vec3(item, "view_sum_w", w), _optional_vec3(item, "up_sum_w", w)  # optional (box completion)
         n_views = _field(item, "n_views", int, w) if "n_views" in item else 0
         if n_views < 0:
             raise MapFileError(f"{w}.n_views: expected >= 0, got {n_views}")
@@ -213,7 +209,7 @@ def read_object_map(path: str | Path) -> list[MapObject]:
 
 
 def read_object_map_file(path: str | Path) -> tuple[list[MapObject], list[Plane]]:
-    """The MapObjects of an object-map file and its `structure_planes` (none in files written before session 7)."""
+    """The MapObjects of an object-map file and its `structure_planes` (optional: none when the key is absent)."""
     p = Path(path)
     try:
         doc = json.loads(p.read_text())

@@ -4,34 +4,10 @@
                                 -p lossless:=true -r /camera/rgb/image_color:=/image ...]
 
 Messages go out as recorded (raw CDR from `io.bag_messages`, no decoding) at the recorded log times x `rate`,
-with `/clock` (rosgraph_msgs/Clock) following the bag's time while something subscribes to it, so nodes run
-with `use_sim_time:=true`.
-Topics are renamed by standard `--ros-args -r from:=to` remaps or by the `remap` parameter.
-
-Lossless mode (`lossless:=true`), for measuring accuracy through the graph:
-1. before the first message, wait until every topic in `wait_for_topics` (default: the `ack_topics`, else
-   all played topics) has matched subscriptions: `min_subscribers` on an `ack_topics` topic (or on every topic
-   when there are none), at least one on the others (e.g. depth and camera_info, which only tracking reads: a
-   message published before its subscription matched is lost, and a frame without depth or intrinsics is
-   skipped), at most `wait_subscribers_timeout_s`, then the player stops with an error rather than play to nobody;
-2. publishers are reliable with KEEP_ALL history, and after each message the player waits until every
-   matched reliable subscription has acknowledged it at the DDS level (`Publisher.wait_for_all_acked`);
-3. one frame in flight: before publishing a message on an `ack_topics` topic (e.g. the colour image), wait
-   until `ack_count` distinct nodes have published a `std_msgs/Header` on `ack_topic` whose stamp equals the
-   *previous* such message's header stamp (the node has processed that frame), at most `ack_timeout_s` (then
-   a throttled warning, counted). Messages in between (depth, camera_info) still go out, so a node that pairs
-   a colour frame with the depth frame recorded just after it can finish the frame; at the end of the bag the
-   last frame's ack is awaited too.
-4. confirmed delivery: a topic in `confirm_topics` (e.g. camera_info, published by its own DDS writer that a
-   reader can match seconds after the image writers, losing what was sent before: a volatile reader gets no
-   history) must be confirmed by a subscriber, which publishes a `std_msgs/Header` on `ack_topic` whose
-   `frame_id` is that topic's name. Until it is, the topic's latest message is re-sent every `confirm_resend_s`
-   before the next `ack_topics` message goes out (at most `ack_timeout_s`, then a warning, counted). Once
-   confirmed, nothing more is waited for. A frame's ack names a node, a confirmation a topic (leading '/'): a
-   confirmation is never counted as a frame's ack, also when the player asks for none (tracking confirms every
-   camera_info it accepts).
-Time spent waiting does not count against the schedule: playback resumes at the recorded spacing.
-The timing logic is ROS-free, in `changing_slam_ros.io.playback`.
+with `/clock` following the bag's time. Lossless mode (`lossless:=true`) waits for subscribers, for DDS-level
+acknowledgements and for the processing acks of the nodes on `ack_topic` (one frame in flight), and re-sends
+`confirm_topics` until confirmed; the steps are in `play` and its helpers. The timing logic is ROS-free, in
+`changing_slam_ros.io.playback`. Topics and parameters: docs/nodes.md#bag_player.
 """
 
 from __future__ import annotations
@@ -163,8 +139,8 @@ class BagPlayerNode(QuietQosEvents, Node):
             ("progress_period_s", 2.0, "seconds between progress log lines"),
             ("lossless", False, "wait for subscribers and acknowledgements instead of dropping"),
             ("dds_ack_wait", True, "lossless: wait for every reliable subscription's DDS-level ack after each "
-                                   "message (step 2); across processes Fast DDS acks on its heartbeat (up to 3 s)"),
-            ("wait_subscribers", False, "also without lossless: wait for subscribers (as in step 1) before playing"),
+                                   "message; across processes Fast DDS acks on its heartbeat (up to 3 s)"),
+            ("wait_subscribers", False, "also without lossless: wait for subscribers (as lossless does) before playing"),
             ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = ack_topics or all"),
             ("min_subscribers", 1, "lossless: subscriptions each waited-for ack topic (every topic without ack_topics) "
                                    "needs before playing; other waited-for topics need one"),
@@ -231,7 +207,16 @@ class BagPlayerNode(QuietQosEvents, Node):
 
     # -- playback ----------------------------------------------------------------------------
     def play(self, executor: Executor) -> PlaybackResult:
-        """Publish the bag on schedule, spinning `executor` while waiting; returns at the end of the bag."""
+        """Publish the bag on schedule, spinning `executor` while waiting; returns at the end of the bag.
+
+        Lossless: subscribers first (`_wait_for_subscribers`); publishers are reliable KEEP_ALL and, with
+        `dds_ack_wait`, each message waits for every matched reliable subscription's DDS-level ack
+        (`Publisher.wait_for_all_acked`); a message on an `ack_topics` topic waits for the previous one's
+        processing acks (`_wait_processed`: one frame in flight; the messages in between still go out, so a node
+        pairing a colour frame with the depth recorded after it can finish the frame; the last frame's ack is
+        awaited at the end); unconfirmed `confirm_topics` are re-sent first (`_wait_confirmed`). Time spent
+        waiting does not count against the schedule: playback resumes at the recorded spacing.
+        """
         result = self.result = PlaybackResult()
         t_start = time.monotonic()
         c_start = time.process_time()
@@ -335,6 +320,10 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._clock_pub.publish(msg)
 
     def _wait_for_subscribers(self, executor: Executor) -> bool:
+        """Spin until every topic of `wait_for_topics` (default: the `ack_topics`, else all played topics) has its
+        subscribers (`_subscribers_needed`), at most `wait_subscribers_timeout_s`; False (an error logged) then.
+        A message published before its subscription matched is lost, and a frame without depth or intrinsics is
+        skipped: hence also the topics only tracking reads, such as depth and camera_info."""
         topics = self._wait_topics or sorted(self._ack_topics & set(self.bag_publishers)) or list(self.bag_publishers)
         unknown = [t for t in topics if t not in self.bag_publishers]
         if unknown:
@@ -409,6 +398,8 @@ class BagPlayerNode(QuietQosEvents, Node):
         self._confirm_latest.clear()
 
     def _on_ack(self, msg: Header) -> None:
+        """A frame's ack names the node in `frame_id`; a topic's confirmation names the topic (leading '/'), and
+        is never counted as a frame's ack (tracking confirms every camera_info it accepts)."""
         if msg.frame_id.startswith("/"):  # a topic's confirmation (a frame's ack names a node), confirmed or not
             self._unconfirmed.discard(msg.frame_id)
             return

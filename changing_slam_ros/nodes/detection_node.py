@@ -7,8 +7,8 @@ Every image it receives but will not detect (`max_rate_hz` skipped it, or it was
 A lifecycle node: the ONNX session (core.dynamic.detector.Detector) is created in `on_activate` and released in
 `on_deactivate`, as yolo_ros does; `main()` configures and activates it at start (`autostart`).
 Images arrive with sensor-data QoS (best effort, shallow queue): when inference is slower than the camera,
-old frames are dropped rather than queued (tracking then propagates the last detections, issue 7).
-Every 100 frames the median time per frame is logged.
+old frames are dropped rather than queued (tracking then carries the last detections forward).
+Topics and parameters: docs/nodes.md#detection.
 
     detection --ros-args -r image:=/camera/rgb/image_color -p intra_op_threads:=2
 """

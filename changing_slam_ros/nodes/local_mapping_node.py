@@ -2,35 +2,13 @@
 
     python -m changing_slam_ros.nodes.local_mapping_node --ros-args -p config:=tum_fr1
 
-Per keyframe packet from tracking: its point counters are added, `core.local_mapping.LocalMapper` maps it
-(points from depth, fusion, culling, gtsam local BA, keyframe culling), the object layer (MapObjects, beliefs,
-active flags; Changing-SLAM §4.3-4.7) runs on it with the packet's depth and short-term objects, and the diff
-of the map is published as a MapUpdate (see `nodes/split_backend.py`, `core/replication/map_replication.py`). A closed
-loop from loop_closing is applied (exactly, or as a correction when keyframes were mapped meanwhile) and the
-change published as a MapUpdate too, so tracking's and loop closing's replicas follow this map only.
-With `wait_for_loop_results:=true` (lossless graph) a keyframe waits until loop closing has answered for the
-previous one, so the order of work is the offline runner's. In real time (`ba_yields_to_keyframes`, default on,
-never with `wait_for_loop_results`) local BA gives way to a keyframe that arrives while it runs (ORB-SLAM's
-abort): between solver iterations the node takes waiting keyframes off the subscription and, when there is
-one, the BA ends with what it reached (counted as `ba_stopped_early`).
-
-Inputs: /tracking/keyframes (Keyframe, reliable, deep queue), /loop_closing/loop_corrections (LoopCorrection),
-  /object_map/object_states (beliefs come from the object layer here; subscribed for remapping only)
-Outputs: ~/map_updates (MapUpdate, reliable), ~/semantic_map (MapObjectArray, transient-local, after each
-  keyframe the object layer worked on), ~/object_candidates (MapObjectArray), ~/map_cloud (PointCloud2 of the
-  active points, at most every `map_cloud_period_s`), /diagnostics.
-On shutdown with `output_dir`: semantic_map.json and local_mapping_stats.json, written atomically; with
-`map_out`, the whole map (Atlas, MapObjects and beliefs: `changing-slam run`'s map.npz format, atomic), which
-`map_file` / `changing-slam run --map-in` / `graph --map-in` start a later session from.
-Service ~/save_map (SaveMap): the same file now, to the request's path or `map_out`.
-Multi-session (`map_file`, a `changing-slam run` map.npz): the map and the saved objects (decayed beliefs) are
-loaded before the first keyframe and the loaded semantic map is published at once (object_map starts from it).
-Service ~/load_map (LoadMap): the same mid-run. The file is loaded and checked into a new map owner first (a bad
-path or file: success false, the message names the file and field, the running map untouched); then it replaces
-the map, a load marker on ~/map_updates makes tracking and loop_closing load the same file, and keyframes and
-loop corrections made before they did are dropped (`nodes/map_load.py`).
-Profiling: with the environment variable CHANGING_SLAM_PROFILE_LOCAL_MAPPING=PATH (inherited through
-`changing-slam graph`) the process runs under cProfile (thread CPU time) and writes its pstats to PATH at exit.
+Per keyframe packet from tracking, the map owner (`nodes/split_backend.py`, `MapOwner`) maps it with
+`core.slam.local_mapping.LocalMapper` and runs the object layer on it; the diff of the map goes out as a
+MapUpdate (`core/replication/map_replication.py`). Loop corrections from loop_closing are applied and
+published the same way, so tracking's and loop closing's replicas follow this map only. The node also saves
+and loads whole maps (`map_out`, `map_file`, ~/save_map, ~/load_map: `nodes/map_load.py`) and gets the map
+back from tracking after a restart (`nodes/map_resync.py`).
+Topics, services, parameters and the ordering rules: docs/nodes.md#local_mapping.
 """
 
 from __future__ import annotations
@@ -94,7 +72,7 @@ class LocalMappingNode(Node):
             ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
             ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
-            ("update_subscribers_wait_s", 15.0, "... waiting at most this long after start"),
+            ("update_subscribers_wait_s", 15.0, "update_subscribers: after this long since start, map without them"),
             ("ba_solver", "", "local BA's solver: gtsam or schur (numpy Schur-complement LM, same cost, ~0.35x the "
                               "solver's CPU); empty = the config's mapping.ba_solver (gtsam unless set)"),
             ("ba_yields_to_keyframes", True, "real time (wait_for_loop_results false): local BA ends early when a "
@@ -370,7 +348,7 @@ class LocalMappingNode(Node):
     def apply_loop(self, result: LoopResult, stamp: Any) -> None:
         # In real time too: keyframe packets of the merged-away map that arrive later are moved into the merged
         # map (MapOwner.on_keyframe), and tracking and loop_closing move what they hold of it that is not mapped
-        # yet (docs/loop_closing.md, "Map merging in the split graph").
+        # yet (core/replication/merge_in_flight.py).
         try:
             relay = self.owner.on_loop(result)
         except SlamError as err:

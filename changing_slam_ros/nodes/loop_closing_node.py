@@ -2,21 +2,12 @@
 
     python -m changing_slam_ros.nodes.loop_closing_node --ros-args -p config:=tum_fr1
 
-Keeps a replica of the map fed by tracking's keyframe packets and local_mapping's MapUpdates (see
-`nodes/split_backend.py`). For each mapped keyframe, in the order local_mapping mapped them, it updates the
-keyframe database (culled keyframes out, the new one in, re-indexed when the object layer changed active
-flags) and runs `core.loop_closing.SlamMapLoopClosing` on it: BoW candidates, geometric verification, gtsam
-pose graph, fusion (and global BA when configured). It answers every keyframe with a LoopCorrection:
-`closed: false`, or the correction and the delta it made to the replica; local_mapping applies it to the map.
-
-Inputs: /tracking/keyframes (Keyframe, reliable), /local_mapping/map_updates (MapUpdate, reliable),
-  /object_map/object_states (inactive points reach place recognition through the map updates' active flags)
-Output: ~/loop_corrections (LoopCorrection, reliable), /diagnostics
-
-LoadMap mid-run (local_mapping's ~/load_map): on the owner's load marker (or tracking's, whichever comes first)
-the replica and keyframe database start afresh from the marker's map file (`LoopSide.start_from_map`, as with
-`map_file`), a marker goes out on ~/loop_corrections, and packets and updates made before their sender loaded
-are dropped (`nodes/map_load.py`).
+Keeps a replica of the map fed by tracking's keyframe packets and local_mapping's MapUpdates
+(`nodes/split_backend.py`, `LoopSide`). For each mapped keyframe, in the order local_mapping mapped them, it
+updates the keyframe database and runs `core.slam.loop_closing.SlamMapLoopClosing` on it, and answers every
+keyframe with a LoopCorrection (`closed: false`, or the correction and the delta it made to the replica);
+local_mapping applies it to the map. A LoadMap on local_mapping restarts the replica from the loaded file
+(`nodes/map_load.py`). Topics and parameters: docs/nodes.md#loop_closing.
 """
 
 from __future__ import annotations

@@ -2,18 +2,12 @@
 
     local_mapping ~/load_map(path)  ->  owner loads the file (validated first; a bad file changes nothing)
       -> marker on /local_mapping/map_updates      (MapUpdate, keyframe_id LOAD_MARKER_ID)
-    tracking, loop_closing on that marker: each loads the same file itself (their `start_from_map`, as with
-      `map_file` at start: the replicas set the saved objects' point flags with a scratch object layer)
+    tracking, loop_closing on that marker: each loads the same file itself (their `start_from_map`)
       -> tracking's marker on /tracking/keyframes   (Keyframe, id LOAD_MARKER_ID)
       -> loop closing's marker on /loop_closing/loop_corrections (LoopCorrection, query_keyframe_id LOAD_MARKER_ID)
 
-A marker's header carries the load: stamp = the load's epoch (wall clock of the owner's load, ns; later loads
-have larger epochs), frame_id = the map file's path. Every node keeps its own epoch (the last load it reset to,
-0 = none) and, per input stream (topic), the epoch of the last marker on it. Messages on one topic from one
-publisher arrive in order (reliable QoS), so a message is of the node's epoch exactly when the last marker on
-its topic is: messages of a stream whose marker has not come yet were made before that sender reset (keyframe
-packets of the old map, updates of the old owner, verdicts on the old replica) and are dropped. A node that
-(re)starts has epoch 0 and never saw a marker, so it takes every message until the next load.
+A marker's header carries the load: stamp = the load's epoch (wall clock of the owner's load, ns), frame_id =
+the map file's path. Messages made before their sender loaded are dropped (`LoadEpochs`).
 """
 
 from __future__ import annotations
@@ -62,7 +56,15 @@ def marker_of(msg: Any, kf_id: int) -> LoadMarker | None:
 
 @dataclass
 class LoadEpochs:
-    """This node's epoch and the epoch of each of its input streams (see the module doc)."""
+    """This node's epoch and the epoch of each of its input streams.
+
+    Every node keeps its own epoch (the last load it reset to, 0 = none) and, per input stream (topic), the epoch
+    of the last marker on it. Messages on one topic from one publisher arrive in order (reliable QoS), so a
+    message is of the node's epoch exactly when the last marker on its topic is: messages of a stream whose
+    marker has not come yet were made before that sender reset (keyframe packets of the old map, updates of
+    the old owner, verdicts on the old replica) and are dropped. A node that (re)starts has epoch 0 and never
+    saw a marker, so it takes every message until the next load.
+    """
 
     streams: dict[str, int] = field(default_factory=dict)
     epoch_ns: int = 0

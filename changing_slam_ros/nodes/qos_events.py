@@ -1,19 +1,14 @@
 """Publishers and subscriptions without rclpy's default QoS-event handlers (a node mixin), to spin cheaply.
 
 rclpy gives every publisher and subscription two QoS-event handlers by default (incompatible QoS, incompatible
-type: each only logs a warning), and its executor walks every handler in Python on every wake-up (wait set
-built, checked, taken). On the tracking node's 12 publishers and 8 subscriptions that is 40 handlers: a spin
-cost about 1.0 ms of CPU instead of about 0.45 ms (2-core machine, loaded; /tmp bench in docs/architecture.md,
-"Session 6"), and tracking wakes several times per frame. The warnings are not lost where they matter: a QoS
-mismatch is reported at both ends, so a node that keeps the handlers on its subscriptions of external data
+type: each only logs a warning), and its executor walks every handler in Python on every wake-up. On the
+tracking node's 12 publishers and 8 subscriptions that is 40 handlers: a spin cost about 1.0 ms of CPU instead
+of about 0.45 ms (2 loaded cores; `bench/bench_rclpy_spin.py`), and tracking wakes several times per frame. A
+QoS mismatch is reported at both ends, so a node that keeps the handlers on its subscriptions of external data
 (camera images, camera_info) still warns when a driver offers incompatible QoS.
 
     class TrackingNode(QuietQosEvents, Node): ...
     node.create_subscription(Image, topic, cb, qos, event_callbacks=SubscriptionEventCallbacks())  # keep them
-
-Every publisher and subscription the node creates (including rclpy's own /parameter_events and /rosout ones
-and those of helpers given the node, e.g. nodes/diagnostics.py) gets no handlers unless `event_callbacks` is
-passed.
 """
 
 from __future__ import annotations
@@ -24,7 +19,11 @@ from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallba
 
 
 class QuietQosEvents:
-    """Mixin placed before `rclpy.node.Node` (or LifecycleNode) in the bases."""
+    """Mixin placed before `rclpy.node.Node` (or LifecycleNode) in the bases.
+
+    Every publisher and subscription the node creates (including rclpy's own /parameter_events and /rosout ones
+    and those of helpers given the node, e.g. nodes/diagnostics.py) gets no handlers unless `event_callbacks` is
+    passed."""
 
     def create_publisher(self, *args: Any, **kwargs: Any) -> Any:
         kwargs.setdefault("event_callbacks", PublisherEventCallbacks(use_default_callbacks=False))

@@ -1,10 +1,9 @@
 """The tracking node's in-process backend: the whole `core.system.SlamSystem` built from a config (ROS-free).
 
-INTERIM MODE (issue 7). Running local mapping and loop closing as separate processes needs map-update
-replication between them and tracking (MapUpdate / LoopCorrection applied to a replica), which the core does
-not offer yet. Until it does, the tracking node runs tracking -> local mapping -> object layer -> loop closing
-in its own process, exactly as `changing-slam run` wires them (same config sections, same classes), and only
-the transport around it is ROS. This module builds that system and writes its outputs; no rclpy here.
+With `in_process_backend:=true` the tracking node runs tracking -> local mapping -> object layer -> loop
+closing in its own process, exactly as `changing-slam run` wires them (same config sections, same classes),
+and only the transport around it is ROS: deterministic, one process instead of the split graph's three. This
+module builds that system and writes its outputs; no rclpy here.
 
     setup = build_backend(load_backend_config("tum_fr1"), loop=True, dynamic="config", objects="config")
     out = setup.system.process(rgbd, detections)

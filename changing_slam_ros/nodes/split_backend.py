@@ -1,8 +1,9 @@
 """The SLAM system split over three processes, ROS-free: tracking, the map owner (local mapping), loop closing.
 
-Each side is what one node runs; the nodes only convert messages (`core.map_replication` packets) and call
-these. Chained synchronously (`feed` order below, as `changing-slam graph` does in lossless mode; in one process: `nodes.split_chains`), they give
-the offline `SlamSystem`'s trajectory, because every step runs on the same state in the same order:
+Each side is what one node runs; the nodes only convert messages (`core.replication.map_replication` packets)
+and call these. Chained synchronously (`feed` order below, as `changing-slam graph` does in lossless mode; in one
+process: `nodes.split_chains`), they give the offline `SlamSystem`'s trajectory, because every step runs on the
+same state in the same order:
 
     tracking  : frame -> SlamSystem (no local mapping / loop closing in it) -> KeyframePacket
     map owner : packet -> LocalMapper.process (+ object layer) -> MapUpdate (the map's delta)
@@ -10,22 +11,7 @@ the offline `SlamSystem`'s trajectory, because every step runs on the same state
     map owner : LoopResult -> applies it -> MapUpdate (the delta of applying it; tracking and loop side follow)
 
 The map owner is the only writer of the map; tracking and the loop side keep replicas fed by its MapUpdates.
-Loop closing corrects its own replica first (`SlamMapLoopClosing.process`), and the owner applies that delta
-exactly when the owner has mapped nothing since (lossless mode); otherwise (real time: keyframes mapped while
-the loop was verified) it applies the correction itself (`core.loop_closing.apply_correction`: poses, point
-positions, fusion) to its newer map. Either way the owner's delta of that step reaches every replica.
-
-The object layer runs in the map owner: it needs the mapped keyframe's points (before loop closing, as in
-`SlamSystem`), the keyframe's depth and the dynamic stage's objects, which the keyframe packet carries.
-
-Multi-session (`start_from_map`, a map file of `changing-slam run`): every side loads the same file itself, as
-`SlamSystem.start_from_map` does offline: the owner with its object layer (saved objects, decayed beliefs, the
-active flags of their points), tracking (replica, relocalisation index, next keyframe id) and the loop side
-(replica, keyframe database). The replicas set the same point flags as the owner by loading the saved objects
-into a scratch object layer (`replica_point_flags`: the same file and config give the same flags), so the
-three maps agree before the first frame without a message between them. A LoadMap mid-run (local_mapping's
-~/load_map) builds each side afresh and calls the same `start_from_map`, in the owner first, then in tracking
-and loop closing on the owner's load marker (`nodes/map_load.py`).
+Multi-session: every side loads the same map file itself (`start_from_map`); the three maps agree at once.
 """
 
 from __future__ import annotations
@@ -77,7 +63,8 @@ def object_layer_for(cfg: BackendConfig, objects: str = "config") -> ObjectLayer
 
 def replica_point_flags(layer: ObjectLayer | None, loaded: LoadedMap) -> None:
     """On a replica's copy of a loaded map: the active point flags the owner's object layer sets when it loads
-    the saved objects (`ObjectLayer.load_objects`; `layer` is a scratch one, None = object layer off)."""
+    the saved objects (`ObjectLayer.load_objects`; `layer` is a scratch one, None = object layer off). The same
+    file and config give the same flags, so the replicas agree with the owner without a message."""
     if layer is None:
         return
     for map_id, saved in loaded.objects.items():
@@ -365,7 +352,15 @@ class TrackingSide:
 
 @dataclass
 class MapOwner:
-    """Owns the metric map: applies keyframe packets, runs `LocalMapper` and the object layer (local_mapping)."""
+    """Owns the metric map: applies keyframe packets, runs `LocalMapper` and the object layer (local_mapping).
+
+    The object layer runs here: it needs the mapped keyframe's points (before loop closing, as in `SlamSystem`),
+    the keyframe's depth and the dynamic stage's objects, which the keyframe packet carries. Loop closing
+    corrects its own replica first (`SlamMapLoopClosing.process`), and the owner applies that delta exactly when
+    it has mapped nothing since (lossless mode); otherwise (real time: keyframes mapped while the loop was
+    verified) it applies the correction itself (`core.slam.loop_closing.apply_correction`: poses, point
+    positions, fusion) to its newer map. Either way the owner's delta of that step reaches every replica.
+    """
 
     backend: Backend
     mapper: LocalMapper

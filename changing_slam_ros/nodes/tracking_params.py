@@ -40,12 +40,12 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
                                "lossless replay: long)"),
     ("detections_carry_max_age_s", 0.5, "a frame without its own detections uses the newest earlier ones "
                                         "up to this old, boxes grown with their age (0 = never)"),
-    ("detections_carry_grow_widths_per_s", 0.5, "... each box grown per side by this many of its widths "
-                                                "(heights) per second of age"),
-    ("detections_carry_extrapolate", False, "... each box first moved on at the velocity of its edges "
-                                           "between the two newest detection sets"),
-    ("detections_carry_flow", True, "... each box first moved by the image motion of its foreground between "
-                                     "the detections' image and the frame (Median Flow, core.box_flow); "
+    ("detections_carry_grow_widths_per_s", 0.5, "carried boxes: each grown per side by this many of its "
+                                                "widths (heights) per second of age"),
+    ("detections_carry_extrapolate", False, "carried boxes: each first moved on at the velocity of its "
+                                           "edges between the two newest detection sets"),
+    ("detections_carry_flow", True, "carried boxes: each first moved by the image motion of its foreground between "
+                                     "the detections' image and the frame (Median Flow, core.dynamic.box_flow); "
                                      "a box whose motion is not measured is carried as without"),
     ("detections_carry_flow_grow_widths_per_s", 0.25, "detections_carry_flow: a moved box is grown by this "
                                                       "many widths (heights) per second of age instead"),
@@ -54,7 +54,7 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("detections_carry_flow_max_stamp_gap_s", 0.07, "detections_carry_flow: without an image of the "
                                                     "detections' stamp (a frame tracking dropped), the "
                                                     "nearest kept one this close is used"),
-    ("detections_carry_class_ids", [0], "... only boxes of these COCO classes (person: a static object's "
+    ("detections_carry_class_ids", [0], "carried boxes: only those of these COCO classes (person: a static object's "
                                         "box carried while the camera turns only hides static keypoints)"),
     ("detections_skip_late", False, "do not wait for a frame's detections while the last "
                                     "detections_late_window ones all came later than detections_wait_s "

@@ -2,8 +2,7 @@
 
 Real time, where the graph's six processes share the cores: the detector gets one onnxruntime thread (~10 % less
 CPU per detection) and the static INT8 SSD (~0.4x the fp32 CPU per detection), and local_mapping the numpy Schur-complement BA solver (~0.35x gtsam's solver CPU, same cost);
-lossless keeps the config's (gtsam), so that the graph repeats `changing-slam run` byte for byte
-(docs/architecture.md, "Session 9: the real-time graph's defaults")."""
+lossless keeps the config's (gtsam), so that the graph repeats `changing-slam run` byte for byte."""
 
 from __future__ import annotations
 
@@ -62,15 +61,14 @@ def test_real_time_caps_detection_at_15_hz_and_lossless_refuses_a_cap(tmp_path: 
 
 
 def test_real_time_tracking_waits_50_ms_for_a_detected_frames_boxes_and_lossless_10_s(tmp_path: Path) -> None:
-    """The detector announces the frames its cap skips, so only the detected ones wait (docs/architecture.md,
-    "Session 11: detected frames wait for their own boxes")."""
+    """The detector announces the frames its cap skips, so only the detected ones wait for their own boxes."""
     assert _param(tmp_path / "rt", "tracking", "detections_wait_s") == "0.05"
     assert _param(tmp_path / "rt0", "tracking", "detections_wait_s", "--detections-wait", "0") == "0.0"
     assert _param(tmp_path / "ll", "tracking", "detections_wait_s", "--lossless") == "10.0"
 
 
 def test_tracking_gets_two_frames_queued_by_the_middleware_while_busy(tmp_path: Path) -> None:
-    """With one, a loaded machine lost 6-11 % of the frames in the middleware (session 11: 266-272 of 300 poses
-    with two CPU burners, 297 with two)."""
+    """With one, a loaded machine loses 6-11 % of the frames in the middleware (266-272 of 300 poses with two CPU
+    burners and a queue of one, 297 with two)."""
     assert _param(tmp_path / "rt", "tracking", "image_queue_depth") == "2"
     assert _param(tmp_path / "q1", "tracking", "image_queue_depth", "--queue-depth", "1") == "1"

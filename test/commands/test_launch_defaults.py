@@ -90,6 +90,26 @@ def test_auto_launch_arguments_give_the_nodes_the_graph_commands_settings(monkey
     for node, params in AUTO_PARAMETERS.items():
         for name in params:
             assert launch[node][name] == graph[node][name], (node, name)
-    if not lossless:  # what the measured real-time settings are (docs/architecture.md, sessions 9-11)
+    if not lossless:  # the real-time settings measured for six processes on two cores (commands/graph.py)
         assert launch["detection"]["model"] == "ssd_mobilenet_v2_coco_int8" and launch["detection"]["max_rate_hz"] == 15.0
         assert launch["tracking"]["detections_wait_s"] == 0.05 and launch["local_mapping"]["ba_solver"] == "schur"
+
+
+def test_camera_topic_arguments_remap_tracking_and_detection(monkeypatch):
+    """A live camera (a RealSense driver's topics) reaches tracking and detection through the three topic arguments."""
+    for name, module in _stand_ins().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location("changing_slam_launch", REPO / "launch" / "changing_slam.launch.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    entities = module.generate_launch_description()
+    nodes = {e.kwargs["executable"]: e for e in entities if type(e).__name__ == "Node"}
+
+    def remaps(node: str) -> dict[str, str]:
+        return {src: dst.args[0] for src, dst in nodes[node].kwargs["remappings"]}
+
+    assert remaps("tracking") == {"/camera/rgb/image_color": "colour_topic", "/camera/depth/image": "depth_topic",
+                                  "/camera/rgb/camera_info": "camera_info_topic"}  # fmt: skip
+    assert remaps("detection") == {"image": "colour_topic"}
+    defaults = {e.args[0]: e.kwargs["default_value"] for e in entities if type(e).__name__ == "DeclareLaunchArgument"}
+    assert defaults["colour_topic"] == "/camera/rgb/image_color" and defaults["depth_topic"] == "/camera/depth/image"

@@ -1,4 +1,4 @@
-"""System test of issue 6's multi-session target: run `static`, save the map, run `shift` from the saved map.
+"""System test of the multi-session target: run `static`, save the map, run `shift` from the saved map.
 
 The test renders both scenarios itself (seed 0, 320x240, 15 fps, their full 101 s: the same world frame and
 nearly the same robot loop; at 7.5 fps the `static` run itself drifts to 18 cm ATE, so the frame rate stays at
@@ -8,7 +8,7 @@ the second session relocalises within the first 2 s, that its trajectory lies in
 against ground truth under the first session's alignment, not re-aligned, within 1.5x the first session's own
 ATE + 2 cm), that the old places of the moved
 objects hold only low-belief, inactive objects and that the new places of the monitors and the suitcase hold a
-new object (bounds measured on this configuration, with margin; docs/multi_session.md has the figures).
+new object (bounds measured on this configuration, with margin; bench/multi_session.py prints the figures).
 Several minutes on an idle 2-core machine.
 """
 

@@ -245,8 +245,8 @@ class LateCameraInfoReader(Node):
 
 
 def test_lossless_mode_re_sends_camera_info_until_a_late_matched_reader_confirms_it(ros_context, fr1_bag):
-    """Session 9's flaky graph test: camera_info's writer was matched by tracking's reader only after the frames
-    had gone out, so tracking never had intrinsics. With `confirm_topics` the player holds the next colour frame
+    """Regression test: camera_info's writer can be matched by tracking's reader only after the frames have gone
+    out, so tracking never gets intrinsics. With `confirm_topics` the player holds the next colour frame
     and re-sends camera_info until the reader confirms one; without, the reader sees frames before intrinsics."""
     colour, info = "/camera/rgb/image_color", "/camera/rgb/camera_info"
     params = dict(lossless=True, rate=5.0, ack_topics=[colour], ack_topic="/bag_player/ack", ack_timeout_s=10.0,

@@ -119,7 +119,7 @@ def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path)
     # What object_map received from local_mapping's object layer (/local_mapping/semantic_map, autosaved): the
     # monitor (COCO tv) on the table, confirmed, where the simulator put it (map aligned to ground truth by the
     # trajectory). A second tv may be the rocket poster on the wall, which the SSD calls tv (score 0.3-0.53)
-    # while the image top cuts it (docs/changing_scenes.md, "Session 7: the EKF options and the poster").
+    # while the image top cuts it.
     import numpy as np
 
     from changing_slam_ros.commands.objects_options import trajectory_alignment

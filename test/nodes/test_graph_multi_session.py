@@ -27,7 +27,7 @@ FRAMES = {"static": 150, "shift": 90}
 
 
 @pytest.fixture(scope="module")
-def sessions(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def saved_runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Both scenes rendered (folders and mcaps) and the first session run with oracle detections and without."""
     from changing_slam_ros.cli import main as cli_main
     from changing_slam_ros.io.dataset import open_dataset
@@ -46,7 +46,7 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def test_the_split_sides_started_from_a_saved_map_track_as_the_offline_system(sessions):
+def test_the_split_sides_started_from_a_saved_map_track_as_the_offline_system(saved_runs):
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file
     from changing_slam_ros.io.map_file import load_map
@@ -54,7 +54,7 @@ def test_the_split_sides_started_from_a_saved_map_track_as_the_offline_system(se
     from changing_slam_ros.nodes.split_chains import ChainedGraph
 
     cfg = load_backend_config("sim")
-    map_file = sessions / "first_oracle" / "map.npz"
+    map_file = saved_runs / "first_oracle" / "map.npz"
     offline = build_backend(cfg).system
     loaded = load_map(map_file)
     offline.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
@@ -63,8 +63,8 @@ def test_the_split_sides_started_from_a_saved_map_track_as_the_offline_system(se
     assert loaded.objects and graph.owner.backend.objects is not None
     n_loaded = loaded.atlas.n_keyframes
     assert graph.tracking.system.atlas.n_keyframes == graph.loop.atlas.n_keyframes == n_loaded
-    oracle = read_detections_file(find_detections_file(sessions / "shift"))
-    for rgbd in open_dataset(sessions / "shift", "sim"):
+    oracle = read_detections_file(find_detections_file(saved_runs / "shift"))
+    for rgbd in open_dataset(saved_runs / "shift", "sim"):
         dets = oracle.for_stamp(rgbd.stamp_ns)
         offline.process(rgbd, dets)
         graph.process(rgbd, dets)
@@ -84,19 +84,19 @@ def test_the_split_sides_started_from_a_saved_map_track_as_the_offline_system(se
         [(o.id, o.belief, o.active) for o in offline.object_layer.objects(0)]  # fmt: skip
 
 
-def test_graph_with_map_in_continues_the_saved_map_as_the_offline_runner(sessions, tmp_path):
+def test_graph_with_map_in_continues_the_saved_map_as_the_offline_runner(saved_runs, tmp_path):
     from changing_slam_ros.cli import main as cli_main
     from helpers import REPO
 
     pytest.importorskip("rclpy")
     pytest.importorskip("changing_slam_msgs.msg", reason="interfaces not built (tools/build_interfaces.sh)")
-    map_file = sessions / "first" / "map.npz"
+    map_file = saved_runs / "first" / "map.npz"
     offline = tmp_path / "offline"
-    assert cli_main(["run", str(sessions / "shift.mcap"), "--out", str(offline), "--config", "sim", "--no-plot",
+    assert cli_main(["run", str(saved_runs / "shift.mcap"), "--out", str(offline), "--config", "sim", "--no-plot",
                      "--quiet", "--detections", "none", "--map-in", str(map_file)]) == 0  # fmt: skip
     out = tmp_path / "graph"
     proc = subprocess.run(
-        [sys.executable, "-m", "changing_slam_ros", "graph", str(sessions / "shift.mcap"), "--out", str(out),
+        [sys.executable, "-m", "changing_slam_ros", "graph", str(saved_runs / "shift.mcap"), "--out", str(out),
          "--config", "sim", "--lossless", "--no-detection", "--map-in", str(map_file), "--timeout", "600"],
         cwd=REPO, capture_output=True, text=True, timeout=900,
     )  # fmt: skip

@@ -330,7 +330,7 @@ def test_a_frame_waiting_for_detections_that_never_come_is_tracked_at_its_deadli
 
 def test_detections_for_a_frame_never_received_are_kept_and_a_waiting_frames_delay_is_measured(ros_context):
     """Real time: the middleware may drop a colour image the detector got; its detections must not break the
-    node (a regression of session 6 crashed tracking here). A waiting frame's detections are used at once."""
+    node (regression test: such detections crashed tracking). A waiting frame's detections are used at once."""
 
     src, f, node = _first_frame_and_node_waiting_for_detections(ros_context, wait_s=60.0)
     node.on_detections(DetectionArray(header=cv.make_header(f.stamp_ns - 33_000_000, "camera"), detections=[]))

@@ -1,26 +1,17 @@
 """Object-level bundle adjustment with gtsam (Dai et al. 2021, eqs. 7, 10 and 11).
 
-The paper writes the camera-frame prediction of the n-th point of object g in frame k as
-``T_k^c (T_k^g)^-1 T_0^g p_n^g`` (T^c, T^g world-to-camera and world-to-object). We store the object's
-points in its own frame, p_obj = T_0^g p_n^g, and its poses as object-to-world T_world_obj_k =
-(T_k^g)^-1, so the prediction is ``T_cam_world_k T_world_obj_k p_obj``.
+The paper's camera-frame prediction of point n of object g in frame k is ``T_k^c (T_k^g)^-1 T_0^g p_n^g``
+(T^c, T^g world-to-camera and world-to-object). We store the object's points in its own frame, p_obj =
+T_0^g p_n^g, and its poses as T_world_obj_k = (T_k^g)^-1: the prediction is ``T_cam_world_k T_world_obj_k p_obj``.
 
 The camera poses come from camera tracking and are held fixed, so we optimise, for each frame, the
 camera pose *seen from the object*, X(k) = T_obj_cam_k = T_world_obj_k^-1 T_world_cam_k. This is a
 one-to-one change of variables (T_world_obj_k = T_world_cam_k X(k)^-1) that turns object BA into
-ordinary static BA in the object frame, so gtsam's own factors apply:
-
-- Variables: X(k) `Pose3` (camera in the object frame), L(n) `Point3` (object point, object frame, m).
-- Factors: one `BearingRangeFactor3D` per RGB-D measurement: the keypoint's bearing (from u, v) and its
-  range (from the depth), i.e. the 3D observation model the paper uses for object BA. Noise order
-  (bearing tangent 1, bearing tangent 2, range): sigma_px / f radians twice, then the depth noise
-  (coeff * d^2, metres) scaled to range. Huber kernel on the whitened error, k = sqrt(chi2(3, 0.95)).
-- Motion-only BA (eq. 7): one X, object points held by tight priors (the shape is known).
-- Full object BA (eq. 11): all keyposes and points; a tight prior on the reference keypose X(0) fixes
-  the gauge (see `full_object_ba`).
-
-Measurements whose chi2 exceeds chi2(3, 0.95) after a round are dropped and the graph re-optimised
-(ORB-SLAM's outlier rounds).
+ordinary static BA in the object frame, so gtsam's own factors apply: variables X(k) `Pose3` (camera in
+the object frame) and L(n) `Point3` (object point, object frame, m), one bearing-range factor per RGB-D
+measurement (`_Measurements`), outlier rounds as ORB-SLAM's (`_optimise_rounds`). Motion-only BA (eq. 7):
+one X, the shape held by tight point priors; full object BA (eq. 11, `full_object_ba`): all keyposes and
+points, a prior on the reference keypose X(0) fixing the gauge.
 """
 
 from __future__ import annotations
@@ -118,7 +109,13 @@ def _measurement_noise(points_cam: F64, camera: CameraIntrinsics, cfg: ObjectBAC
 
 
 class _Measurements:
-    """Bearing-range factors of one frame, with their sigmas kept for the chi2 test."""
+    """Bearing-range factors of one frame, with their sigmas kept for the chi2 test.
+
+    One `BearingRangeFactor3D` per RGB-D measurement: the keypoint's bearing (from u, v) and its range (from the
+    depth), i.e. the 3D observation model the paper uses for object BA. Noise order (bearing tangent 1, bearing
+    tangent 2, range): sigma_px / f radians twice, then the depth noise (coeff * d^2, metres) scaled to range.
+    Huber kernel on the whitened error, k = sqrt(chi2(3, 0.95)).
+    """
 
     def __init__(self, pose_key: int, obs: ObjectObservations, camera: CameraIntrinsics, cfg: ObjectBAConfig):
         self.pose_key = pose_key
@@ -176,7 +173,8 @@ class _PointTable:
 def _optimise_rounds(
     base: gtsam.NonlinearFactorGraph, frames: list[_Measurements], initial: gtsam.Values, cfg: ObjectBAConfig
 ) -> tuple[gtsam.Values, list[BoolArr]]:
-    """Optimise, drop measurements above the chi2 threshold, repeat; returns values and per-frame inliers."""
+    """Optimise, drop measurements above the chi2 threshold (chi2(3, 0.95)), repeat (ORB-SLAM's outlier rounds);
+    returns values and per-frame inliers."""
     inliers = [np.ones(len(f.factors), dtype=bool) for f in frames]
     values = initial
     params = gtsam.LevenbergMarquardtParams()

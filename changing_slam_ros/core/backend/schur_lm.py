@@ -9,13 +9,7 @@ every variable from `lambda_initial`, divided by `lambda_factor` after an accept
 rejected one; a step is accepted when the actual over the linearised cost decrease exceeds `min_model_fidelity`;
 stop after `iterations`, or when the error decreases by less than `relative_tol` / `absolute_tol`). A point
 behind its camera gets gtsam's stand-in residual (2 fx on every component, no Jacobian). Fixed poses are
-constants (gtsam holds them with 1e-6 priors, which move them by ~1e-12).
-
-The normal equations: per observation e the whitened, reweighted Jacobians A_x (3, 6) of its pose and A_l
-(3, 3) of its point; the point blocks H_ll are 3x3 and independent, so they are eliminated first
-(S = H_xx - H_xl H_ll^-1 H_lx, a (6F, 6F) dense system for F free poses), then back-substituted.
-Pose update: R <- R Exp(omega), t <- t + R v (xi = (omega, v), rotation first, as gtsam's Pose3 tangent; the
-same as gtsam's retraction to first order, which is all LM's steps need: final errors agree to ~1e-8).
+constants (gtsam holds them with 1e-6 priors, which move them by ~1e-12). The linear algebra: `solve`.
 """
 
 from __future__ import annotations
@@ -199,7 +193,14 @@ def _cost(r: F64, k: F64) -> float:
 
 def solve(p: BAProblem, settings: LMSettings, stop: Callable[[], bool] | None = None) -> LMResult:
     """Run LM on `p`. `stop` is asked before the first iteration and after each but the last (True: return the
-    values reached, `stopped` set), as `local_ba.optimise` does with gtsam."""
+    values reached, `stopped` set), as `local_ba.optimise` does with gtsam.
+
+    The normal equations: per observation e the whitened, reweighted Jacobians A_x (3, 6) of its pose and A_l
+    (3, 3) of its point; the point blocks H_ll are 3x3 and independent, so they are eliminated first
+    (S = H_xx - H_xl H_ll^-1 H_lx, a (6F, 6F) dense system for F free poses), then back-substituted.
+    Pose update: R <- R Exp(omega), t <- t + R v (xi = (omega, v), rotation first, as gtsam's Pose3 tangent; the
+    same as gtsam's retraction to first order, which is all LM's steps need: final errors agree to ~1e-8).
+    """
     F, P = p.n_free, len(p.points)
     wh = _Whitening(p)
     T = p.T_world_cam

@@ -8,11 +8,8 @@ Queries follow ORB-SLAM2 `DetectLoopCandidates` / `DetectRelocalizationCandidate
 
 Keyframes carry a `map_id` (ORB-SLAM3 Atlas): loop candidates come from the query's own map; relocalisation
 and merge queries can name the map. Features can be left out of a keyframe's BoW with a mask (dynamic
-keypoints, or points of MapObjects whose belief dropped - Changing-SLAM §4.6).
-
-A keyframe's descriptors never change, so the database quantises each keyframe once: the word (and direct-index
-node) of every descriptor is kept (`KeyframeWords`), and re-indexing under a new mask is a tf-idf histogram over
-the masked words, equal bit for bit to quantising the masked descriptors again.
+keypoints, or points of MapObjects whose belief dropped - Changing-SLAM §4.6). Each keyframe is quantised
+once (`KeyframeWords`).
 """
 
 from __future__ import annotations
@@ -44,7 +41,11 @@ class PlaceCandidate:
 @dataclass(frozen=True)
 class KeyframeWords:
     """A keyframe's quantisation, every descriptor (N,): `words` and direct-index `nodes` (int32), and the
-    `descriptors` (N, 32) they were computed from (a keyframe re-added with other descriptors is quantised again)."""
+    `descriptors` (N, 32) they were computed from (a keyframe re-added with other descriptors is quantised again).
+
+    A keyframe's descriptors never change, so the database quantises each keyframe once and keeps the word (and
+    direct-index node) of every descriptor: re-indexing under a new mask is a tf-idf histogram over the masked
+    words, equal bit for bit to quantising the masked descriptors again."""
 
     descriptors: U8
     words: I32

@@ -1,22 +1,14 @@
 """Map replication between processes: one owner of the metric map, replicas fed by deltas.
 
-The split graph (issue 7) has one writer of the map, `local_mapping`. `tracking` and `loop_closing` keep
-replicas. Three packets cross processes (mirrored by the messages Keyframe, MapUpdate, LoopCorrection):
+The split graph has one writer of the map, `local_mapping`; `tracking` and `loop_closing` keep replicas.
+Three packets cross processes (mirrored by the messages Keyframe, MapUpdate, LoopCorrection):
 
 - `KeyframePacket` (tracking -> local_mapping, loop_closing): the new keyframe, the point counters tracking
-  incremented since its last packet (`n_visible` / `n_found` drive recent-point culling), and for the object
-  layer the keyframe's depth image and the dynamic stage's short-term objects.
-- `MapUpdate` (local_mapping -> tracking, loop_closing): the `MapDelta` that local mapping (and the object
-  layer) made to the map for one keyframe, or the delta of applying a loop correction.
+  incremented since its last packet, and for the object layer the keyframe's depth and short-term objects.
+- `MapUpdate` (local_mapping -> tracking, loop_closing): the `MapDelta` local mapping (and the object layer)
+  made to the map for one keyframe, or the delta of applying a loop correction.
 - `LoopResult` (loop_closing -> local_mapping, tracking): one per keyframe, closed or not; when closed, the
-  delta the correction made to loop closing's replica and the `core.loop_closing.LoopCorrection` itself.
-
-A `MapDelta` is found by diffing the map before and after a step (`snapshot` then `diff`), so it does not
-depend on what the step does inside: every keyframe whose pose, point ids, labels, covisibility links,
-spanning-tree parent/children or loop edges changed, every keyframe removed, and every point row that is new
-or changed in any column or in its observations (in insertion order, which later iteration depends on).
-Applying a delta (`apply_delta`) overwrites those rows in place (Keyframe objects keep their identity: the
-keyframe database holds them), so a replica fed every delta in order equals the owner bit for bit.
+  delta the correction made to loop closing's replica and the `core.slam.loop_closing.LoopCorrection`.
 
 Ids: keyframe ids are allocated by tracking only (`Tracker.next_kf_id`) and map point ids by the map owner
 only (`PointStore.add` rows); replicas never create either, so ids cannot collide between processes.
@@ -260,7 +252,12 @@ def snapshot(m: SlamMap) -> MapSnapshot:
 
 
 def diff(before: MapSnapshot, m: SlamMap) -> MapDelta:
-    """The delta that turns a replica equal to `before` into `m` (the same map, later)."""
+    """The delta that turns a replica equal to `before` into `m` (the same map, later).
+
+    Found by diffing, so it does not depend on what the step did inside: every keyframe whose pose, point ids,
+    labels, covisibility links, spanning-tree parent/children or loop edges changed, every keyframe removed,
+    and every point row that is new or changed in any column or in its observations (in insertion order, which
+    later iteration depends on)."""
     if before.map_id != m.id:
         raise ReplicationError(f"diff: snapshot of map {before.map_id} compared with map {m.id}")
     kf_ids = [k for k in m.keyframes if k not in before.keyframes or not _kf_equal(before.keyframes[k], _kf_state(m, k))]
@@ -336,7 +333,10 @@ def _ensure_rows(points: PointStore, n: int) -> None:
 
 
 def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
-    """Write a delta into the replica's map `delta.map_id`, in place. Keyframes it names must be there."""
+    """Write a delta into the replica's map `delta.map_id`, in place. Keyframes it names must be there.
+
+    Rows are overwritten in place (Keyframe objects keep their identity: the keyframe database holds them), so a
+    replica fed every delta in order equals the owner bit for bit."""
     m = ensure_map(atlas, delta.map_id)
     m.origin_kf_id = delta.origin_kf_id
     # 1. Points: every column, then observations in the owner's order.

@@ -11,11 +11,7 @@ In real time tracking does not wait for the owner: when the owner applies a merg
   owner's later update for it applies there;
 - tracking's counter increments in A since its last packet: `move_counters`.
 
-A point id of A, i, is `i + point_id_offset` in B. The owner allocates every point id and A gets no new point
-after the merge (it is empty), so every id a packet of A can name has a row in B. Points the merge fused are
-bad rows in B; a late keyframe naming one is treated as a keyframe naming a point culled while it was in
-flight (local mapping skips bad points). Several merges (A into B, later B into C) apply one after the other:
-`MergeLog.resolve`.
+A point id i of A is `i + point_id_offset` in B (see `MergeLog`).
 """
 
 from __future__ import annotations
@@ -108,7 +104,12 @@ def move_packet(packet: KeyframePacket, merge: MergeMove) -> bool:
 
 @dataclass
 class MergeLog:
-    """The merges a side took, by merged-away map id, to express late packets in the map they went into."""
+    """The merges a side took, by merged-away map id, to express late packets in the map they went into.
+
+    The owner allocates every point id and A gets no new point after the merge (it is empty), so every id a
+    packet of A can name has a row in B. Points the merge fused are bad rows in B; a late keyframe naming one is
+    treated as a keyframe naming a point culled while it was in flight (local mapping skips bad points). Several
+    merges (A into B, later B into C) apply one after the other (`resolve`)."""
 
     by_from: dict[int, Any] = field(default_factory=dict)  # from_map_id -> MergeMove
     n_moved: int = 0  # packets whose keyframe was moved

@@ -46,11 +46,11 @@ class MappingConfig:
       `ba_disparity_sigma_ratio`: sigma of a keypoint's depth as disparity bf / depth, in units of its pixel sigma
       (`backend.local_ba.stereo_noise`): a property of the depth sensor. 1 (default) weighs a Kinect-class depth
       about as ORB-SLAM's virtual stereo does (0 = exactly ORB-SLAM's independent u_l, u_r, v); the simulator's
-      exact depth takes 0.25 (config/sim.yaml); see docs/changing_scenes.md, session 5. `ba_solver`: "gtsam"
+      exact depth takes 0.25 (config/sim.yaml). `ba_solver`: "gtsam"
       (default: its Levenberg-Marquardt on the factor graph) or "schur" (`backend.schur_lm`: the same cost and
       gtsam's LM policy in numpy, points eliminated first; ~0.35x the solver's CPU, trajectories within 1e-7 m of
-      gtsam's on the simulated bags; what `changing-slam graph` uses in real time, where CPU is short);
-      docs/architecture.md, "Session 9: local mapping CPU".
+      gtsam's on the simulated bags; what `changing-slam graph` uses in real time, where CPU is short;
+      `bench/bench_local_mapping_cpu.py` measures both).
     - `keyframe_culling`: enable; `redundancy`: fraction of points seen by >= 3 others (0.9).
     - `fuse_neighbours`: covisible keyframes searched for duplicated points (0 = off); `fuse_radius_px`.
     - `triangulation`: points from depth-less keypoints (nested section, see `TriangulationConfig`).

@@ -1,22 +1,11 @@
 """Loop closing: the component behind the `loop_closing` node (ORB-SLAM's LoopClosing thread, RGB-D, SE(3)).
 
-For every new keyframe, `LoopCloser.process`:
-1. quantises its static, active features and indexes it in the keyframe database;
-2. after `min_keyframes_in_map` keyframes and `min_keyframes_between_loops` since the last loop, asks the
-   database for loop candidates scoring at least as well as the keyframe's worst covisible neighbour;
-3. keeps candidates whose covisibility group stays consistent over `consistency_threshold` keyframes;
-4. verifies them geometrically with depth (`geometric_verification.verify`) and checks the correction against
-   the drift expected over the path between the two keyframes (`place_recognition.check_drift`); the first
-   that passes both is the loop;
-5. moves the keyframe and its covisible neighbours by the loop correction (initial guess), optimises the
-   essential graph (spanning tree + strong covisibility + past loop edges + this loop's connections between
-   the two neighbourhoods) with GTSAM, and moves every map point with its reference keyframe.
-It returns a `LoopCorrection`; it never writes into keyframes except through `update_poses`. The map owner
-applies the correction (and fuses the duplicated points listed in it), then reports poses back with
-`update_poses` when keyframes are copies (ROS transport). `detect_merge` finds places shared by two maps of
-the Atlas (applied by `core.map_merging.merge_maps`); `relocalise` serves tracking when it is lost.
-`SlamMapLoopClosing` (end of module) binds all this
-to the offline runner's `core.slam_map`.
+`LoopCloser.process` finds a loop through each new keyframe (its docstring has the steps) and returns a
+`LoopCorrection`; it never writes into keyframes except through `update_poses`. The map owner applies the
+correction (and fuses the duplicated points listed in it), then reports poses back with `update_poses` when
+keyframes are copies (ROS transport). `detect_merge` finds places shared by two maps of the Atlas (applied by
+`core.slam.map_merging.merge_maps`); `relocalise` serves tracking when it is lost. `SlamMapLoopClosing` (end
+of module) binds all this to the offline runner's `core.map.slam_map`.
 """
 
 from __future__ import annotations
@@ -140,7 +129,7 @@ class MapMerge:
 
 
 class LoopCloser:
-    """Owns the keyframe database and the loop edges; see the module docstring for the steps."""
+    """Owns the keyframe database and the loop edges; `process` has the steps."""
 
     def __init__(self, config: LoopConfig, vocabulary: Vocabulary) -> None:
         self.config = config
@@ -204,6 +193,18 @@ class LoopCloser:
         point_reference_kf: Mapping[int, int] | None = None,
     ) -> LoopCorrection | None:
         """Add a new keyframe and close a loop through it if there is one.
+
+        Steps:
+        1. quantises its static, active features and indexes it in the keyframe database;
+        2. after `min_keyframes_in_map` keyframes and `min_keyframes_between_loops` since the last loop, asks the
+           database for loop candidates scoring at least as well as the keyframe's worst covisible neighbour;
+        3. keeps candidates whose covisibility group stays consistent over `consistency_threshold` keyframes;
+        4. verifies them geometrically with depth (`geometric_verification.verify`) and checks the correction against
+           the drift expected over the path between the two keyframes (`place_recognition.check_drift`); the first
+           that passes both is the loop;
+        5. moves the keyframe and its covisible neighbours by the loop correction (initial guess), optimises the
+           essential graph (spanning tree + strong covisibility + past loop edges + this loop's connections between
+           the two neighbourhoods) with GTSAM, and moves every map point with its reference keyframe.
 
         `covisibility`: id -> covisible ids (or {id: shared points}, best first); `spanning_parent`: id -> parent
         id (None for a map's first keyframe); `point_positions`: point id -> world (3,). `active_mask` (N,) bool

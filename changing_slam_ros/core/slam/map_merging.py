@@ -1,21 +1,8 @@
 """Applying a map merge of the Atlas (ORB-SLAM3's merge, RGB-D: a rigid SE(3) welding of two maps).
 
 When tracking stays lost, a new map is started; when loop closing later recognises a place of an older
-map from the current one (`LoopCloser.detect_merge` -> `MapMerge`), `merge_maps` welds the two:
-
-1. every point of the current ("source") map is appended to the older ("target") map's point store,
-   moved by `T_matchworld_queryworld` (positions and viewing directions); point ids shift by the target's
-   size before the merge (`MergeResult.point_id_offset`);
-2. every keyframe moves by the same transform and joins the target map with its covisibility links,
-   spanning tree, culled-keyframe records and loop edges (keyframe ids are global, so they do not clash);
-3. the spanning tree is joined at the seam: the source tree is re-rooted at the query keyframe, which
-   becomes a child of the matched keyframe;
-4. points mapped twice around the seam are fused: the verified keypoint matches first, then a projection
-   search (`map_fusion.fuse_into`) between the `fuse_neighbours` best covisible keyframes of each side;
-   covisibility is recomputed there, which links the two sides;
-5. optionally a local bundle adjustment around the query keyframe ("welding BA") over both sides;
-6. the source map is left empty in the Atlas (its id stays valid; `Atlas.merged_into` records where it went)
-   and the target becomes the current map.
+map from the current one (`LoopCloser.detect_merge` -> `MapMerge`), `merge_maps` welds the two (its docstring
+has the steps).
 The caller moves whatever else refers to the source map: frame records, the tracker's last frame
 (`move_frame`), the keyframe database's map ids, local mapping's recent points.
 """
@@ -136,8 +123,23 @@ def merge_maps(
     config: MergeConfig | None = None,
     ba: LocalBAConfig | None = None,
 ) -> MergeResult:
-    """Weld map `merge.query_map_id` into map `merge.match_map_id` (see the module docstring). `ba` is the
-    local BA configuration of the welding BA (None: no BA)."""
+    """Weld map `merge.query_map_id` into map `merge.match_map_id`. `ba` is the local BA configuration of the
+    welding BA (None: no BA).
+
+    1. every point of the current ("source") map is appended to the older ("target") map's point store,
+       moved by `T_matchworld_queryworld` (positions and viewing directions); point ids shift by the target's
+       size before the merge (`MergeResult.point_id_offset`);
+    2. every keyframe moves by the same transform and joins the target map with its covisibility links,
+       spanning tree, culled-keyframe records and loop edges (keyframe ids are global, so they do not clash);
+    3. the spanning tree is joined at the seam: the source tree is re-rooted at the query keyframe, which
+       becomes a child of the matched keyframe;
+    4. points mapped twice around the seam are fused: the verified keypoint matches first, then a projection
+       search (`map_fusion.fuse_into`) between the `fuse_neighbours` best covisible keyframes of each side;
+       covisibility is recomputed there, which links the two sides;
+    5. optionally a local bundle adjustment around the query keyframe ("welding BA") over both sides;
+    6. the source map is left empty in the Atlas (its id stays valid; `Atlas.merged_into` records where it went)
+       and the target becomes the current map.
+    """
     cfg = config or MergeConfig()
     if merge.query_map_id == merge.match_map_id:
         raise ValueError(f"map merge within one map ({merge.query_map_id})")

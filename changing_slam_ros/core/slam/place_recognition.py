@@ -1,19 +1,8 @@
 """Place recognition on top of the keyframe database: temporal consistency of loop candidates, and relocalisation.
 
-- `ConsistencyChecker` is ORB-SLAM2's `LoopClosing::DetectLoop` group logic: a candidate's group is the
-  candidate with its covisible keyframes; a group is consistent with a group of the previous query when they
-  share a keyframe, and a candidate is accepted once its group has been consistent over
-  `threshold` consecutive keyframes. A single lucky BoW match therefore never triggers a loop.
-- `DriftGate` checks a verified loop against the odometry: the correction it implies (the verified relative
-  pose of the two keyframes against their current estimate) must be a plausible drift for the path travelled
-  between them. Drift is modelled as zero-mean with a standard deviation growing linearly with the distance
-  and the angle travelled (`sigma_floor_m + sigma_per_m * path`, `sigma_floor_deg + sigma_per_deg * turn`);
-  the correction's squared normalised translation plus rotation must stay under `chi2_max` (chi2 with 2
-  dof). A repeated texture (a wallpaper motif a tile away) can pass RANSAC with a pose a whole period off a
-  few seconds after the robot left that place; no odometry drifts a metre in a metre of travel.
-- `relocalise` recovers the pose of a lost frame: candidates from the database, descriptor matching against
-  the map points of each candidate and its covisible keyframes, `cv2.solvePnPRansac`, then a refinement on
-  the inliers. The first candidate with enough inliers wins.
+- `ConsistencyChecker`: temporal consistency of loop candidates (ORB-SLAM2's `DetectLoop` groups);
+- `DriftGateConfig` / `check_drift`: a verified loop against the drift the odometry can have made;
+- `relocalise`: the pose of a lost frame.
 """
 
 from __future__ import annotations
@@ -45,7 +34,12 @@ def neighbours(covisibility: Covisibility, kf_id: int, n: int | None = None) -> 
 
 
 class ConsistencyChecker:
-    """Accepts loop candidates whose covisibility group keeps matching over consecutive query keyframes."""
+    """Accepts loop candidates whose covisibility group keeps matching over consecutive query keyframes.
+
+    ORB-SLAM2's `LoopClosing::DetectLoop` group logic: a candidate's group is the candidate with its covisible
+    keyframes; a group is consistent with a group of the previous query when they share a keyframe, and a
+    candidate is accepted once its group has been consistent over `threshold` consecutive keyframes. A single
+    lucky BoW match therefore never triggers a loop."""
 
     def __init__(self, threshold: int = 3) -> None:
         self.threshold = threshold
@@ -82,7 +76,15 @@ class ConsistencyChecker:
 @dataclass(frozen=True)
 class DriftGateConfig:
     """YAML section `loop.drift_gate`. The defaults are loose (10 % of the path, 10 % of the turn): they only
-    refuse corrections no odometry could need, and let through the synthetic tests' 1 deg per keyframe bias."""
+    refuse corrections no odometry could need, and let through the synthetic tests' 1 deg per keyframe bias.
+
+    The correction a verified loop implies (the verified relative pose of the two keyframes against their current
+    estimate) must be a plausible drift for the path travelled between them. Drift is modelled as zero-mean with
+    a standard deviation growing linearly with the distance and the angle travelled (`sigma_floor_m +
+    sigma_per_m * path`, `sigma_floor_deg + sigma_per_deg * turn`); the correction's squared normalised
+    translation plus rotation must stay under `chi2_max` (chi2 with 2 dof). A repeated texture (a wallpaper motif
+    a tile away) can pass RANSAC with a pose a whole period off a few seconds after the robot left that place;
+    no odometry drifts a metre in a metre of travel."""
 
     enabled: bool = True
     sigma_floor_m: float = 0.05
@@ -178,6 +180,9 @@ def relocalise(
 
     `point_positions` maps point id -> (3,) world position; keyframes' `point_ids` say which keypoint sees
     which point. `active_mask` (N,) excludes frame keypoints (dynamic ones) from the BoW query and matching.
+    Candidates come from the database; descriptors are matched against the map points of each candidate and its
+    covisible keyframes, `cv2.solvePnPRansac`, then a refinement on the inliers. The first candidate with enough
+    inliers wins.
     """
     kp = np.asarray(keypoints_px, np.float64)
     mask = np.ones(len(kp), bool) if active_mask is None else np.asarray(active_mask, bool)

@@ -1,26 +1,13 @@
 """Provisional map points: tracking's own depth points for keyframes the map owner has not mapped yet.
 
-In the split graph (issue 7) tracking holds a replica of the map and the map owner (local mapping) creates
-every map point. A new keyframe's points therefore exist in the replica only once the owner has mapped it and
-its MapUpdate has come back, which in real time is hundreds of milliseconds to seconds later. Until then
-tracking has nothing new to track against; right after a new map is started it has nothing at all. ORB-SLAM's
-RGB-D tracking does not wait for this: `Tracking::CreateNewKeyFrame` back-projects the new keyframe's close
-keypoints itself. This module does the same on the replica, without giving the owner a say:
-
-- `create(m, kf)`: after tracking inserted keyframe `kf` into the replica, every keypoint without a map point
-  whose depth is in (0, `max_depth_m`] gets a provisional point (the same rule and the same initial columns as
-  `LocalMapper._create_points`, so the owner makes a point from exactly these keypoints). Provisional points
-  are rows of the replica's point store past the owner's size (`owner_size`), so tracking uses them like any
-  other point.
-- `strip(m)` takes them out before an owner delta is applied (the rows past the owner's size are the owner's to
-  allocate) and `reattach(m, held, waiting)` puts them back afterwards: the points of keyframes still waiting
-  for their update are appended again (new ids, counters kept), those of a keyframe whose update came are
-  replaced by the owner's point at the same keypoint (`kf.point_ids` in the delta), their tracking counters
-  carried over. The returned remap (old provisional id -> new id or -1) lets the caller fix the ids it holds
-  (tracking's last frame).
-- Provisional ids never leave the replica: `packet_ids` blanks them in a keyframe packet (the owner creates
-  them from the same keypoints), and `hidden(m)` shows the store at the owner's size while tracking's counter
-  increments are taken.
+In the split graph tracking holds a replica of the map and the map owner (local mapping) creates every map
+point, so a new keyframe's points reach the replica only once the owner's MapUpdate has come back: in real
+time hundreds of milliseconds to seconds later, and right after a new map is started tracking has nothing to
+track against. ORB-SLAM's RGB-D tracking does not wait for this (`Tracking::CreateNewKeyFrame` back-projects
+the new keyframe's close keypoints itself); this module does the same on the replica. `create` makes them with
+`LocalMapper._create_points`'s rule (so the owner later makes a point from exactly these keypoints) as rows
+past the owner's store size; `strip` and `reattach` take them out around an owner delta and put them back or
+replace them by the owner's points; `packet_ids` keeps their ids out of keyframe packets.
 
 Nothing here runs when the caller waits for every update before the next frame (lossless graph): then the
 owner's points are always in before tracking needs them.
@@ -135,7 +122,8 @@ class ProvisionalPoints:
     # -- 2. around an owner delta ------------------------------------------------------------------
     def strip(self, m: SlamMap) -> HeldRows | None:
         """Take every provisional point out of `m` (store cut back to the owner's size, keyframe entries that
-        named them set to -1); None when there is none."""
+        named them set to -1); None when there is none. Done before an owner delta is applied: the rows past the
+        owner's size are the owner's to allocate."""
         return _cut(m, self._owner_size.pop(m.id, m.points.size))
 
     def without(self, m: SlamMap) -> SlamMap:
@@ -147,7 +135,9 @@ class ProvisionalPoints:
     def reattach(self, m: SlamMap, held: HeldRows | None, waiting: set[int]) -> I64:
         """After the owner's delta went into `m`: the held rows of keyframes in `waiting` (no update yet) are
         appended again, the others become the owner's point at their keypoint (or -1). Keyframe entries of
-        waiting keyframes that named held rows are set again. Returns (len(held),) old row -> new id or -1."""
+        waiting keyframes that named held rows are set again; re-appended rows get new ids and keep their
+        counters, replaced ones carry their tracking counters over to the owner's point. Returns (len(held),)
+        old row -> new id or -1, for the caller to fix the ids it holds (tracking's last frame)."""
         if held is None:
             return np.zeros(0, np.int64)
         pts = m.points
@@ -196,7 +186,8 @@ class ProvisionalPoints:
 
     # -- 3. what leaves the replica ----------------------------------------------------------------
     def packet_ids(self, m: SlamMap, kf: Keyframe) -> I64:
-        """`kf.point_ids` as a keyframe packet carries them: provisional ids -> -1."""
+        """`kf.point_ids` as a keyframe packet carries them: provisional ids -> -1 (provisional ids never leave
+        the replica; the owner creates those points from the same keypoints)."""
         ids = kf.point_ids.copy()
         ids[ids >= self.owner_size(m)] = -1
         return ids

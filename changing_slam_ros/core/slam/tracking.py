@@ -62,7 +62,7 @@ class TrackingConfig:
     - `pose_iterations_per_round`: Gauss-Newton iterations at most in each of the pose optimisation's four
       rounds (each round also stops when the step is negligible). 2 saves ~20 % of the pose optimisation's CPU
       with the ATE unchanged on six sequences, but test_changing_system's moved chair then gets no map object at
-      its new place, so it stays 6 (docs/architecture.md, "Session 9").
+      its new place, so it stays 6.
     - `motion_pose_rounds`: rounds of the frame-to-frame pose optimisation (the local-map one that follows always
       runs four, ORB-SLAM's count); the first two use the Huber kernel. 2 was ATE-neutral on the same six
       sequences but saved only ~0.25 ms per frame (within the benchmark's noise), so it stays 4.

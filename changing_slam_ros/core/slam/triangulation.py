@@ -3,16 +3,7 @@
 RGB-D keypoints with a valid depth become map points directly (local mapping back-projects them);
 keypoints on far walls, dark or reflective surfaces or beyond the sensor's range have none. Following
 the idea of ORB-SLAM3's `LocalMapping::CreateNewMapPoints`, a new keyframe's depth-less keypoints are
-matched with those of a covisible keyframe and triangulated:
-
-1. candidate pairs must satisfy the epipolar constraint of the two known poses
-   (squared distance to the epipolar line < `epipolar_chi2` * sigma^2 of the keypoint's level);
-2. among them, the best ORB descriptor (Hamming <= `max_hamming`, Lowe ratio `ratio`, one-to-one);
-3. linear (DLT) triangulation in normalised coordinates;
-4. a point is kept only when it lies in front of both cameras, the two rays make at least
-   `min_parallax_deg`, its reprojection error in each view is under `reprojection_chi2` * sigma^2, and the
-   ratio of its distances to the two cameras agrees with the ratio of the keypoints' pyramid scales
-   (within `scale_ratio_factor`).
+matched with those of a covisible keyframe and triangulated (`triangulate_pair` has the steps).
 The functions here are pure (arrays in, arrays out); `LocalMapper` turns the survivors into map points.
 """
 
@@ -34,8 +25,7 @@ I64 = npt.NDArray[np.int64]
 class TriangulationConfig:
     """YAML section `mapping: triangulation:`.
 
-    - `enabled`: create points by triangulation at all (off by default: on 7-Scenes redkitchen it costs
-      ATE, see docs/loop_closing.md "Triangulated map points").
+    - `enabled`: create points by triangulation at all (off by default: on 7-Scenes redkitchen it costs ATE).
     - `neighbours`: best covisible keyframes paired with each new keyframe.
     - `min_baseline_m`: skip pairs whose camera centres are closer (ORB-SLAM RGB-D: the virtual stereo baseline).
     - `max_hamming`, `ratio`: descriptor acceptance (ORB-SLAM TH_LOW = 50) and Lowe ratio to the second best.
@@ -199,7 +189,17 @@ def triangulate_matches(
 
 
 def triangulate_pair(v1: TwoView, v2: TwoView, level_scales: F64, cfg: TriangulationConfig) -> Triangulated:
-    """Match (epipolar-constrained) and triangulate the candidates of two views."""
+    """Match (epipolar-constrained) and triangulate the candidates of two views.
+
+    1. candidate pairs must satisfy the epipolar constraint of the two known poses
+       (squared distance to the epipolar line < `epipolar_chi2` * sigma^2 of the keypoint's level);
+    2. among them, the best ORB descriptor (Hamming <= `max_hamming`, Lowe ratio `ratio`, one-to-one);
+    3. linear (DLT) triangulation in normalised coordinates;
+    4. a point is kept only when it lies in front of both cameras, the two rays make at least
+       `min_parallax_deg`, its reprojection error in each view is under `reprojection_chi2` * sigma^2, and the
+       ratio of its distances to the two cameras agrees with the ratio of the keypoints' pyramid scales
+       (within `scale_ratio_factor`).
+    """
     baseline = float(np.linalg.norm(v1.T_world_cam[:3, 3] - v2.T_world_cam[:3, 3]))
     if baseline < cfg.min_baseline_m:
         empty = np.zeros(0, np.int64)

@@ -79,7 +79,7 @@ def test_points_only_the_moved_keyframe_sees_follow_it() -> None:
 
     Local mapping back-projects a new keyframe's points from its tracked pose; when the BA then corrects that
     pose, points left behind would disagree with it (frames tracked on those points end up stored against a
-    keyframe that is elsewhere: the one_chair defect of session 5, docs/changing_scenes.md).
+    keyframe that is elsewhere; regression test for the simulated one_chair scene).
     """
     rng = np.random.default_rng(5)
     m, poses_true, _ = _build_map(rng, pose_noise=0.03, point_noise_m=0.005)
@@ -147,7 +147,7 @@ def _after_a_turn(rng: np.random.Generator) -> tuple[SlamMap, list[np.ndarray]]:
 
 
 def test_a_keyframe_after_a_turn_stays_where_its_depth_puts_it() -> None:
-    """Session 5's keyframe 19 (docs/changing_scenes.md): after a turn the new keyframe shares a narrow part of its
+    """Regression test (keyframe 19 of the simulated one_chair scene): after a turn the new keyframe shares a narrow part of its
     view, all at ~3.4 m, with its neighbour. The bearings alone leave a valley (sideways shift traded for rotation);
     only the depth closes it. Weighted as ORB-SLAM's virtual stereo (`disparity_sigma_ratio` 0: 1 px on u_r with
     bf 40, 28 cm of depth at 3.4 m), the BA slides keyframes started at their true poses 6-18 cm along it on this

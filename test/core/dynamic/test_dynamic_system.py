@@ -6,7 +6,7 @@ without dynamic handling. Measured with the frontend of d150c23 (robuster local 
 dynamic 0.72 cm ATE with every frame tracked, 67 % of keypoints kept and no pose inlier on a person; plain
 1.29 cm with 1.5 % of its pose inliers on the people. (Before d150c23 plain gave 19.5 cm here: on this
 short sequence the frontend's outlier rejection now copes on its own, so the ATE gap is only 1.8x; the
-10 s, 640x480 figures are in docs/dynamic_integration.md.) Bounds leave about 2x margin where possible.
+10 s, 640x480 figures are in docs/results.md.) Bounds leave about 2x margin where possible.
 The figures above are of the flat photo people; with the articulated people (ca0476d) the test passes
 (re-run at 1c56f34) but the figures were not re-measured. `test_dynamic_system_ssd.py` is the same check
 with the shipped detector instead of the oracle.

@@ -5,7 +5,7 @@ at 3 cm/s) and runs the engine with `mapping.segmentation` on (its defaults), no
 the window's map points; positive = the instance mask under the point's keypoint (newest window keyframe
 measuring it) is the box's and the box moved > 1 cm between the point's first and last measurement in the
 window; flagged = culled as moving (as bench/eval_slow_movers_sim.py counts).
-Measured on the whole 720-frame run: see docs/dynamic_integration.md ("Slow movers").
+The whole 720-frame run's figures: docs/results.md ("Dynamic scenes").
 """
 
 from __future__ import annotations

@@ -58,7 +58,7 @@ def test_moved_chair_old_place_inactive_and_no_wrong_loop(one_chair: Path) -> No
     layer = ObjectLayer()
     # The simulator's sensor config (config/sim.yaml: its exact depth weighted as such in local BA). With the
     # Kinect-class default (ba_disparity_sigma_ratio 1) the chair's new place, seen only in the last 12 s, made no
-    # object in this 70-s run (docs/changing_scenes.md, session 5).
+    # object in this 70-s run.
     config = system_config_from_mapping(load_yaml(find_config("sim")), "sim")
     system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=DynamicFilter(),
                         object_layer=layer)

@@ -4,7 +4,7 @@ merged-away map are in flight when the merge is applied (`split_chains.DelayedCh
 
 7-Scenes redkitchen frames 0-319 then 400-699 (as test_split_map_merge: tracking is lost at the jump, a new map
 starts, the camera later revisits the first one), config `7scenes` with `tracking.lost_frames_new_map` 5.
-Measured (2026-11-26): lossless order (`ChainedGraph`) ATE 3.98 cm; delays 3 / 10 / 30 frames: 3.30 / 3.72 /
+Measured: lossless order (`ChainedGraph`) ATE 3.98 cm; delays 3 / 10 / 30 frames: 3.30 / 3.72 /
 5.45 cm, merge applied in each; at delay 30, 3 keyframes and ~1.9k provisional points of map 1 were in flight
 when the merge came and were moved into map 0.
 """

@@ -1,6 +1,6 @@
-"""Loop verification against perceptual aliasing (issue 6): the inlier-spread test and the drift gate.
+"""Loop verification against perceptual aliasing: the inlier-spread test and the drift gate.
 
-The wrong loop of the `replacing` run in session 1 (42 inliers where 40 are required, all on the background,
+A wrong loop in the simulated `replacing` scene (42 inliers where 40 are required, all on the background,
 93.5 cm off, 13 s after the robot left the place) is the case both tests are made for: a repeated wall texture
 a period away passes RANSAC, but the correction it implies is no drift odometry makes over 1 m of travel.
 """
@@ -79,7 +79,7 @@ def test_path_travelled_sums_distance_and_turn():
 def test_drift_gate_refuses_the_replacing_wrong_loop_and_passes_real_drift():
     cfg = DriftGateConfig()
     est = make_pose(np.eye(3), np.array([0.8, 0.0, 0.0]))
-    # session 1's wrong loop: 93.5 cm / 1.1 deg off, about 0.9 m driven and a quarter turn between the keyframes
+    # the replacing scene's wrong loop: 93.5 cm / 1.1 deg off, about 0.9 m driven and a quarter turn between the keyframes
     wrong = est @ make_pose(_rot_z(1.1), np.array([0.935, 0.0, 0.0]))
     c = check_drift(est, wrong, 0.9, 90.0, cfg)
     assert not c.accepted and c.chi2 > 4 * cfg.chi2_max  # measured 44.6
@@ -101,7 +101,7 @@ def test_drift_gate_and_spread_are_read_from_the_loop_yaml_section():
 
 def test_loop_closer_measures_the_path_on_its_held_keyframes_and_refuses_a_period_shifted_loop():
     """Five keyframes 20 cm apart along a wall; a verification one wallpaper period (0.9 m) off the estimate, as the
-    frames 1508 -> 1706 of session 1's `replacing` render gave (42 inliers, every pair 0.9 m apart on the wall),
+    frames 1508 -> 1706 of a `replacing` render give (42 inliers, every pair 0.9 m apart on the wall),
     is refused; the true relative pose with 2 cm of drift is accepted."""
     from changing_slam_ros.core.slam.geometric_verification import Verification
     from changing_slam_ros.core.slam.loop_closing import LoopCloser

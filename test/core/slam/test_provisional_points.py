@@ -1,4 +1,4 @@
-"""Provisional points: tracking keeps going while the map owner lags behind by a second (issue 7, real time).
+"""Provisional points: tracking keeps going while the map owner lags behind by a second (real time).
 
 The sample bag (simulated walking_changing, 320x240 at 15 Hz) through the split sides in one process
 (`DelayedChain`: the owner's update for a keyframe reaches tracking 15 frames = 1 s after the owner started
