@@ -35,7 +35,15 @@ from changing_slam_ros.commands.graph_outputs import (
     read_json,
     write_outputs_mcap,
 )
-from changing_slam_ros.commands.graph_process import NodeProcess, child_env, node_argv, python_argv, stop_all
+from changing_slam_ros.commands.graph_options import parse_kills, parse_loads, parse_nice
+from changing_slam_ros.commands.graph_process import (
+    NodeFailed,
+    NodeProcess,
+    child_env,
+    node_argv,
+    python_argv,
+    stop_all,
+)
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
@@ -170,58 +178,6 @@ def _uses_detections(config: str) -> bool:
     return dyn.enabled and dyn.detection_filtering
 
 
-def parse_nice(specs: list[str], known: tuple[str, ...]) -> dict[str, int]:
-    """`--nice NODE=N` specs as {node: increment}; an unknown node or a value outside 0..19 is a ConfigError."""
-    out: dict[str, int] = {}
-    for spec in specs:
-        name, _, value = spec.partition("=")
-        if name not in known:
-            raise ConfigError(f"--nice {spec}: unknown node {name!r} (nodes: {', '.join(known)})")
-        try:
-            out[name] = int(value)
-        except ValueError as err:
-            raise ConfigError(f"--nice {spec}: expected NODE=N with N an integer 0..19, e.g. local_mapping=5") from err
-        if not 0 <= out[name] <= 19:
-            raise ConfigError(f"--nice {spec}: N must be 0..19 (raising a priority needs privileges)")
-    return out
-
-
-def _parse_at(specs: list[str], option: str, example: str) -> list[tuple[str, float]]:
-    """WHAT@SECONDS arguments (--kill, --load-map) -> (what, seconds); the last @ splits (a path may hold one)."""
-    out = []
-    for spec in specs:
-        what, _, seconds = spec.rpartition("@")
-        try:
-            out.append((what, float(seconds)))
-        except ValueError as err:
-            raise ConfigError(f"{option} {spec}: expected {example}") from err
-    return out
-
-
-def _parse_loads(specs: list[str]) -> list[tuple[str, float]]:
-    """--load-map MAP@S -> (absolute map path, seconds); a missing or bad map fails here, before anything starts."""
-    from changing_slam_ros.io.map_file import load_map
-
-    loads = _parse_at(specs, "--load-map", "MAP@SECONDS, e.g. first/map.npz@4")
-    for path, _ in loads:
-        load_map(path)
-    return [(str(Path(path).resolve()), at_s) for path, at_s in loads]
-
-
-def _parse_kills(specs: list[str]) -> list[tuple[str, float]]:
-    return _parse_at(specs, "--kill", "NODE@SECONDS, e.g. object_map@5")
-
-
-class NodeFailed(SlamError):
-    """A node died in a way a restart does not mend (crash loop, death while starting); the graph stops at once."""
-
-    def __init__(self, node: NodeProcess, why: str) -> None:
-        failure = node.failure()
-        super().__init__(f"graph: {node.name} {why}" + (f" ({failure})" if failure else "")
-                         + f"; every process stopped; log {node.log_path}")  # fmt: skip
-        self.node = node
-
-
 class Graph:
     """The processes of one run; `run()` returns the summary dict.
 
@@ -267,8 +223,8 @@ class Graph:
 
             load_backend_config(self.config)  # a bad config fails here, before any process starts
         self.detection = _uses_detections(self.config) if args.detection is None else args.detection
-        self.kills = _parse_kills(args.kill)
-        self.loads = _parse_loads(getattr(args, "load_map", []))
+        self.kills = parse_kills(args.kill)
+        self.loads = parse_loads(getattr(args, "load_map", []))
         self.load_calls: list[dict[str, Any]] = []  # one per --load-map: path, at_s, process, log
         self.map_loads: list[dict[str, Any]] = []  # their outcomes (graph_summary.json)
         self.map_in = ""
@@ -314,7 +270,8 @@ class Graph:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
             solver = a.ba_solver or mode_default("ba_solver", a.lossless)
             mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
-                       "update_subscribers": 2, "map_out": str(self.out / "map.npz"), "map_dir": str(self.out / MAPS_DIR),
+                       "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
+                       "map_dir": str(self.out / MAPS_DIR),
                        "ba_solver": "" if solver == "config" else solver}  # fmt: skip
             self.nodes["local_mapping"] = NodeProcess(
                 "local_mapping", node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
@@ -412,7 +369,8 @@ class Graph:
         node.exit_codes.append(code)
         failure = "" if killed else node.failure()
         if self.restarts.get(node.name, 0) >= self.args.max_restarts:
-            raise NodeFailed(node, f"died (exit {code}) and was restarted {self.args.max_restarts} times (--max-restarts)")
+            raise NodeFailed(node, f"died (exit {code}) and was restarted {self.args.max_restarts} times "
+                                   "(--max-restarts)")  # fmt: skip
         if failure and failure == self._failures.get(node.name):
             raise NodeFailed(node, f"died twice with the same error (exit {code}); a restart will not help")
         self._failures[node.name] = failure
@@ -548,7 +506,8 @@ class Graph:
             "detections_received": stats.get("detections_received"),
             "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
         }  # fmt: skip
-        summary["lossless_incomplete"] = lossless_gaps(self.player.log_text(), stats, summary["local_mapping"]) if self.args.lossless else []
+        summary["lossless_incomplete"] = (lossless_gaps(self.player.log_text(), stats, summary["local_mapping"])
+                                          if self.args.lossless else [])  # fmt: skip
         summary.update(self._cpu_summary())
         summary.update(evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = write_outputs_mcap(self.bag, self.config, self.out)

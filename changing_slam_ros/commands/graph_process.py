@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from changing_slam_ros.errors import SlamError
+
 
 @dataclass
 class NodeProcess:
@@ -146,3 +148,13 @@ def stop_all(nodes: list[NodeProcess], budget_s: float = 8.0) -> dict[str, int |
         while any(n.running() for n in alive) and time.monotonic() < deadline:
             time.sleep(0.05)
     return {n.name: (n.proc.returncode if n.proc is not None else None) for n in nodes}
+
+
+class NodeFailed(SlamError):
+    """A node died in a way a restart does not mend (crash loop, death while starting); the graph stops at once."""
+
+    def __init__(self, node: NodeProcess, why: str) -> None:
+        failure = node.failure()
+        super().__init__(f"graph: {node.name} {why}" + (f" ({failure})" if failure else "")
+                         + f"; every process stopped; log {node.log_path}")  # fmt: skip
+        self.node = node

@@ -100,8 +100,8 @@ class BagPlayerNode(QuietQosEvents, Node):
         unknown = undeclared_parameters(self)
         if unknown:
             self.bag.close()
-            raise ConfigError(f"bag_player: unknown parameter(s) {', '.join(unknown)}; known: "
-                              f"{', '.join(sorted(n for n in self._parameters if not n.startswith('qos_overrides.')))}")  # fmt: skip
+            known = sorted(n for n in self._parameters if not n.startswith("qos_overrides."))
+            raise ConfigError(f"bag_player: unknown parameter(s) {', '.join(unknown)}; known: {', '.join(known)}")
         self._acks: dict[int, set[str]] = {}
         self._check_confirm_topics()
         # lossless: the output names of the confirm topics the bag has; confirmed ones drop out
