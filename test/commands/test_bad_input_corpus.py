@@ -55,8 +55,8 @@ def tum_case(name: str, files: dict[str, str | bytes], *expect: str) -> Case:
 
 def out_case(name: str, files: dict[str, str | bytes], out: str, command: str, *expect: str) -> Case:
     source = [str(BAG)] if command in ("run", "graph") else []
-    return Case(f"{command}-out-{name}", files, lambda d: [command, *source, "--out", str(d / out), "--config", "tum_fr1"],
-                lambda d: [out, *expect])  # fmt: skip
+    return Case(f"{command}-out-{name}", files,
+                lambda d: [command, *source, "--out", str(d / out), "--config", "tum_fr1"], lambda d: [out, *expect])
 
 
 RGB_BAD_BYTE = b"# colour images\n1305031102.175304 rgb/1305031102.175304.png\n1305031102.211\xff rgb/x.png\n"
@@ -196,3 +196,34 @@ def test_bad_input_ends_with_one_line_naming_what_is_wrong(case: Case, tmp_path:
     for text in case.expect(folder):
         assert text in errors[0], (text, errors[0])
 
+
+
+NODE_CASES = [
+    ("bag_player_node", ["rate:=abc"], "parameter rate: expected a number, got 'abc'"),
+    ("bag_player_node", ["loop:=maybe"], "parameter loop: expected true or false, got 'maybe'"),
+    ("bag_player_node", ["topics:=7"], "parameter topics: expected a list of strings"),
+    ("bag_player_node", ["rat:=2.0"], "unknown parameter(s) rat; known:"),
+    ("bag_player_node", ["clock_hz:=0.0"], "clock_hz must be > 0"),
+    ("local_mapping_node", ["map_cloud_period_s:=soon"], "parameter map_cloud_period_s: expected a number"),
+    ("object_map_node", ["config:=no_such_config"], "no_such_config: no such config file"),
+]
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("module,params,expect", NODE_CASES, ids=[f"{m}-{p[0]}" for m, p, _ in NODE_CASES])
+def test_bad_node_parameters_end_the_node_with_one_line(module: str, params: list[str], expect: str, capsys,
+                                                        monkeypatch) -> None:  # fmt: skip
+    import importlib
+
+    pytest.importorskip("rclpy")
+    monkeypatch.setenv("ROS_DOMAIN_ID", "171")
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    node = importlib.import_module(f"changing_slam_ros.nodes.{module}")
+    argv = [module, *([str(BAG)] if module == "bag_player_node" else []), "--ros-args"]
+    for p in params:
+        argv += ["-p", p]
+    assert node.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    errors = [ln for ln in err.splitlines() if ln.startswith("error: ")]
+    assert len(errors) == 1 and expect in errors[0], err

@@ -37,7 +37,8 @@ def test_an_interrupted_graph_keeps_the_earlier_results_and_its_own_aside(tmp_pa
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen([sys.executable, "-m", "changing_slam_ros", "graph", str(BAG), "--out", str(out),
                              "--config", "tum_fr1", "--lossless", "--no-detection", "--no-object-map"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path, env=env)  # fmt: skip
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
+                            env=env)  # fmt: skip
     assert proc.stdout is not None
     seen = []
     deadline = time.monotonic() + 300

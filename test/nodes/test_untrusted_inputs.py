@@ -38,7 +38,7 @@ def write_bag(path: Path, types: dict[str, str]) -> Path:
     return path
 
 
-def test_type_names_outside_the_allowed_interface_packages_are_refused_without_importing_anything(tmp_path, monkeypatch):
+def test_type_names_outside_the_allowed_interface_packages_are_refused_importing_nothing(tmp_path, monkeypatch):
     (tmp_path / "evil.py").write_text(PLANTED.format(marker=str(tmp_path / "ran")))
     monkeypatch.chdir(tmp_path)
     monkeypatch.syspath_prepend(str(tmp_path))  # as `python -m` from this folder would have it
