@@ -149,8 +149,11 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     movers = dynamic.filter.movers if dynamic.filter is not None else None
     if movers is not None:  # class-agnostic moving objects (Dai et al.) and their trajectories
         metrics["moving_objects"] = write_moving_objects(out, movers.tracks())
+    metrics["warnings"] = run_warnings(metrics)
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     atomic_write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
+    for warning in metrics["warnings"]:
+        print(f"run: warning: {warning}", file=sys.stderr)
     line = (
         f"{metrics['frames_tracked']}/{metrics['frames']} frames tracked, {metrics['keyframes']} keyframes, "
         f"{metrics['loops_closed']} loops, {metrics['fps']:.1f} fps, tracking median {metrics['tracking_ms_median']:.1f} ms"
@@ -158,7 +161,21 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     if "ate_rmse_m" in metrics:
         line += f", ATE RMSE {metrics['ate_rmse_m'] * 100:.2f} cm (online {metrics['ate_online_rmse_m'] * 100:.2f} cm)"
     print(line)
-    return 0
+    return 1 if metrics["frames_tracked"] == 0 else 0  # nothing useful produced
+
+
+def run_warnings(metrics: dict[str, Any]) -> list[str]:
+    """What the console and metrics.json `warnings` say about a run that produced little: no frame tracked, or a
+    loaded map never relocalised in."""
+    out = []
+    if metrics["frames"] and metrics["frames_tracked"] == 0:
+        out.append(f"0 of {metrics['frames']} frames tracked: check the config's camera and dataset.depth_scale "
+                   "against the data")  # fmt: skip
+    ms = metrics.get("multi_session")
+    if ms is not None and not ms["relocalised"]:
+        out.append(f"never relocalised in the loaded map {ms['map_in']}; a new map was started (a map of another "
+                   "scene, or made with another camera?)")  # fmt: skip
+    return out
 
 
 def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:

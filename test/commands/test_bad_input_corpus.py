@@ -227,3 +227,23 @@ def test_bad_node_parameters_end_the_node_with_one_line(module: str, params: lis
     assert "Traceback" not in err
     errors = [ln for ln in err.splitlines() if ln.startswith("error: ")]
     assert len(errors) == 1 and expect in errors[0], err
+
+
+def test_a_run_that_tracks_no_frame_says_so_records_it_and_exits_1(tmp_path, capsys):
+    import json
+
+    import cv2
+    import numpy as np
+
+    src = Path(FR1_XYZ_10)
+    if not src.is_dir():
+        pytest.skip(f"{src} missing")
+    data = tmp_path / "no_depth"
+    shutil.copytree(src, data)
+    for png in (data / "depth").glob("*.png"):  # no depth reading anywhere: nothing to initialise a map from
+        cv2.imwrite(str(png), np.zeros((480, 640), np.uint16))
+    rc = cli_main(["run", str(data), "--out", str(tmp_path / "out"), "--config", "tum_fr1", "--quiet", "--no-plot"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "run: warning: 0 of 9 frames tracked" in err and "Traceback" not in err
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["frames_tracked"] == 0 and metrics["warnings"][0].startswith("0 of 9 frames tracked")
