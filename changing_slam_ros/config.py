@@ -15,11 +15,14 @@ from typing import Any, TypeVar
 
 import yaml
 
-from changing_slam_ros.errors import ConfigError
+from changing_slam_ros.errors import ConfigError, utf8_error
 
 T = TypeVar("T")
 
 PACKAGE_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+# The top-level sections a config file may hold, each read by one area of the code into its dataclass. Any other
+# name (a misspelt `trackng:`) is an error, as unknown keys inside a section are.
+CONFIG_SECTIONS = ("camera", "dataset", "features", "tracking", "mapping", "loop", "dynamic", "objects", "detector")
 
 
 def find_config(name_or_path: str | Path) -> Path:
@@ -46,9 +49,11 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; errors name the file."""
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_text(encoding="utf-8")
     except OSError as err:
         raise ConfigError(f"{p}: cannot read config ({err.strerror})") from err
+    except UnicodeDecodeError as err:
+        raise ConfigError(utf8_error(p, err, "text")) from err
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as err:
@@ -58,6 +63,25 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a mapping of sections at top level, got {type(data).__name__}")
     return data
+
+
+def check_sections(data: dict[str, Any], where: str) -> dict[str, Any]:
+    """`data` (a parsed config file) when every top-level key is a known section; ConfigError naming the file,
+    the unknown section and the closest known name otherwise."""
+    import difflib
+
+    unknown = sorted(str(k) for k in data if k not in CONFIG_SECTIONS)
+    if unknown:
+        hints = [f"{u} (did you mean {m[0]}?)" if (m := difflib.get_close_matches(u, CONFIG_SECTIONS, 1)) else u
+                 for u in unknown]  # fmt: skip
+        raise ConfigError(f"{where}: unknown section(s) {', '.join(hints)}; known: {', '.join(CONFIG_SECTIONS)}")
+    return data
+
+
+def load_config(name_or_path: str | Path) -> tuple[dict[str, Any], str]:
+    """A config file or shipped config name, parsed and its sections checked: (data, path as text)."""
+    path = find_config(name_or_path)
+    return check_sections(load_yaml(path), str(path)), str(path)
 
 
 def section(cls: type[T], data: dict[str, Any] | None, where: str) -> T:

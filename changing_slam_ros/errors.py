@@ -6,6 +6,8 @@ Messages name the object (file, topic, field) and say what was expected. The CLI
 
 from __future__ import annotations
 
+import os
+
 
 class SlamError(Exception):
     """Base of every error the project raises on bad input or configuration."""
@@ -31,5 +33,21 @@ class MapFileError(SlamError):
     """A saved map file is missing, corrupt or of an unsupported version."""
 
 
+class OutputError(SlamError):
+    """A run's results cannot be written (disk full, permissions changed during the run)."""
+
+
 class SimError(SlamError):
     """A simulator scenario or its rendering cannot be produced."""
+
+
+def utf8_error(path: str | os.PathLike[str], err: UnicodeDecodeError, what: str) -> str:
+    """`path:line: not UTF-8 <what> (byte 0xNN)`: where a file stops being UTF-8, for a one-line error."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read()
+    except OSError:
+        raw = err.object if isinstance(err.object, bytes) else b""
+    line = raw[: err.start].count(b"\n") + 1
+    byte = f" (byte 0x{raw[err.start]:02x})" if err.start < len(raw) else ""
+    return f"{path}:{line}: not UTF-8 {what}{byte}"

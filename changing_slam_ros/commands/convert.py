@@ -35,6 +35,7 @@ def main(args: argparse.Namespace) -> int:
 
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.mcap_writer import RgbdMcapWriter
+    from changing_slam_ros.io.output_dir import check_output_file
 
     out = Path(args.out)
     if out.suffix != ".mcap":
@@ -43,6 +44,7 @@ def main(args: argparse.Namespace) -> int:
         raise BagError(f"{out}: output would overwrite the input")
     if not 1 <= args.jpeg_quality <= 100:
         raise BagError(f"--jpeg-quality {args.jpeg_quality}: expected 1..100")
+    check_output_file(out, "OUT.mcap")
     src = open_dataset(args.src, args.config)
     print(f"reading {src.description}")
     gt = getattr(src, "groundtruth_stamped", None)

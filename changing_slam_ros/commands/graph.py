@@ -19,6 +19,7 @@ import argparse
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -27,11 +28,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from changing_slam_ros.commands.graph_outputs import detection_median_ms, evaluate, read_json, write_outputs_mcap
-from changing_slam_ros.commands.graph_process import NodeProcess, node_argv
+from changing_slam_ros.commands.graph_outputs import (
+    detection_median_ms,
+    evaluate,
+    lossless_gaps,
+    read_json,
+    write_outputs_mcap,
+)
+from changing_slam_ros.commands.graph_options import parse_kills, parse_loads, parse_nice
+from changing_slam_ros.commands.graph_process import (
+    NodeFailed,
+    NodeProcess,
+    child_env,
+    node_argv,
+    python_argv,
+    stop_all,
+)
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
+from changing_slam_ros.io.output_dir import OutputDir
 
 READY_MARKERS = {
     "object_map": "object_map: started",
@@ -43,6 +59,7 @@ READY_MARKERS = {
 # What nodes.map_resync logs when a (re)started map owner has its map back from tracking, or starts empty.
 RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 BACKENDS = ("split", "in_process")
+MAPS_DIR = "maps"  # in DIR: the map_dir of local_mapping's and object_map's SaveMap / LoadMap
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
 # What the graph gives its nodes unless an option says otherwise, as node parameter values: (in real time, with
@@ -105,7 +122,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local_mapping's local BA solver (default: schur in real time, the numpy Schur-complement "
                              "LM that solves gtsam's problem at ~0.35x the CPU; the config's, gtsam unless set, in "
                              "--lossless, so that the graph repeats `changing-slam run`)")
-    parser.add_argument("--max-restarts", type=int, default=2, metavar="N", help="restarts per node (default 2)")
+    parser.add_argument("--max-restarts", type=int, default=2, metavar="N",
+                        help="restarts per node (default 2); a node that dies once more, dies twice in a row with "
+                             "the same error, or dies while (re)starting stops the graph: every process is stopped "
+                             "within 10 s, the node's last log lines and log path are printed, exit 1")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
     parser.add_argument("--backend", choices=BACKENDS, default="split",
                         help="split: local_mapping and loop_closing in their own processes (default); "
@@ -158,48 +178,6 @@ def _uses_detections(config: str) -> bool:
     return dyn.enabled and dyn.detection_filtering
 
 
-def parse_nice(specs: list[str], known: tuple[str, ...]) -> dict[str, int]:
-    """`--nice NODE=N` specs as {node: increment}; an unknown node or a value outside 0..19 is a ConfigError."""
-    out: dict[str, int] = {}
-    for spec in specs:
-        name, _, value = spec.partition("=")
-        if name not in known:
-            raise ConfigError(f"--nice {spec}: unknown node {name!r} (nodes: {', '.join(known)})")
-        try:
-            out[name] = int(value)
-        except ValueError as err:
-            raise ConfigError(f"--nice {spec}: expected NODE=N with N an integer 0..19, e.g. local_mapping=5") from err
-        if not 0 <= out[name] <= 19:
-            raise ConfigError(f"--nice {spec}: N must be 0..19 (raising a priority needs privileges)")
-    return out
-
-
-def _parse_at(specs: list[str], option: str, example: str) -> list[tuple[str, float]]:
-    """WHAT@SECONDS arguments (--kill, --load-map) -> (what, seconds); the last @ splits (a path may hold one)."""
-    out = []
-    for spec in specs:
-        what, _, seconds = spec.rpartition("@")
-        try:
-            out.append((what, float(seconds)))
-        except ValueError as err:
-            raise ConfigError(f"{option} {spec}: expected {example}") from err
-    return out
-
-
-def _parse_loads(specs: list[str]) -> list[tuple[str, float]]:
-    """--load-map MAP@S -> (absolute map path, seconds); a missing or bad map fails here, before anything starts."""
-    from changing_slam_ros.io.map_file import load_map
-
-    loads = _parse_at(specs, "--load-map", "MAP@SECONDS, e.g. first/map.npz@4")
-    for path, _ in loads:
-        load_map(path)
-    return [(str(Path(path).resolve()), at_s) for path, at_s in loads]
-
-
-def _parse_kills(specs: list[str]) -> list[tuple[str, float]]:
-    return _parse_at(specs, "--kill", "NODE@SECONDS, e.g. object_map@5")
-
-
 class Graph:
     """The processes of one run; `run()` returns the summary dict.
 
@@ -237,15 +215,16 @@ class Graph:
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
-        self.out = Path(args.out).resolve()
-        self.logs = self.out / "logs"
-        self.logs.mkdir(parents=True, exist_ok=True)
         self.bag = str(Path(args.bag).resolve())
         self.info = inspect_bag(self.bag)
         self.config = str(Path(args.config).resolve()) if args.config and Path(args.config).is_file() else args.config
+        if self.config:
+            from changing_slam_ros.nodes.slam_backend import load_backend_config
+
+            load_backend_config(self.config)  # a bad config fails here, before any process starts
         self.detection = _uses_detections(self.config) if args.detection is None else args.detection
-        self.kills = _parse_kills(args.kill)
-        self.loads = _parse_loads(getattr(args, "load_map", []))
+        self.kills = parse_kills(args.kill)
+        self.loads = parse_loads(getattr(args, "load_map", []))
         self.load_calls: list[dict[str, Any]] = []  # one per --load-map: path, at_s, process, log
         self.map_loads: list[dict[str, Any]] = []  # their outcomes (graph_summary.json)
         self.map_in = ""
@@ -254,18 +233,29 @@ class Graph:
 
             load_map(args.map_in)  # a bad map fails here, before any process starts
             self.map_in = str(Path(args.map_in).resolve())
+        # Everything is written into a fresh folder beside --out, which replaces it when the run is complete
+        # (`io.output_dir`); an interrupted run leaves --out as it was and its partial results aside.
+        self.out_dir = OutputDir.prepare(Path(args.out).resolve(), "--out")
+        self.out = self.out_dir.work
+        self.logs = self.out / "logs"
+        self.logs.mkdir(parents=True, exist_ok=True)
         domain = os.environ.get("ROS_DOMAIN_ID") or str(random.SystemRandom().randint(1, 99))
-        self.env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        self.env = child_env(dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                         PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0",
-                        ROS_LOG_DIR=str(self.logs / "ros"))  # fmt: skip
+                        ROS_LOG_DIR=str(self.logs / "ros")))  # fmt: skip
         # One OpenBLAS thread per node (unless set): six processes share the cores, and a second BLAS thread per
         # process only spins on the small products tracking and mapping do (in-process tracking + mapping on
         # the sim bag: 6.6 -> 5.9 s CPU, 9.6 -> 8.5 s wall for 150 frames).
         self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.nodes: dict[str, NodeProcess] = {}
         self.restarts: dict[str, int] = {}
+        self._failures: dict[str, str] = {}  # node -> the error it last died with (`NodeProcess.failure`)
         self.cpu = PlayCpu()  # CPU seconds per process during playback (graph_summary.json)
-        self._build()
+        try:
+            self._build()
+        except BaseException:
+            shutil.rmtree(self.out, ignore_errors=True)
+            raise
 
     def _build(self) -> None:
         a, info = self.args, self.info
@@ -274,12 +264,14 @@ class Graph:
         if a.object_map:
             remaps = {"/tracking/semantic_map": "/local_mapping/semantic_map"} if split else None
             self.nodes["object_map"] = NodeProcess("object_map", node_argv("object_map_node", {
-                "config": self.config, "map_file": str(self.out / "semantic_map_node.json")}, remaps), self.logs)  # fmt: skip
+                "config": self.config, "map_file": str(self.out / "semantic_map_node.json"),
+                "map_dir": str(self.out / MAPS_DIR)}, remaps), self.logs)  # fmt: skip
         if split:
             # Restarted, the map owner and the loop side take the current map from tracking, not the --map-in file.
             solver = a.ba_solver or mode_default("ba_solver", a.lossless)
             mapping = {"config": self.config, "output_dir": str(self.out), "wait_for_loop_results": bool(a.lossless),
                        "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
+                       "map_dir": str(self.out / MAPS_DIR),
                        "ba_solver": "" if solver == "config" else solver}  # fmt: skip
             self.nodes["local_mapping"] = NodeProcess(
                 "local_mapping", node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
@@ -334,8 +326,7 @@ class Graph:
         deadline = time.monotonic() + timeout_s
         while marker and marker not in node.log_text():
             if not node.running():
-                raise SlamError(f"graph: {node.name} exited with {node.proc.returncode if node.proc else '?'} "
-                                f"while starting; see {node.log_path}")  # fmt: skip
+                raise NodeFailed(node, f"exited with {node.proc.returncode if node.proc else '?'} while starting")
             if time.monotonic() > deadline:
                 raise SlamError(f"graph: {node.name} not up after {timeout_s:.0f} s; see {node.log_path}")
             time.sleep(0.1)
@@ -366,25 +357,38 @@ class Graph:
                     self._call_load_map(path, now - first_message_s)
                     pending_loads.remove((path, at_s))
             for node in self.nodes.values():
-                if node.running():
-                    continue
-                code = node.proc.returncode if node.proc is not None else -1
-                node.exit_codes.append(code)
-                if self.restarts.get(node.name, 0) >= self.args.max_restarts:
-                    raise SlamError(f"graph: {node.name} died (exit {code}) and was restarted "
-                                    f"{self.args.max_restarts} times; see {node.log_path}")  # fmt: skip
-                self.restarts[node.name] = self.restarts.get(node.name, 0) + 1
-                print(f"graph: {node.name} died (exit {code}); restarting ({self.restarts[node.name]})", flush=True)
-                self._start(node, 180.0)
+                if not node.running():
+                    self._restart(node, killed=any(name == node.name for name, _ in self.kills))
             self.cpu.sample(self._pids())
             time.sleep(0.2)
+
+    def _restart(self, node: NodeProcess, killed: bool) -> None:
+        """Restart a dead node, or raise NodeFailed when that cannot help: it died more than --max-restarts
+        times, or with the same error as the last time (a bad config, say: the next start fails alike)."""
+        code = node.proc.returncode if node.proc is not None else -1
+        node.exit_codes.append(code)
+        failure = "" if killed else node.failure()
+        if self.restarts.get(node.name, 0) >= self.args.max_restarts:
+            raise NodeFailed(node, f"died (exit {code}) and was restarted {self.args.max_restarts} times "
+                                   "(--max-restarts)")  # fmt: skip
+        if failure and failure == self._failures.get(node.name):
+            raise NodeFailed(node, f"died twice with the same error (exit {code}); a restart will not help")
+        self._failures[node.name] = failure
+        self.restarts[node.name] = self.restarts.get(node.name, 0) + 1
+        print(f"graph: {node.name} died (exit {code}){': ' + failure if failure else ''}; restarting "
+              f"({self.restarts[node.name]}/{self.args.max_restarts}); log {node.log_path}", flush=True)  # fmt: skip
+        self._start(node, 180.0)
 
     def _call_load_map(self, path: str, at_s: float) -> None:
         """Start one LoadMap call (`nodes.map_service_call`) without waiting for it; `_finish_load_calls` collects it."""
         log = self.logs / f"load_map_{len(self.load_calls)}.log"
         print(f"graph: --load-map: LoadMap {path} at {at_s:.1f} s", flush=True)
+        # local_mapping's LoadMap reads only inside its map_dir: the map goes there first
+        name = f"load_{len(self.load_calls)}_{Path(path).name}"
+        (self.out / MAPS_DIR).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, self.out / MAPS_DIR / name)
         with open(log, "wb") as f:
-            proc = subprocess.Popen([sys.executable, "-m", "changing_slam_ros.nodes.map_service_call", "load", path,
+            proc = subprocess.Popen([*python_argv(), "-m", "changing_slam_ros.nodes.map_service_call", "load", name,
                                      "--timeout", "60"], stdout=f, stderr=subprocess.STDOUT, env=self.env)  # fmt: skip
         self.load_calls.append({"path": path, "at_s": round(at_s, 2), "proc": proc, "log": log})
 
@@ -455,8 +459,18 @@ class Graph:
             self.cpu.sample(self._pids(with_player=False))  # the work on the last frames counts too
             self._wait_resynced(120.0)
             self.map_loads = self._finish_load_calls(90.0)
-        finally:
-            codes = self.shutdown()
+        except NodeFailed as err:
+            stop_all([*self.nodes.values(), self.player])
+            for c in self.load_calls:
+                c["proc"].kill()
+            lines = err.node.last_lines(12)
+            print(f"graph: {err.node.name}'s last log lines ({err.node.log_path}):\n"
+                  + "\n".join(f"  {ln[:300]}" for ln in lines), file=sys.stderr, flush=True)  # fmt: skip
+            raise
+        except BaseException:
+            self.shutdown()
+            raise
+        codes = self.shutdown()
         return self._summary(play_s, up_s, codes)
 
     # -- results --------------------------------------------------------------------------------
@@ -492,10 +506,13 @@ class Graph:
             "detections_received": stats.get("detections_received"),
             "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
         }  # fmt: skip
+        summary["lossless_incomplete"] = (lossless_gaps(self.player.log_text(), stats, summary["local_mapping"])
+                                          if self.args.lossless else [])  # fmt: skip
         summary.update(self._cpu_summary())
         summary.update(evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = write_outputs_mcap(self.bag, self.config, self.out)
-        summary["map_out"] = str(self.out / "map.npz") if (self.out / "map.npz").is_file() else None
+        summary["map_out"] = str(self.out_dir.path_after_commit(self.out / "map.npz")) \
+            if (self.out / "map.npz").is_file() else None  # fmt: skip
         movers = read_json(self.out / "moving_objects.json")
         summary["moving_objects"] = len(movers["objects"]) if movers else None
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
@@ -523,8 +540,14 @@ def main(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)  # `timeout`/kill: still stop the children
     try:
         s = graph.run()
+    except BaseException:
+        kept = graph.out_dir.abandon()
+        if kept is not None:
+            print(f"graph: stopped; partial results kept in {kept} ({args.out} unchanged)", file=sys.stderr)
+        raise
     finally:
         signal.signal(signal.SIGTERM, previous)
+    graph.out_dir.commit()
     ate_text = f"ATE RMSE {s['ate_rmse_m'] * 100:.2f} cm (online {s.get('ate_online_rmse_m', float('nan')) * 100:.2f} cm)" \
         if "ate_rmse_m" in s else f"no ATE ({s.get('evaluation_error', 'no ground truth')})"  # fmt: skip
     lat = s["latency_ms_median"]
@@ -535,8 +558,10 @@ def main(args: argparse.Namespace) -> int:
         + (f", detection {s['detection_rate_hz']:.1f} Hz" if s.get("detection_node") and s.get("detection_rate_hz") else "")
         + (f", restarts {s['restarts']}" if s["restarts"] else "")
     )
+    if s.get("lossless_incomplete"):
+        print("graph: warning: lossless run incomplete: " + "; ".join(s["lossless_incomplete"]), file=sys.stderr)
     cpu = s.get("cpu_ms_per_bag_frame") or {}
     if cpu:
         print("CPU ms per bag frame during playback: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items()))
-    print(f"results in {graph.out}")
+    print(f"results in {graph.out_dir.target}")
     return 0

@@ -4,6 +4,7 @@ trajectories, ground truth and moving objects as PoseStamped topics) and the ATE
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -125,3 +126,22 @@ def evaluate(bag: str, config: str, out: Path) -> dict[str, Any]:
         except SlamError as err:
             result.setdefault("evaluation_error", str(err))
     return result
+
+
+def lossless_gaps(player_log: str, stats: dict[str, Any], mapping: dict[str, Any] | None) -> list[str]:
+    """What a lossless run did not finish: player acks or tracking's map-update waits that timed out,
+    keyframes without a map update, keyframes received but not mapped. Empty when the run is complete."""
+    gaps = []
+    found = re.findall(r"bag_player: finished: .*?, (\d+) ack timeouts", player_log)
+    if found and int(found[-1]):
+        gaps.append(f"{found[-1]} frames went out without tracking's ack (ack timeout)")
+    if stats.get("map_update_waits_timed_out"):
+        gaps.append(f"tracking went on without {stats['map_update_waits_timed_out']} map updates / loop verdicts")
+    if stats.get("keyframes_without_map_update"):
+        gaps.append(f"{stats['keyframes_without_map_update']} keyframes sent never came back as a map update")
+    if mapping and mapping.get("keyframes_mapped") != mapping.get("keyframes_received"):
+        gaps.append(f"local_mapping received {mapping.get('keyframes_received')} keyframes and mapped "
+                    f"{mapping.get('keyframes_mapped')}")  # fmt: skip
+    if not stats:
+        gaps.append("tracking wrote no tracking_stats.json")
+    return gaps

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import queue
+import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -28,16 +29,17 @@ from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dy
 from changing_slam_ros.commands.objects_options import (
     LoopLog, add_object_arguments, object_layer_setup, write_object_outputs,
 )
-from changing_slam_ros.config import find_config, load_yaml, section
+from changing_slam_ros.config import load_config, section
 from changing_slam_ros.core.slam.local_mapping import MappingConfig
 from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.core.slam.localization import Mode
-from changing_slam_ros.errors import ConfigError, EvalError
+from changing_slam_ros.errors import ConfigError, EvalError, OutputError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.map_file import load_map, save_map
+from changing_slam_ros.io.output_dir import OutputDir
 from changing_slam_ros.io.moving_objects_file import write_moving_objects
 from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
 
@@ -85,9 +87,7 @@ def main(args: argparse.Namespace) -> int:
     data: dict[str, Any] = {}
     where = "defaults"
     if args.config:
-        path = find_config(args.config)
-        data = load_yaml(path)
-        where = str(path)
+        data, where = load_config(args.config)
         settings = settings_from_mapping(data, where)
     else:
         settings = load_dataset_settings(None)
@@ -96,6 +96,24 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError("--localization needs --map-in: the map to localise in")
     loaded = load_map(args.map_in) if args.map_in else None  # a bad map fails before any frame is read
     source = open_dataset(args.source, settings)
+    out_dir = OutputDir.prepare(args.out, "--out")  # checked (and staged) before the first frame
+    try:
+        code = _run(args, data, where, config, loaded, source, out_dir.work)
+        out_dir.commit()
+    except BaseException as err:
+        kept = out_dir.abandon()
+        if kept is not None:
+            print(f"run: stopped; partial results kept in {kept} ({args.out} unchanged)", file=sys.stderr)
+        if isinstance(err, OSError):
+            raise OutputError(f"--out {args.out}: results not written: {err}") from err
+        raise
+    print(f"results in {out_dir.target}")
+    return code
+
+
+def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: SystemConfig, loaded: Any,
+         source: Any, out: Path) -> int:
+    """Process every frame and write the results into `out` (the staging folder of `OutputDir`)."""
     closing = None if args.no_loop else _loop_closing(data, where)
     dynamic = dynamic_setup(args, data, where)
     objects = object_layer_setup(args, data, where)
@@ -123,8 +141,6 @@ def main(args: argparse.Namespace) -> int:
     if keypoint_log is not None:
         keypoint_log.write(args.keypoint_log)
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     final = system.final_trajectory()
     online = system.online_trajectory()
     write_tum_trajectory(out / "trajectory.txt", final)
@@ -163,8 +179,11 @@ def main(args: argparse.Namespace) -> int:
     movers = dynamic.filter.movers if dynamic.filter is not None else None
     if movers is not None:  # class-agnostic moving objects (Dai et al.) and their trajectories
         metrics["moving_objects"] = write_moving_objects(out, movers.tracks())
+    metrics["warnings"] = run_warnings(metrics)
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     atomic_write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
+    for warning in metrics["warnings"]:
+        print(f"run: warning: {warning}", file=sys.stderr)
     line = (
         f"{metrics['frames_tracked']}/{metrics['frames']} frames tracked, {metrics['keyframes']} keyframes, "
         f"{metrics['loops_closed']} loops, {metrics['fps']:.1f} fps, tracking median {metrics['tracking_ms_median']:.1f} ms"
@@ -172,8 +191,21 @@ def main(args: argparse.Namespace) -> int:
     if "ate_rmse_m" in metrics:
         line += f", ATE RMSE {metrics['ate_rmse_m'] * 100:.2f} cm (online {metrics['ate_online_rmse_m'] * 100:.2f} cm)"
     print(line)
-    print(f"results in {out}")
-    return 0
+    return 1 if metrics["frames_tracked"] == 0 else 0  # nothing useful produced
+
+
+def run_warnings(metrics: dict[str, Any]) -> list[str]:
+    """What the console and metrics.json `warnings` say about a run that produced little: no frame tracked, or a
+    loaded map never relocalised in."""
+    out = []
+    if metrics["frames"] and metrics["frames_tracked"] == 0:
+        out.append(f"0 of {metrics['frames']} frames tracked: check the config's camera and dataset.depth_scale "
+                   "against the data")  # fmt: skip
+    ms = metrics.get("multi_session")
+    if ms is not None and not ms["relocalised"]:
+        out.append(f"never relocalised in the loaded map {ms['map_in']}; a new map was started (a map of another "
+                   "scene, or made with another camera?)")  # fmt: skip
+    return out
 
 
 def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:

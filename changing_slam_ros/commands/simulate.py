@@ -52,8 +52,10 @@ def main(args: argparse.Namespace) -> int:
         raise SimError("no scenario given; run `changing-slam simulate --list` to see them")
     if args.out is None:
         raise SimError("--out DIR is required")
+    from changing_slam_ros.io.output_dir import check_output_folder
     from changing_slam_ros.sim.sequence import RenderOptions, simulate
 
+    check_output_folder(args.out, "--out")
     name = args.scenario
     if args.control and not name.endswith("_control"):
         name = f"{name}_control"

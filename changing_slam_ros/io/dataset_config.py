@@ -9,10 +9,12 @@ Built with `config.section` from a YAML file such as `config/tum_fr1.yaml`::
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from pathlib import Path
 
-from changing_slam_ros.config import find_config, load_yaml, section
+from changing_slam_ros.config import load_config, section
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.errors import ConfigError
 
@@ -51,6 +53,16 @@ class CameraConfig:
     cx: float = 0.0
     cy: float = 0.0
     dist: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        named = {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy}
+        bad = [f"{k} {v}" for k, v in named.items() if not math.isfinite(v)]
+        bad += [f"dist {list(self.dist)}"] if not all(math.isfinite(d) for d in self.dist) else []
+        if bad:
+            raise ConfigError(f"{', '.join(bad)}: intrinsics must be finite numbers")
+        if len(self.dist) not in (4, 5, 8):
+            raise ConfigError(f"dist: {len(self.dist)} values {list(self.dist)}; expected 4, 5 or 8 (k1 k2 p1 p2 "
+                              "[k3 [k4 k5 k6]], OpenCV order)")  # fmt: skip
 
     def intrinsics(self, where: str = "camera") -> CameraIntrinsics:
         if self.width <= 0 or self.height <= 0 or self.fx <= 0 or self.fy <= 0:
@@ -108,7 +120,7 @@ class DatasetConfig:
             raise ConfigError(
                 f"dataset.bag_intrinsics_from: '{self.bag_intrinsics_from}' unknown; expected camera_info or config"
             )
-        if self.depth_scale <= 0:
+        if not math.isfinite(self.depth_scale) or self.depth_scale <= 0:
             raise ConfigError(f"dataset.depth_scale: {self.depth_scale}, expected > 0 (PNG units per metre)")
         if self.max_time_diff_s < 0 or self.gt_max_time_diff_s < 0:
             raise ConfigError("dataset: max_time_diff_s and gt_max_time_diff_s must be >= 0")
@@ -153,9 +165,8 @@ def load_dataset_settings(name_or_path: str | Path | None) -> DatasetSettings:
     """Read `dataset:` and `camera:` from a config file or shipped config name; None = defaults."""
     if name_or_path is None:
         return DatasetSettings(DatasetConfig(), None, "defaults")
-    path = find_config(name_or_path)
-    data = load_yaml(path)
-    return settings_from_mapping(data, str(path))
+    data, where = load_config(name_or_path)
+    return settings_from_mapping(data, where)
 
 
 def settings_from_mapping(data: dict[str, object], where: str) -> DatasetSettings:
@@ -166,7 +177,11 @@ def settings_from_mapping(data: dict[str, object], where: str) -> DatasetSetting
     except ConfigError as err:
         text = str(err)
         raise ConfigError(text if text.startswith(where) else f"{where}: {text}") from err
-    camera = None if cam is None else section(CameraConfig, cam, f"{where}: camera")  # type: ignore[arg-type]
+    try:
+        camera = None if cam is None else section(CameraConfig, cam, f"{where}: camera")  # type: ignore[arg-type]
+    except ConfigError as err:
+        text = str(err)
+        raise ConfigError(text if text.startswith(where) else f"{where}: camera: {text}") from err
     if camera is not None:
         camera.intrinsics(f"{where}: camera")  # validate now, at the edge
     return DatasetSettings(dataset, camera, where)

@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
-from changing_slam_ros.errors import DatasetError, SlamError
+from changing_slam_ros.errors import DatasetError, SlamError, utf8_error
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
 from changing_slam_ros.io.groundtruth import GroundTruth, GroundTruthAccess
@@ -71,9 +71,11 @@ def read_file_list(path: Path) -> list[StampedFile]:
 
 def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as err:
         raise DatasetError(f"{path}: cannot read ({err.strerror})") from err
+    except UnicodeDecodeError as err:
+        raise DatasetError(utf8_error(path, err, "text")) from err
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if s and not s.startswith("#"):

@@ -38,7 +38,7 @@ from changing_slam_ros.io.playback import (
     parse_remaps,
     plan,
 )
-from changing_slam_ros.nodes.node_runner import declare_parameters, message_class, run_node
+from changing_slam_ros.nodes.node_runner import declare_parameters, message_class, run_node, undeclared_parameters
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 
 STRING_ARRAY = Parameter.Type.STRING_ARRAY
@@ -97,6 +97,11 @@ class BagPlayerNode(QuietQosEvents, Node):
             self.bag.close()
             raise
         self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+        unknown = undeclared_parameters(self)
+        if unknown:
+            self.bag.close()
+            known = sorted(n for n in self._parameters if not n.startswith("qos_overrides."))
+            raise ConfigError(f"bag_player: unknown parameter(s) {', '.join(unknown)}; known: {', '.join(known)}")
         self._acks: dict[int, set[str]] = {}
         self._check_confirm_topics()
         # lossless: the output names of the confirm topics the bag has; confirmed ones drop out

@@ -67,6 +67,8 @@ class LocalMappingNode(Node):
             ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
             ("map_out", "", "on shutdown, save the whole map here (map.npz format of `changing-slam run`, atomic); "
                             "also the default path of ~/save_map"),
+            ("map_dir", "", "folder the paths of ~/save_map and ~/load_map requests must lie in (names ending .npz; "
+                            "an existing file is replaced only when it is a map file); empty = request paths refused"),
             ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
             ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                                       "tracking and loop_closing), so that a (re)started node loses no update"),
@@ -118,7 +120,8 @@ class LocalMappingNode(Node):
         self.loads = 0
         self.ba_stops = 0  # local BAs ended early because a keyframe arrived (ba_yields_to_keyframes)
         self.keyframe_sub = self.create_subscription(KeyframeMsg, "/tracking/keyframes", self.on_keyframe, keyframe_qos)
-        self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, keyframe_qos)
+        self.loop_sub = self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections",
+                                                 self.on_loop_correction, keyframe_qos)  # fmt: skip
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
         self.update_pub = self.create_publisher(MapUpdate, "~/map_updates", keyframe_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
@@ -213,23 +216,35 @@ class LocalMappingNode(Node):
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # beliefs and active flags are the object layer's, which runs here (see the module doc)
 
+    def _request_path(self, name: str, for_write: bool) -> Path:
+        """A SaveMap / LoadMap path: a name confined to `map_dir` (`io.map_dir`: any peer may call the services)."""
+        from changing_slam_ros.io.map_dir import MapDir, is_metric_map
+
+        service = "SaveMap" if for_write else "LoadMap"
+        return MapDir(self.params["map_dir"], (".npz",), is_metric_map, service).resolve(name, for_write)
+
     def on_save_map(self, request: Any, response: Any) -> Any:
-        path = request.path or self.params["map_out"]
-        if not path:
+        if not request.path and not self.params["map_out"]:
             response.success, response.message = False, "local_mapping: no path given and no map_out parameter"
             return response
+        path = request.path or self.params["map_out"]
         try:
-            self.save_map(Path(path))
+            target = self._request_path(request.path, for_write=True) if request.path else Path(path)
+            self.save_map(target)
             response.success = True
-            response.message = f"local_mapping: saved {self.owner.atlas.n_keyframes} keyframes to {path}"
+            response.message = f"local_mapping: saved {self.owner.atlas.n_keyframes} keyframes to {target}"
         except (SlamError, OSError) as err:
             response.success, response.message = False, f"local_mapping: map not saved to {path}: {err}"
+            self.get_logger().warning(response.message)
         return response
 
     def on_load_map(self, request: Any, response: Any) -> Any:
         """~/load_map: continue from a saved map (see the module doc)."""
         path = request.path
         try:
+            if not path:
+                raise SlamError("LoadMap request: path is empty")
+            path = str(self._request_path(path, for_write=False))
             self.load_map(path)
         except (SlamError, OSError, ValueError) as err:
             response.success, response.message = False, f"local_mapping: map not loaded (running map kept): {err}"
@@ -393,6 +408,16 @@ class LocalMappingNode(Node):
         out.update(summarise_ms(t["mapping"], "local_ba_and_mapping"))
         out.update(summarise_ms(t["diff"], "diff"))
         return out
+
+    def work_pending(self) -> str:
+        """What a stop still waits for (`node_runner.drain_work`): queued keyframes, and the loop verdict the
+        last mapped keyframe awaits (wait_for_loop_results) while loop_closing is there to give it, so that every
+        keyframe received is mapped and every verdict applied before the map and stats are written; "" when
+        nothing."""
+        parts = [f"{len(self.queue)} queued keyframes"] if self.queue else []
+        if self.awaiting_loop_for >= 0 and self.count_publishers(self.loop_sub.topic_name) > 0:  # loop_closing up
+            parts.append(f"the loop verdict on keyframe {self.awaiting_loop_for}")
+        return " and ".join(parts)
 
     def finish(self) -> list[Path]:
         if self._finished:

@@ -127,6 +127,8 @@ class ObjectMapNode(Node):
                                        "< 0 = the config's objects section"),
             ("map_file", "", "semantic map loaded at start, saved after every update and on SaveMap without a "
                              "path; empty = none"),
+            ("map_dir", "", "folder SaveMap / LoadMap request paths must lie in (names ending .json/.yaml/.yml; "
+                            "an existing file is replaced only when it is a semantic map); empty = paths refused"),
         ])  # fmt: skip
         if self.params["belief_threshold"] < 0:
             self.params["belief_threshold"] = _config_belief_threshold(self.params["config"])
@@ -205,25 +207,36 @@ class ObjectMapNode(Node):
         response.objects = query_objects(self.objects.values(), request, self.params["belief_threshold"])
         return response
 
+    def _request_path(self, name: str, for_write: bool) -> str:
+        """A request's path: empty = the `map_file` parameter, else a name confined to `map_dir` (io.map_dir)."""
+        if not name:
+            if not self.params["map_file"]:
+                raise SlamError("no path given and no map_file parameter")
+            return str(self.params["map_file"])
+        from changing_slam_ros.io.map_dir import MapDir, is_semantic_map
+
+        where = MapDir(self.params["map_dir"], (".json", ".yaml", ".yml"), is_semantic_map,
+                       "SaveMap" if for_write else "LoadMap")  # fmt: skip
+        return str(where.resolve(name, for_write))
+
     def on_save(self, request: Any, response: Any) -> Any:
-        path = request.path or self.params["map_file"]
-        if not path:
-            response.success, response.message = False, "object_map: no path given and no map_file parameter"
-            return response
         try:
+            path = self._request_path(request.path, for_write=True)
             n = self.save(path)
             response.success, response.message = True, f"object_map: saved {n} objects to {path}"
         except (SlamError, OSError) as err:
             response.success, response.message = False, f"object_map: {err}"
+            self.get_logger().warning(response.message)
         return response
 
     def on_load(self, request: Any, response: Any) -> Any:
-        path = request.path or self.params["map_file"]
         try:
+            path = self._request_path(request.path, for_write=False)
             n = self.load(path)
             response.success, response.message = True, f"object_map: loaded {n} objects from {path}"
         except (SlamError, OSError) as err:
             response.success, response.message = False, f"object_map: {err}"
+            self.get_logger().warning(response.message)
         return response
 
     def on_reset(self, request: Any, response: Any) -> Any:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from changing_slam_ros.config import find_config, load_yaml, section
+from changing_slam_ros.config import load_config, section
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, object_layer_config
@@ -63,8 +63,11 @@ def load_backend_config(name_or_path: str) -> BackendConfig:
     """`""` = defaults; otherwise a shipped config name (`tum_fr1`) or a YAML path."""
     if not name_or_path:
         return BackendConfig({}, "defaults")
-    path = find_config(name_or_path)
-    return BackendConfig(load_yaml(path), str(path))
+    from changing_slam_ros.io.dataset_config import settings_from_mapping
+
+    data, where = load_config(name_or_path)
+    settings_from_mapping(data, where)  # camera and dataset sections checked at start, not at the first frame
+    return BackendConfig(data, where)
 
 
 def _switch(value: str, config_value: bool, what: str) -> bool:

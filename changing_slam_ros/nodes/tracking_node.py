@@ -123,6 +123,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.detections_in = 0
         self.update_latency_ms: list[float] = []  # keyframe published -> its map update applied
         self._awaiting: dict[str, Any] | None = None  # wait_for_map_updates: what the held ack waits for
+        self.map_update_waits_timed_out = 0  # held acks sent after map_update_timeout_s without update / verdict
         self._kf_sent_s: dict[int, float] = {}
         self._relays_seen: set[int] = set()
         self.epochs = LoadEpochs.of("updates", "loops")  # local_mapping's ~/load_map (see nodes/map_load.py)
@@ -173,8 +174,9 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.create_subscription(image_type, self.depth_topic, self.on_depth, image_qos, event_callbacks=warn())
         self.create_subscription(DetectionArray, "/detection/detections", self.on_detections, 10)
         self.create_subscription(Header, "/detection/skipped", self.on_detections_skipped, 10)
-        self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
-        self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections", self.on_loop_correction, 10)
+        self.update_sub = self.create_subscription(MapUpdate, "/local_mapping/map_updates", self.on_map_update, 10)
+        self.loop_sub = self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections",
+                                                 self.on_loop_correction, 10)  # fmt: skip
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
 
         self.frames_out = Rep105Outputs(self, p)  # TF: map -> odom (-> base_frame with visual odometry)
@@ -454,6 +456,15 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         """~/moving_objects and ~/moving_object_markers (`MoverOutputs`): the movers tracked long enough."""
         if self.movers is not None and self.movers_out is not None:
             self.movers_out.publish(self.movers, stamp_ns)
+
+    def work_pending(self) -> str:
+        """What a stop still waits for (`node_runner.drain_work`): the map update and loop verdict of the last
+        keyframe sent (wait_for_map_updates) while local_mapping and loop_closing are there to send them, so its
+        map is in the trajectory written; "" when nothing."""
+        senders = (self.update_sub, self.loop_sub) if self.split is not None else ()
+        if self._awaiting is not None and all(self.count_publishers(s.topic_name) > 0 for s in senders):
+            return f"the map update and loop verdict of keyframe {self._awaiting['kf']}"
+        return ""
 
     def finish(self) -> list[Path]:
         """Process frames still waiting, then write the outputs to `output_dir` (once; no-op without it)."""

@@ -131,4 +131,5 @@ class ReplicaInputs:
             self.get_logger().warning(f"tracking: no map update / loop verdict for keyframe {a['kf']} after "
                                       f"{self.params['map_update_timeout_s']} s; going on")  # fmt: skip
             self._awaiting = None
+            self.map_update_waits_timed_out += 1
             self._ack(a["header"])

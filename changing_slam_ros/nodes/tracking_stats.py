@@ -40,6 +40,8 @@ class TrackingStats:
             "detections_received": self.detections_in,
             "backend": "in_process" if self.split is None else "split",
             "map_updates_applied": self.updates_applied, "map_updates_rejected": self.updates_rejected,
+            "keyframes_without_map_update": len(self._kf_sent_s) if self.split is not None else None,
+            "map_update_waits_timed_out": self.map_update_waits_timed_out,
             "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "maps_merged_split": self.split.n_merges if self.split is not None else None,

@@ -115,6 +115,7 @@ def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path)
     assert s["ate_rmse_m"] < 0.04
     lm = s["local_mapping"]  # every keyframe mapped in local_mapping (some culled later: >= the final count)
     assert s["backend"] == "split" and lm["keyframes_mapped"] == lm["keyframes_received"] >= s["keyframes"]
+    assert s["lossless_incomplete"] == []  # no ack or map-update wait timed out, every keyframe came back mapped
     # What object_map received from local_mapping's object layer (/local_mapping/semantic_map, autosaved): the
     # monitor (COCO tv) on the table, confirmed, where the simulator put it (map aligned to ground truth by the
     # trajectory). A second tv may be the rocket poster on the wall, which the SSD calls tv (score 0.3-0.53)

@@ -10,6 +10,8 @@ tracking and loop_closing follow on the load marker, and tracking relocalises in
 
 from __future__ import annotations
 
+import shutil
+
 from pathlib import Path
 
 import numpy as np
@@ -95,7 +97,8 @@ def test_load_map_mid_run_moves_the_running_graph_onto_the_saved_map(ros_context
     from helpers import spin_until
 
     root = saved_session
-    map_file = root / "first" / "map.npz"
+    map_file = tmp_path / "map.npz"  # LoadMap reads inside local_mapping's map_dir only
+    shutil.copyfile(root / "first" / "map.npz", map_file)
     bad_file = tmp_path / "bad_map.npz"
     corrupt_copy(map_file, bad_file, "m0_kf_poses")
     common = [Parameter("config", value="sim"), Parameter("diagnostics_period_s", value=0.0)]
@@ -105,7 +108,8 @@ def test_load_map_mid_run_moves_the_running_graph_onto_the_saved_map(ros_context
         Parameter("reliable_images", value=True), Parameter("image_queue_depth", value=5),
         Parameter("output_dir", value=str(tmp_path / "out"))])  # fmt: skip
     mapping = LocalMappingNode(context=ros_context, parameter_overrides=[*common,
-        Parameter("wait_for_loop_results", value=lossless), Parameter("resync_timeout_s", value=0.0)])  # fmt: skip
+        Parameter("wait_for_loop_results", value=lossless), Parameter("resync_timeout_s", value=0.0),
+        Parameter("map_dir", value=str(tmp_path))])  # fmt: skip
     closing = LoopClosingNode(context=ros_context, parameter_overrides=[*common,
         Parameter("resync_timeout_s", value=0.0)])  # fmt: skip
     probe = Node("probe", context=ros_context)

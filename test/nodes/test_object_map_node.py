@@ -32,7 +32,8 @@ def _obj(i: int, class_id: int, name: str, x: float, belief: float) -> MapObject
 
 def test_object_map_mirrors_tracking_saves_loads_and_restarts_from_its_map_file(ros_context, tmp_path):
     map_file = tmp_path / "objects.json"
-    node = ObjectMapNode(context=ros_context, parameter_overrides=[Parameter("map_file", value=str(map_file))])
+    node = ObjectMapNode(context=ros_context, parameter_overrides=[Parameter("map_file", value=str(map_file)),
+                                                                   Parameter("map_dir", value=str(tmp_path))])
     assert node.params["belief_threshold"] == 0.6  # tum_fr1 config's objects section
     probe = Node("probe", context=ros_context)
     tracking_map = probe.create_publisher(MapObjectArray, "/tracking/semantic_map", LATCHED)

@@ -98,7 +98,7 @@ def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros
     node = LocalMappingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="7scenes"), Parameter("objects", value="off"),
         Parameter("diagnostics_period_s", value=0.2), Parameter("resync_timeout_s", value=0.0),
-        Parameter("ba_yields_to_keyframes", value=False)])  # fmt: skip
+        Parameter("ba_yields_to_keyframes", value=False), Parameter("map_dir", value=str(tmp_path))])  # fmt: skip
     probe = Node("probe", context=ros_context)
     diags: list[DiagnosticArray] = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
