@@ -30,3 +30,9 @@ def test_every_section_a_config_file_uses_is_documented_with_its_keys():
             text = tool.render()
             for key in values or {}:
                 assert f"| `{key}` |" in text, (path.name, name, key)
+
+
+def test_the_page_documents_exactly_the_sections_a_config_may_have():
+    from changing_slam_ros.config import CONFIG_SECTIONS
+
+    assert sorted(_tool().sections()) == sorted(CONFIG_SECTIONS)
