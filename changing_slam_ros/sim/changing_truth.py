@@ -1,8 +1,9 @@
 """Ground truth per lap of the changing-room family (`changing_truth.json`, written beside the render).
 
-Layout: `format`, `seed`, `with_changes`, `params` (what the seed drew), `laps` (per lap: start and end time and
-every object present at its end: name, class, pose [x, y, z, yaw], world-axis-aligned box, extent in its own
-frame, support floor / table / wall), `changes` (time, lap, kind, objects, from and to poses, distance, turn),
+Layout: `format`, `seed`, `with_changes`, `params` (what the seed drew), `initial` (the objects at the start),
+`laps` (per lap: start and end time and every object present at its end: name, class, pose [x, y, z, yaw],
+world-axis-aligned box, extent in its own frame, support floor / table / wall), `changes` (time, the lap it
+happens in, kind, objects, from and to poses, distance, turn),
 `wall_items` (pictures and objects hung on walls: `is_object` false for a photo, true for a clock or a screen)
 and `structure` (classed furniture that the object layer treats as fixed background: tables).
 """
@@ -60,15 +61,19 @@ def truth_document(room: "ChangingRoom", scenario: "Scenario", with_changes: boo
     actors = {a.name: a for a in scenario.actors}
     n_frames = scenario.n_frames()
     t_last = (n_frames - 1) / scenario.fps
+
+    def present(t_s: float) -> list[dict[str, Any]]:
+        rows = []
+        for name, actor in actors.items():
+            T = actor.track.pose_at(t_s)
+            if T is not None and room.items[name].class_id >= 0:
+                rows.append(_object_row(room.items[name], T))
+        return rows
+
     laps = []
     for k in range(room.n_laps):
         t0, t1 = k * room.lap_s, min((k + 1) * room.lap_s, t_last)
-        present = []
-        for name, actor in actors.items():
-            T = actor.track.pose_at(t1)
-            if T is not None and room.items[name].class_id >= 0:
-                present.append(_object_row(room.items[name], T))
-        laps.append({"lap": k, "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "objects": present})
+        laps.append({"lap": k, "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "objects": present(t1)})
     changes = []
     for c in room.changes if with_changes else ():
         moves = []
@@ -81,7 +86,7 @@ def truth_document(room: "ChangingRoom", scenario: "Scenario", with_changes: boo
                 turn = (_yaw(new) - _yaw(old) + np.pi) % (2 * np.pi) - np.pi
                 row["turn_deg"] = round(float(np.degrees(turn)), 2)
             moves.append(row)
-        changes.append({"t_s": round(c.t_s, 4), "lap": c.lap, "kind": c.kind, "object": c.actor, "other": c.other,
+        changes.append({"t_s": round(c.t_s, 4), "lap": min(int(c.t_s // room.lap_s), room.n_laps - 1), "kind": c.kind, "object": c.actor, "other": c.other,
                         "objects": moves})
     wall_items: list[dict[str, Any]] = []
     for p in room.pictures:
@@ -99,6 +104,6 @@ def truth_document(room: "ChangingRoom", scenario: "Scenario", with_changes: boo
     structure = [_object_row(room.items[n], T) for n, T in room.initial.items()
                  if T is not None and room.items[n].class_id == 60]
     doc = {"format": TRUTH_FORMAT, "scenario": scenario.name, "seed": room.seed, "with_changes": with_changes,
-           "frames": n_frames, "fps": scenario.fps, "params": room.params, "laps": laps, "changes": changes,
+           "frames": n_frames, "fps": scenario.fps, "params": room.params, "initial": present(0.0), "laps": laps, "changes": changes,
            "wall_items": wall_items, "structure": structure}
     return json.dumps(doc, indent=1) + "\n"

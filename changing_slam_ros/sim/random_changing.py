@@ -222,8 +222,11 @@ class _Views:
 
     def seen(self, item: Item, pose: F64, fovy_deg: float) -> npt.NDArray[np.bool_]:
         """Frames where the item's box centre lies in the inner 80 % of the image within SEEN_DEPTH_M."""
-        centre = _world_corners(item, pose).mean(axis=0)
-        uv, z = self.project(centre[None], fovy_deg)
+        return self.seen_point(_world_corners(item, pose).mean(axis=0), fovy_deg)
+
+    def seen_point(self, p_w: F64, fovy_deg: float) -> npt.NDArray[np.bool_]:
+        """Frames where the world point `p_w` (3,) lies in the inner 80 % of the image within SEEN_DEPTH_M."""
+        uv, z = self.project(np.asarray(p_w, float)[None], fovy_deg)
         w, h = DEFAULT_WIDTH, DEFAULT_HEIGHT
         return ((z[:, 0] > SEEN_DEPTH_M[0]) & (z[:, 0] < SEEN_DEPTH_M[1]) & (uv[:, 0, 0] > 0.1 * w)
                 & (uv[:, 0, 0] < 0.9 * w) & (uv[:, 0, 1] > 0.1 * h) & (uv[:, 0, 1] < 0.9 * h))
@@ -380,7 +383,10 @@ class _Planner:
             self.wall_used.append((wall, s, w / 2))
             photo = photos[int(self.rng.integers(len(photos)))]
             c = origin + along * s + normal * 0.006
-            c[2] = _u(self.rng, 1.0, 1.55)
+            c[2] = _u(self.rng, 0.95, 1.45)
+            if not self.views.seen_point(c, self.fovy).any():
+                self.wall_used.pop()
+                continue
             out.append(Picture(f"picture_{len(out)}", wall, (float(c[0]), float(c[1]), float(c[2])), (w, h),
                                (float(normal[0]), float(normal[1]), 0.0), photo, PICTURE_PHOTOS[photo]))
         return out
@@ -501,7 +507,7 @@ def draw_changing_room(seed: int) -> ChangingRoom:
     lights = _lights(rng, hx, hy, hz)
     n_laps = 3 if rng.random() < 0.35 else 2
     side, speed, turn = round(_u(rng, 0.6, 1.0), 3), round(_u(rng, 0.2, 0.3), 3), round(_u(rng, 30.0, 45.0), 2)
-    height, tilt = round(_u(rng, 0.6, 0.9), 3), round(_u(rng, 0.0, 4.0), 2)
+    height, tilt = round(_u(rng, 0.75, 1.1), 3), round(_u(rng, -5.0, 2.0), 2)  # tilt > 0: pitched down
     centre = np.array([_u(rng, -0.2, 0.2), _u(rng, -0.2, 0.2)])
     yaw0 = float(int(rng.integers(4)) * np.pi / 2)
     d0, d1 = np.array([np.cos(yaw0), np.sin(yaw0)]), np.array([-np.sin(yaw0), np.cos(yaw0)])
@@ -522,7 +528,7 @@ def draw_changing_room(seed: int) -> ChangingRoom:
     for k in range(n_wall):
         kind = WALL_KINDS[int(rng.integers(2))]
         item = _floor_item(rng, kind, f"{kind}_{k}")
-        z = _u(rng, 1.15, 1.5)
+        z = _u(rng, 1.0, 1.4)
         half_w = float(np.max(np.abs(np.concatenate([p.corners_m() for p in item.parts])[:, 1])))
         pose = planner.on_wall(item, [], half_w, z)
         if pose is not None:
