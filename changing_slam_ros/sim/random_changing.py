@@ -28,6 +28,7 @@ from changing_slam_ros.sim.path_views import OUT_OF_VIEW_MARGIN_PX, PathViews
 from changing_slam_ros.sim.renderer import fovy_for_focal
 from changing_slam_ros.sim.scenarios import DEFAULT_FY_PX, DEFAULT_HEIGHT, Scenario, check_changes_out_of_view
 from changing_slam_ros.sim.scene import Light, Room
+from changing_slam_ros.sim.sensor_model import EXACT, SensorModel, draw_sensor
 from changing_slam_ros.sim.track import pose_xyz_rpy
 
 F64 = npt.NDArray[np.float64]
@@ -105,6 +106,7 @@ class ChangingRoom:
     lap_s: float
     changes: tuple[DrawnChange, ...]
     params: dict[str, object] = field(default_factory=dict)
+    sensor: SensorModel = EXACT
 
     def scenario(self, with_changes: bool = True) -> Scenario:
         """The scenario with the changes applied, or (False) the control: same room, objects and path."""
@@ -126,7 +128,8 @@ class ChangingRoom:
         desc = (f"seed {self.seed}: {len(self.pictures)} pictures, {sum(p is not None for p in self.initial.values())}"
                 f" objects, {self.n_laps} laps, " + (f"{len(self.changes)} changes" if with_changes else "no change"))
         s = Scenario(name, desc, self.room, tuple(actors), camera, tuple(sorted(records, key=lambda r: r.t_s)),
-                     camera.end_s, FAMILY_FPS, preview_t_s=min(camera.end_s, 0.5 * self.lap_s))
+                     camera.end_s, FAMILY_FPS, preview_t_s=min(camera.end_s, 0.5 * self.lap_s), sensor=self.sensor,
+                     parameters=self.params)
         check_changes_out_of_view(s, OUT_OF_VIEW_MARGIN_PX)
         doc = truth_document(self, s, with_changes)
         return replace(s, extra_files=(("changing_truth.json", doc),))
@@ -527,8 +530,10 @@ def draw_changing_room(seed: int) -> ChangingRoom:
         "changes": [{"kind": c.kind, "object": c.actor, "other": c.other, "lap": c.lap, "t_s": round(c.t_s, 4)}
                     for c in changes],
     }
+    sensor = draw_sensor(np.random.default_rng([seed, 20, 1]))  # its own stream: the scene draws stay put
+    params["sensor"] = sensor.as_dict()
     return ChangingRoom(seed, hx, hy, hz, room, tuple(pictures), items, initial, loop, n_laps, lap_s,
-                        tuple(sorted(changes, key=lambda c: c.t_s)), params)
+                        tuple(sorted(changes, key=lambda c: c.t_s)), params, sensor)
 
 
 def random_changing(seed: int, with_changes: bool = True) -> Scenario:

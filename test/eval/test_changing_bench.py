@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from changing_slam_ros.commands.bench_changing import parse_seeds
 from changing_slam_ros.core.objects.semantic_map import SemanticObject
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.changing_bench import (
     SeedResult, load_changing_truth, score_semantic_map, summarise,
 )
+from changing_slam_ros.eval.seed_bench import parse_seeds
 
 
 def _obj(name: str, class_id: int, class_name: str, centre: tuple[float, float, float],
