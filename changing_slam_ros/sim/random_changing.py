@@ -33,7 +33,7 @@ from changing_slam_ros.sim.track import pose_xyz_rpy
 
 F64 = npt.NDArray[np.float64]
 
-FAMILY_FPS = 5.0  # frames per second of the family (see docs: 3-5 cm and 6-9 deg between frames)
+FAMILY_FPS = 5.0  # at most 6 cm and 4.4 deg between frames (docs/changing_bench.md)
 WALL_T_M = 0.05
 WALL_PHOTOS = ("brick", "brick_grey", "plaster", "wallpaper", "stucco")
 FLOOR_PHOTOS = ("gravel", "wood")
@@ -78,8 +78,9 @@ class Item:
 
 @dataclass(frozen=True)
 class DrawnChange:
-    """A change at `t_s` in lap `lap`: `kind` (CHANGE_KINDS) of `actor`; `other` the replacement or swap partner.
-    `to_poses`: actor name -> pose (4, 4) after the change, None when it leaves the room."""
+    """A change at `t_s`, timed within half a lap of the start of lap `lap`: `kind` (CHANGE_KINDS) of `actor`;
+    `other` the replacement or swap partner. `to_poses`: actor name -> pose (4, 4) after the change, None when it
+    leaves the room."""
 
     t_s: float
     lap: int
