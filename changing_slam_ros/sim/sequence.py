@@ -91,7 +91,8 @@ def simulate(scenario: Scenario, out_dir: Path, options: RenderOptions, seed: in
             if progress is not None:
                 progress(k + 1, n)
         writer.finish(options.start_stamp_ns)
-    atomic_write_text(Path(out_dir) / "sensor.json", json.dumps(sensor.as_dict(), indent=1) + "\n")
+    if not sensor.is_exact():  # an exact render keeps the scenario's folder as it always was
+        atomic_write_text(Path(out_dir) / "sensor.json", json.dumps(sensor.as_dict(), indent=1) + "\n")
     if scenario.parameters:
         atomic_write_text(Path(out_dir) / "scenario.json", json.dumps(
             {"scenario": scenario.name, "seed": seed, "parameters": scenario.parameters}, indent=1) + "\n")
