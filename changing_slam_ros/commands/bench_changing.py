@@ -54,7 +54,8 @@ def format_seed(r: SeedResult) -> str:
             f"  stale {len(s.stale)}  pictures {len(s.spurious_pictures)}  other {len(s.spurious_other)}"
             f"  ATE {100 * r.ate_m:.2f} cm  control {100 * r.control_ate_m:.2f} cm  (x{r.ate_ratio:.2f})"
             f"  loops {r.loops} wrong {r.wrong_loops}  tracked {r.frames_tracked}/{r.frames}"
-            f"  changes {','.join(r.changes) or '-'}  missed {','.join(s.missed) or '-'}")
+            f"  changes {','.join(r.changes) or '-'}"
+            f"  missed {','.join(f'{n}({why})' for n, why in r.missed_reasons) or '-'}")
 
 
 def format_summary(s: dict[str, Any]) -> str:
@@ -69,7 +70,8 @@ def format_summary(s: dict[str, Any]) -> str:
             f"{s['ate_ratio_median']:.2f}, worst {s['ate_ratio_max']:.2f}\n"
             f"seeds meeting the targets (of {n}): recall>=0.9 {m['recall']}, precision>=0.9 {m['precision']}, "
             f"no stale {m['no_stale']}, no picture {m['no_picture']}, ATE<=1.3x control {m['ate_ratio']}, "
-            f"no wrong loop {m['no_wrong_loop']}")
+            f"no wrong loop {m['no_wrong_loop']}\n"
+            "missed objects by reason: " + ", ".join(f"{k} {v}" for k, v in s["missed_reasons"].items()))
 
 
 def run_changing_bench(args: argparse.Namespace) -> int:

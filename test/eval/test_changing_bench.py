@@ -11,7 +11,7 @@ import pytest
 from changing_slam_ros.core.objects.semantic_map import SemanticObject
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.changing_bench import (
-    SeedResult, load_changing_truth, score_semantic_map, summarise,
+    SeedResult, load_changing_truth, missed_reasons, score_semantic_map, summarise,
 )
 from changing_slam_ros.eval.seed_bench import parse_seeds
 
@@ -160,3 +160,15 @@ def test_bench_changing_refuses_bad_seeds_on_one_line(tmp_path: Path, capsys: py
     assert main(["bench", "changing", "--seeds", "9-1", "--out", str(tmp_path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--seeds '9-1'" in err[0]
+
+
+def test_missed_objects_get_their_reason(tmp_path: Path) -> None:
+    truth = load_changing_truth(_truth(tmp_path))
+    active = [_est(1, 62, (3.0, 0.45, 1.0)),   # the tv, 0.45 m off: "off"
+              _est(2, 41, (1.0, 1.5, 0.5))]    # a cup where the chair stands: the chair is "wrong_class"
+    inactive = [_est(3, 58, (2.0, 1.05, 0.6))]  # the plant, belief too low: "inactive"
+    score = score_semantic_map(active, truth)
+    reasons = missed_reasons(score, truth, active, active + inactive)
+    assert reasons == {"chair_a": "wrong_class", "plant_b": "inactive", "tv_d": "off", "clock_w": "unmapped"}
+    s = summarise([SeedResult(1, score, 10, 10, 0.01, 0.01, 0, 0, missed_reasons=tuple(sorted(reasons.items())))])
+    assert s["missed_reasons"] == {"inactive": 1, "off": 1, "wrong_class": 1, "unmapped": 1}
