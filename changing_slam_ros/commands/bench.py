@@ -2,11 +2,16 @@
 
     changing-slam bench dynamic --seeds 100-129 [--jobs J] [--out DIR] [--cache DIR] [--frames N]
         [--width W --height H] [--timing-seeds K] [--reuse-runs] [--full-args "--config sim"]
+    changing-slam bench changing --seeds 200-229 [--jobs J] [--out DIR] [--cache DIR] [--reuse-runs]
+        [--full-args "--config sim"] [--no-control] [--match-on centroid|box_center]
 
 `dynamic` is the `random_dynamic` family (`sim/random_dynamic.py`) with its control. Seeds 0-9 are for
 tuning, 100-129 for evaluation. Prints per seed and in summary ATE, lost frames, ratios, CPU ms per frame
 and moving-keypoint precision / recall per cue; writes DIR/bench.json and DIR/ate_per_seed.png.
 The work lives in `eval/seed_bench.py`.
+`changing` is the `random_changing` family (`sim/random_changing.py`) with its control: the default pipeline on
+both, the semantic map scored against the last lap (`commands/bench_changing.py`, `eval/changing_bench.py`);
+seeds 0-9 for tuning, 200-229 for evaluation; writes DIR/changing_bench.json and DIR/changing_bench.png.
 """
 
 from __future__ import annotations
@@ -17,18 +22,20 @@ import sys
 from pathlib import Path
 from typing import Any
 
-FAMILIES = {"dynamic": ("random_dynamic", "random_dynamic_control")}
+FAMILIES = {"dynamic": ("random_dynamic", "random_dynamic_control"),
+            "changing": ("random_changing", "random_changing_control")}
 TUNING_SEEDS = "0-9"
-EVALUATION_SEEDS = "100-129"
+EVALUATION_SEEDS = {"dynamic": "100-129", "changing": "200-229"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("family", choices=sorted(FAMILIES), help="scenario family (dynamic: random_dynamic)")
-    parser.add_argument("--seeds", default=EVALUATION_SEEDS,
-                        help=f"seeds, e.g. 100-129 or 0-9,12 (tuning {TUNING_SEEDS}, evaluation {EVALUATION_SEEDS}; "
-                             "default the evaluation range)")
+    parser.add_argument("family", choices=sorted(FAMILIES),
+                        help="scenario family (dynamic: random_dynamic, changing: random_changing)")
+    parser.add_argument("--seeds", default=None,
+                        help=f"seeds, e.g. 100-129 or 0-9,12 (tuning {TUNING_SEEDS}, evaluation "
+                             f"{', '.join(f'{k} {v}' for k, v in EVALUATION_SEEDS.items())}; default the evaluation range)")
     parser.add_argument("--jobs", type=int, default=1, help="parallel renders and runs (default 1)")
-    parser.add_argument("--out", type=Path, default=Path("out/bench_dynamic"), help="results folder")
+    parser.add_argument("--out", type=Path, default=None, help="results folder (default out/bench_FAMILY)")
     parser.add_argument("--cache", type=Path, default=None, help="rendered sequences (default OUT/../sim_cache)")
     parser.add_argument("--frames", type=int, default=None, help="render only the first N frames of each seed")
     parser.add_argument("--width", type=int, default=640)
@@ -37,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --jobs > 1, CPU figures come from serial re-runs of this many seeds (default 2)")
     parser.add_argument("--reuse-runs", action="store_true", help="keep runs whose metrics.json exists in OUT")
     parser.add_argument("--full-args", default="", help="extra `changing-slam run` arguments of the full pipeline")
+    parser.add_argument("--no-control", action="store_true", help="changing: skip the control (no ATE ratio)")
+    parser.add_argument("--match-on", choices=("centroid", "box_center"), default="centroid",
+                        help="changing: the estimate's position matched to ground truth (default centroid)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -45,6 +55,12 @@ def main(args: argparse.Namespace) -> int:
 
     if args.jobs < 1:
         raise EvalError(f"--jobs {args.jobs}: expected at least 1")
+    args.seeds = args.seeds or EVALUATION_SEEDS[args.family]
+    args.out = args.out or Path(f"out/bench_{args.family}")
+    if args.family == "changing":
+        from changing_slam_ros.commands.bench_changing import run_changing_bench
+
+        return run_changing_bench(args)
     seeds = parse_seeds(args.seeds)
     scenario, control = FAMILIES[args.family]
     spec = SeedBenchSpec(scenario, control, args.width, args.height, args.frames,

@@ -70,6 +70,7 @@ class Scenario:
     preview_t_s: float = 5.0  # a representative moment, for contact sheets
     sensor: SensorModel = EXACT  # how the scene is seen (RenderOptions.sensor overrides it)
     parameters: Mapping[str, Any] = field(default_factory=dict, compare=False)  # drawn values, written out
+    extra_files: tuple[tuple[str, str], ...] = ()  # (file name, text) written beside the render (more ground truth)
 
     def n_frames(self) -> int:
         return int(np.floor(self.duration_s * self.fps + 1e-9))
@@ -559,6 +560,11 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                                    lambda seed: _random_dynamic(seed, control=False)),
     "random_dynamic_control": ScenarioInfo("random_dynamic's seed with the movers left out (its control)",
                                            lambda seed: _random_dynamic(seed, control=True)),
+    "random_changing": ScenarioInfo("the randomised changing-room family: a room, pictures and 3-8 objects drawn "
+                                    "per seed, 2-3 robot laps, changes between laps (sim/random_changing.py)",
+                                    lambda seed: _random_changing(seed, True)),
+    "random_changing_control": ScenarioInfo("random_changing's seed with no change applied (its control)",
+                                            lambda seed: _random_changing(seed, False)),
 }
 
 
@@ -566,6 +572,12 @@ def _random_dynamic(seed: int, control: bool) -> Scenario:
     from changing_slam_ros.sim.random_dynamic import build_random_dynamic  # it builds on this module
 
     return build_random_dynamic(seed, control=control)
+
+
+def _random_changing(seed: int, with_changes: bool) -> Scenario:
+    from changing_slam_ros.sim.random_changing import random_changing
+
+    return random_changing(seed, with_changes)
 
 
 def build_scenario(name: str, seed: int = 0) -> Scenario:
