@@ -55,6 +55,7 @@ from changing_slam_ros.core.map.map_point import PointStore
 from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
 from changing_slam_ros.core.objects.object_box_completion import gravity_up
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
+from changing_slam_ros.core.objects.picture_check import is_picture
 from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.core.objects.semantic_map import SemanticMap, build_semantic_map
 from changing_slam_ros.core.map.slam_map import SlamMap
@@ -286,15 +287,18 @@ class ObjectLayer:
         was_active = {oid: obj.active for oid, obj in mo.lta.objects.items()}
         up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])  # the camera's -y is its up
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
-                                      detected_boxes=flagged, up_w=up)  # type: ignore[arg-type]
+                                      detected_boxes=flagged, up_w=up, planes=mo.planes)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
-        self._reweight(mo, slam_map, kf.id)
+        n_freed = 0
+        if self._reweight(mo, slam_map, kf.id):
+            n_freed = self._drop_pictures(mo, slam_map, gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1]))
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)
         self._flip_labelled(mo, slam_map, was_active)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
-        return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands), int((res.activated_point_ids >= 0).sum()),
+        return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands),
+                                 int((res.activated_point_ids >= 0).sum()) + n_freed,
                                  int((res.deactivated_point_ids >= 0).sum()), ms)
 
     def _candidates(self, mo: _MapObjects, kf: Keyframe, slam_map: SlamMap,
@@ -340,12 +344,13 @@ class ObjectLayer:
             out.append((cand, pts_c))
         return out
 
-    def _reweight(self, mo: _MapObjects, slam_map: SlamMap, kf_id: int) -> None:
+    def _reweight(self, mo: _MapObjects, slam_map: SlamMap, kf_id: int) -> bool:
         """Point weights of every object (`object_point_weights`): the room's planes are refitted to the static
-        map points every `structure_refit_keyframes` keyframes."""
+        map points every `structure_refit_keyframes` keyframes. True when the planes were refitted now."""
         cfg = self.config.association
+        refit = False
         if cfg.centroid_voxel_m <= 0.0 and cfg.structure_plane_dist_m <= 0.0 and cfg.shared_point_dist_m <= 0.0:
-            return  # the paper's plain mean
+            return refit  # the paper's plain mean
         if cfg.structure_plane_dist_m > 0.0 and (mo.keyframes_since_planes < 0
                                                  or mo.keyframes_since_planes + 1 >= cfg.structure_refit_keyframes):
             pts = slam_map.points
@@ -355,9 +360,30 @@ class ObjectLayer:
                                              cfg.structure_plane_min_fraction, cfg.structure_max_planes,
                                              cfg.structure_plane_iterations, cfg.structure_plane_max_points, seed=kf_id)
             mo.keyframes_since_planes = 0
+            refit = True
         else:
             mo.keyframes_since_planes += 1
         reweight_objects(list(mo.lta.objects.values()), mo.planes, cfg)
+        return refit
+
+    def _drop_pictures(self, mo: _MapObjects, slam_map: SlamMap, up_w: F64 | None) -> int:
+        """Objects mapped before the walls were known that turn out to be pictures (`picture_check`) leave the
+        object map; their map points become plain static points again (unlabelled, active): a poster is wall.
+        Returns how many map points were freed."""
+        cfg = self.config.association
+        pictures = [oid for oid, obj in mo.lta.objects.items()
+                    if is_picture(obj.class_id, obj.points_w, mo.planes, up_w, cfg)]
+        pts = slam_map.points
+        n = pts.size
+        freed = 0
+        for oid in pictures:
+            del mo.lta.objects[oid]
+            sel = np.flatnonzero(pts.object_id[:n] == oid)
+            pts.object_id[sel] = -1
+            pts.class_id[sel] = 0
+            pts.active[sel] = True
+            freed += len(sel)
+        return freed
 
     @staticmethod
     def _settle_shared(mo: _MapObjects, slam_map: SlamMap, res: AssociationResult) -> None:
