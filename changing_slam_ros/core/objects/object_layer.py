@@ -63,6 +63,7 @@ from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
+U8 = npt.NDArray[np.uint8]
 MIN_DEPTH_BAND_M = 0.05
 
 
@@ -191,19 +192,21 @@ class _MapObjects:
     next_sample_id: int = -2
     planes: list[Plane] = field(default_factory=list)  # the room's large planes (`object_point_weights`)
     keyframes_since_planes: int = -1  # keyframes since the planes were fitted (-1: never)
+    thumbnails: dict[int, U8] = field(default_factory=dict)  # keyframe id -> (72, 96, 3) image its objects name
 
 
 @dataclass
 class SavedObjectMap:
     """The object map of one SlamMap as a saved map holds it (multi-session): the MapObjects with beliefs, the
     anchors of their points (ids (M,), keyframe ids (M,), camera-frame positions (M, 3)) and the next
-    depth-sample id (negative)."""
+    depth-sample id (negative), and the thumbnails of the keyframes the objects' evidence names."""
 
     objects: list[MapObject]
     anchor_ids: I64
     anchor_kf_ids: I64
     anchor_points_cam: F64
     next_sample_id: int = -2
+    thumbnails: dict[int, U8] = field(default_factory=dict)  # keyframe id -> thumbnail (`object_evidence`)
 
 
 class ObjectLayer:
@@ -246,7 +249,8 @@ class ObjectLayer:
         """The object map of `map_id` in the form a map file stores."""
         mo = self._for(map_id)
         ids, kfs, pts = mo.anchors.arrays()
-        return SavedObjectMap(self.objects(map_id), ids.copy(), kfs.copy(), pts.copy(), mo.next_sample_id)
+        return SavedObjectMap(self.objects(map_id), ids.copy(), kfs.copy(), pts.copy(), mo.next_sample_id,
+                              dict(mo.thumbnails))
 
     def load_objects(self, map_id: int, saved: SavedObjectMap, first_keyframe_id: int,
                      points: PointStore | None = None) -> None:
@@ -254,7 +258,8 @@ class ObjectLayer:
         and the active flags of the objects and of their map points in `points` (the loaded map's) follow. The
         new session's keyframes start at `first_keyframe_id`, and every object counts as long unseen
         (`LongTermAssociation.new_session`): its first sighting, or expected miss, updates its belief."""
-        mo = _MapObjects(LongTermAssociation(self.config.association), next_sample_id=saved.next_sample_id)
+        mo = _MapObjects(LongTermAssociation(self.config.association), next_sample_id=saved.next_sample_id,
+                         thumbnails=dict(saved.thumbnails))
         keep = 1.0 - self.config.session_belief_decay
         for obj in saved.objects:
             obj.belief = 0.5 + (obj.belief - 0.5) * keep
@@ -272,9 +277,11 @@ class ObjectLayer:
 
     # --- per keyframe ---
     def after_keyframe(self, kf: Keyframe, slam_map: SlamMap, depth_m: npt.NDArray[np.floating] | None,
-                       short_term_objects: Sequence[ObjectState]) -> ObjectLayerResult:
+                       short_term_objects: Sequence[ObjectState], thumbnail: U8 | None = None) -> ObjectLayerResult:
         """Run the layer on a mapped keyframe. depth_m (H, W) metres (0 invalid) of the keyframe, or None;
-        `short_term_objects`: the dynamic stage's objects in the keyframe's frame (dynamic ones are ignored)."""
+        `short_term_objects`: the dynamic stage's objects in the keyframe's frame (dynamic ones are ignored);
+        `thumbnail`: the keyframe's image (`object_evidence.keyframe_thumbnail`), kept while an object's evidence
+        names the keyframe (a sighting or a belief step), for the change report."""
         t0 = time.perf_counter()
         if not self.config.enabled:
             return ObjectLayerResult(slam_map.id, None, (), 0, 0, 0.0)
@@ -295,6 +302,7 @@ class ObjectLayer:
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)
         self._flip_labelled(mo, slam_map, was_active)
+        self._keep_thumbnail(mo, kf.id, thumbnail)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
         return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands),
@@ -365,6 +373,18 @@ class ObjectLayer:
             mo.keyframes_since_planes += 1
         reweight_objects(list(mo.lta.objects.values()), mo.planes, cfg)
         return refit
+
+    @staticmethod
+    def _keep_thumbnail(mo: _MapObjects, kf_id: int, thumbnail: U8 | None) -> None:
+        """Keep this keyframe's thumbnail when an object's evidence names it; drop those no evidence names now."""
+        named: set[int] = set()
+        for obj in mo.lta.objects.values():
+            named.update(obj.seen_keyframes)
+            named.update(k for k, _, _ in obj.belief_history)
+        if thumbnail is not None and kf_id in named:
+            mo.thumbnails[kf_id] = np.asarray(thumbnail, np.uint8)
+        for k in [k for k in mo.thumbnails if k not in named]:
+            del mo.thumbnails[k]
 
     def _drop_pictures(self, mo: _MapObjects, slam_map: SlamMap, up_w: F64 | None) -> int:
         """Objects mapped before the walls were known that turn out to be pictures (`picture_check`) leave the
