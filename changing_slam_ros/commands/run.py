@@ -20,7 +20,9 @@ DIR receives:
 Multi-session (`--map-in PREVIOUS/map.npz`): the run continues the saved Atlas; every frame first tries
 relocalisation against the saved current map (for `tracking.loaded_map_grace_s`, 2 s by default, then a new map
 is started), trajectories are in the saved map's frame, the object layer starts from the saved objects and
-beliefs, and metrics.json `multi_session` says when (frame index, seconds) the run relocalised.
+beliefs, and metrics.json `multi_session` says when (frame index, seconds) the run relocalised. With the object
+layer on, the run ends with the "what changed" report against the loaded map (`changes.json`, `changes.png`; see
+`commands/changes.py`), one printed line per change and its counts in metrics.json `changes`.
 The run is deterministic for a given config (single-threaded OpenCV, seeded RNG, frames in order).
 """
 
@@ -32,10 +34,12 @@ import queue
 import threading
 import time
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dynamic_setup
 from changing_slam_ros.commands.objects_options import (
@@ -49,7 +53,12 @@ from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.io.atomic import atomic_write_text
-from changing_slam_ros.io.map_file import load_map, save_map
+from changing_slam_ros.io.map_file import LoadedMap, load_map, save_map
+from changing_slam_ros.commands.changes import write_change_outputs
+from changing_slam_ros.core.objects.change_report import compare_maps
+from changing_slam_ros.core.objects.object_evidence import EvidenceConfig, ObjectEvidence, evidence_of, map_up
+from changing_slam_ros.core.objects.object_layer import ObjectLayer
+from changing_slam_ros.io.change_report_file import summary_lines
 from changing_slam_ros.io.moving_objects_file import write_moving_objects
 from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
 
@@ -89,6 +98,7 @@ def main(args: argparse.Namespace) -> int:
     objects = object_layer_setup(args, data, where)
     system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=dynamic.filter,
                         object_layer=objects)
+    session = SessionChanges.start(loaded, objects) if loaded is not None else None  # before the layer moves beliefs
     if loaded is not None:
         system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects)
     loops = LoopLog()
@@ -125,6 +135,8 @@ def main(args: argparse.Namespace) -> int:
     }
     if args.map_in:
         metrics["multi_session"] = multi_session_summary(system, args.map_in)
+    if session is not None and objects is not None and objects.enabled:
+        metrics["changes"] = session.finish(objects, out, (str(args.map_in), str(out / "map.npz")), args.no_plot)
     gt = source.groundtruth
     if gt is not None and len(final) >= 3:
         metrics.update(_evaluate(gt, final, online, out, args.no_plot))
@@ -144,6 +156,39 @@ def main(args: argparse.Namespace) -> int:
     print(line)
     print(f"results in {out}")
     return 0
+
+
+@dataclass
+class SessionChanges:
+    """The object map a multi-session run started from (evidence records taken before the layer decays the
+    beliefs, and the thumbnails), for the change report at the end of the run."""
+
+    map_id: int
+    before: list[ObjectEvidence]
+    thumbnails: dict[int, npt.NDArray[np.uint8]]
+
+    @classmethod
+    def start(cls, loaded: LoadedMap, layer: ObjectLayer | None) -> SessionChanges | None:
+        map_id = loaded.atlas.current.id
+        if layer is None or not layer.enabled or map_id not in loaded.objects:
+            return None
+        saved = loaded.objects[map_id]
+        return cls(map_id, [evidence_of(o, _evidence_config(layer)) for o in saved.objects], dict(saved.thumbnails))
+
+    def finish(self, layer: ObjectLayer, out: Path, names: tuple[str, str], no_plot: bool) -> dict[str, int]:
+        """Write `changes.json` / `changes.png` to `out` and print the changes; returns the counts."""
+        after = layer.objects(self.map_id)
+        report = compare_maps(self.before, [evidence_of(o, _evidence_config(layer)) for o in after])
+        write_change_outputs(out, report, map_up(after), self.thumbnails, layer.saved_objects(self.map_id).thumbnails,
+                             names, not no_plot)
+        for line in summary_lines(report):
+            print(f"change: {line}")
+        return report.counts()
+
+
+def _evidence_config(layer: ObjectLayer) -> EvidenceConfig:
+    cfg = layer.config.association
+    return EvidenceConfig(cfg.semantic_min_belief, cfg.min_points)
 
 
 def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:

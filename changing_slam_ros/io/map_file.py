@@ -222,6 +222,15 @@ def load_map(path: str | Path) -> LoadedMap:
     return _Reader(read_map_arrays(path), str(path)).loaded()
 
 
+def load_object_maps(path: str | Path) -> tuple[dict[int, SavedObjectMap], int]:
+    """Only the object maps of a map file (map id -> object map) and its current map id; the keyframes and points
+    are not rebuilt (the change report needs the objects and their thumbnails only)."""
+    reader = _Reader(read_map_arrays(path), str(path))
+    map_ids = reader.get("map_ids", "i", (None,)).tolist()
+    objects = {int(i): reader._objects(int(i)) for i in map_ids if f"m{i}_objects_json" in reader.a}
+    return objects, reader.scalar("current_map_id")
+
+
 class _Reader:
     """Field-checked access to a map file's arrays; every error names the file and the field."""
 

@@ -26,7 +26,9 @@ from enum import Enum
 
 import numpy as np
 
-from changing_slam_ros.core.objects.object_evidence import ObjectEvidence
+from changing_slam_ros.core.objects.map_object import MapObject
+from changing_slam_ros.core.objects.object_evidence import EvidenceConfig, ObjectEvidence, evidence_of
+from changing_slam_ros.errors import ConfigError
 
 
 class ChangeKind(Enum):
@@ -48,7 +50,8 @@ class ChangeReportConfig:
 
     def __post_init__(self) -> None:
         if self.same_place_m <= 0.0 or self.replace_radius_m < 0.0 or self.max_move_m < 0.0:
-            raise ValueError("ChangeReportConfig: expected same_place_m > 0, replace_radius_m >= 0, max_move_m >= 0")
+            raise ConfigError("change report: expected same_place_m > 0, replace_radius_m >= 0, max_move_m >= 0, got "
+                              f"{self.same_place_m}, {self.replace_radius_m}, {self.max_move_m}")
 
 
 @dataclass(frozen=True)
@@ -159,3 +162,10 @@ def compare_maps(before: Sequence[ObjectEvidence], after: Sequence[ObjectEvidenc
     changes.sort(key=lambda c: (order[c.kind], -1 if c.before is None else c.before.id,
                                 -1 if c.after is None else c.after.id))
     return ChangeReport(tuple(changes), tuple(sorted(unchanged, key=lambda p: p[0].id)))
+
+
+def compare_object_maps(before: Sequence[MapObject], after: Sequence[MapObject],
+                        evidence: EvidenceConfig = EvidenceConfig(),
+                        config: ChangeReportConfig = ChangeReportConfig()) -> ChangeReport:
+    """`compare_maps` on two lists of MapObjects (each turned into its evidence record)."""
+    return compare_maps([evidence_of(o, evidence) for o in before], [evidence_of(o, evidence) for o in after], config)

@@ -6,43 +6,15 @@ import numpy as np
 import pytest
 
 from changing_slam_ros.core.objects.change_report import ChangeKind, ChangeReportConfig, compare_maps
-from changing_slam_ros.core.objects.map_object import MapObject
 from changing_slam_ros.core.objects.object_evidence import evidence_of, keyframe_thumbnail, map_up
 
-CHAIR, PLANT, TV, SUITCASE, CUP, BOTTLE = 56, 58, 62, 28, 41, 39
+from object_maps import BOTTLE, CHAIR, CUP, PLANT, TV, changed_room_maps, map_object  # noqa: F401
 
-
-def _obj(oid: int, class_id: int, centre: list[float], belief: float, first_kf: int = 0) -> MapObject:
-    rng = np.random.default_rng(oid)
-    pts = np.asarray(centre) + rng.uniform(-0.1, 0.1, (30, 3))
-    pts -= pts.mean(axis=0) - np.asarray(centre)
-    obj = MapObject(oid, class_id, (0, 0, 10, 10), (0, 0, 10, 10), first_kf, first_kf, belief=belief,
-                    point_ids=np.arange(oid * 100, oid * 100 + 30), points_w=pts)
-    obj.record_belief(first_kf, "new")
-    obj.record_sighting(first_kf)
-    return obj
-
-
-def _maps() -> tuple[list[MapObject], list[MapObject]]:
-    """Before: a tv that stays, a chair that moves 2 m, a plant that goes, a suitcase replaced by a bottle.
-    After (continuing the before map): the tv and the three lost objects (belief 0.18 after a miss), a new chair
-    at the new place, a new cup, a new bottle 0.2 m from where the suitcase stood."""
-    before = [_obj(0, TV, [0.0, 0.0, 3.0], 0.7), _obj(1, CHAIR, [1.0, 0.0, 2.0], 0.7, 2),
-              _obj(2, PLANT, [-1.0, 0.0, 2.5], 0.5, 4), _obj(3, SUITCASE, [2.0, 0.0, 3.0], 0.6, 5)]
-    after = [_obj(0, TV, [0.02, 0.0, 3.01], 0.8), _obj(1, CHAIR, [1.0, 0.0, 2.0], 0.18, 2),
-             _obj(2, PLANT, [-1.0, 0.0, 2.5], 0.18, 4), _obj(3, SUITCASE, [2.0, 0.0, 3.0], 0.18, 5),
-             _obj(4, CHAIR, [1.0, 0.0, 4.0], 0.5, 30), _obj(5, CUP, [0.0, 0.5, 1.0], 0.5, 31),
-             _obj(6, BOTTLE, [2.2, 0.0, 3.0], 0.5, 33)]
-    for o in after[1:4]:
-        o.belief = 0.5
-        o.record_belief(28, "session")
-        o.belief = 0.18
-        o.record_belief(29, "missed")
-    return before, after
+_obj = map_object
 
 
 def test_change_report_gives_one_exact_verdict_per_kind_of_change() -> None:
-    before, after = _maps()
+    before, after = changed_room_maps()
     report = compare_maps([evidence_of(o) for o in before], [evidence_of(o) for o in after])
     assert report.counts() == {"moved": 1, "removed": 1, "added": 1, "replaced": 1, "unchanged": 1}
     moved, = report.of_kind(ChangeKind.MOVED)
