@@ -246,3 +246,36 @@ def book_parts() -> tuple[Part, ...]:
 def unknown_object_parts() -> tuple[Part, ...]:
     """A hand-held box of no COCO class (a parcel with a printed pattern)."""
     return (Part((0.09, 0.12, 0.08), (0.0, 0.0, 0.0), "plastic_blue", None),)
+
+
+def couch_parts(texture: str = "leather", length_m: float = 1.6) -> tuple[Part, ...]:
+    """A two- or three-seat couch facing +x: seat block, backrest and two armrests (0.85 m deep, 0.85 m tall)."""
+    hy = length_m / 2
+    return (
+        Part((0.38, hy - 0.1, 0.2), (0.04, 0.0, 0.2), texture, 0.35),  # seat
+        Part((0.1, hy, 0.42), (-0.32, 0.0, 0.42), texture, 0.35),  # backrest
+        Part((0.38, 0.1, 0.3), (0.04, hy - 0.1, 0.3), texture, 0.35),  # armrests
+        Part((0.38, 0.1, 0.3), (0.04, -hy + 0.1, 0.3), texture, 0.35),
+    )
+
+
+def bottle_parts(texture: str = "plastic_blue") -> tuple[Part, ...]:
+    """A 0.3 m bottle: body and neck (stands on whatever its pose puts it on)."""
+    return (
+        Part((0.04, 0.04, 0.1), (0.0, 0.0, 0.1), texture, None, Shape.CYLINDER),
+        Part((0.015, 0.015, 0.05), (0.0, 0.0, 0.25), "fabric_dark", 0.1, Shape.CYLINDER),
+    )
+
+
+def wall_clock_parts(half_m: float = 0.15) -> tuple[Part, ...]:
+    """A square wall clock, 6 cm deep, its dial facing +x; the frame's origin is its back centre on the wall."""
+    return (Part((0.03, half_m, half_m), (0.03, 0.0, 0.0), "clock", None),)
+
+
+def wall_tv_parts(screen: str = "rocket", half_w_m: float = 0.4) -> tuple[Part, ...]:
+    """A flat screen hung on a wall (5 cm deep): bezel and picture facing +x, origin at its back centre."""
+    half_h = 0.6 * half_w_m
+    return (
+        Part((0.025, half_w_m, half_h), (0.025, 0.0, 0.0), "fabric_dark", 0.2),
+        Part((0.003, half_w_m - 0.02, half_h - 0.02), (0.052, 0.0, 0.0), screen, None),
+    )

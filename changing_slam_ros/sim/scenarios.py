@@ -65,6 +65,7 @@ class Scenario:
     fps: float
     fovy_deg: float = fovy_for_focal(DEFAULT_HEIGHT, DEFAULT_FY_PX)
     preview_t_s: float = 5.0  # a representative moment, for contact sheets
+    extra_files: tuple[tuple[str, str], ...] = ()  # (file name, text) written beside the render (more ground truth)
 
     def n_frames(self) -> int:
         return int(np.floor(self.duration_s * self.fps + 1e-9))
@@ -549,7 +550,18 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                                        lambda seed: _slow_mover(seed, pushed=False)),
     "walking_changing": ScenarioInfo("15 s pan with a walker and an out-of-view move (the sample bag)",
                                      _walking_changing),
+    "random_changing": ScenarioInfo("the randomised changing-room family: a room, pictures and 3-8 objects drawn "
+                                    "per seed, 2-3 robot laps, changes between laps (sim/random_changing.py)",
+                                    lambda seed: _random_changing(seed, True)),
+    "random_changing_control": ScenarioInfo("random_changing's seed with no change applied (its control)",
+                                            lambda seed: _random_changing(seed, False)),
 }
+
+
+def _random_changing(seed: int, with_changes: bool) -> Scenario:
+    from changing_slam_ros.sim.random_changing import random_changing
+
+    return random_changing(seed, with_changes)
 
 
 def build_scenario(name: str, seed: int = 0) -> Scenario:

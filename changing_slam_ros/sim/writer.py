@@ -7,6 +7,7 @@ Layout of `out_dir`:
 - `masks/<stamp>.png`: uint8 instance ids, 0 = room, i + 1 = object i of `objects.json`.
 - `objects.json`: every object's class, box and pose per frame (null while absent), and the changes.
 - `detections.json`: oracle detections per frame (see `oracle.py`).
+- the scenario's `extra_files` (e.g. `changing_truth.json` of the changing-room family).
 Every file is written atomically.
 """
 
@@ -115,6 +116,8 @@ class SequenceWriter:
             "stamps_ns": self.stamps_ns, "objects": objects, "changes": changes,
         }
         atomic_write_text(out / "objects.json", json.dumps(doc, separators=(",", ":")) + "\n")
+        for name, text in self.scenario.extra_files:
+            atomic_write_text(out / name, text)
         atomic_write_text(out / "detections.json", json.dumps({
             "format": "changing_slam_ros sim oracle detections v1",
             "box": "box_xyxy = [x_min, y_min, x_max, y_max) pixels, max exclusive",
