@@ -171,6 +171,9 @@ class SlamSystem:
         res: TrackResult = self.tracker.track(frame)
         if dyn is not None:
             self._after_dynamic(dyn, res)
+            if (self.object_layer is not None and res.state == TrackingState.OK and res.new_keyframe is None
+                    and self.object_layer.wants_keyframe(self.atlas.current.id, dyn.objects, res.T_world_cam, rgbd.camera)):
+                self.tracker.request_keyframe()  # an object the map has not seen: a keyframe soon, while in view
         self._record(frame, res)  # relative to the reference keyframe, before mapping moves it
         if self.refinement is not None:
             self._keep_for_refinement(frame, rgbd, res)
