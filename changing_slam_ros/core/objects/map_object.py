@@ -61,9 +61,10 @@ TYPICAL_CLASS_DEPTH_M: dict[int, float] = {
     77: 0.2,   # teddy bear
 }
 
-# COCO classes (0-based) that are flat or thin and may hang on or lie against a wall as real objects: their points
-# may be coplanar with a structure plane (a clock, a screen, a book on a shelf). Every other class is 3-D, so a
-# detection of it whose points lie in a wall is a picture of one (a poster of a plant, a photo of a person).
+# COCO classes (0-based) whose seen face may lie in a wall plane as real objects: flat or thin things that hang on
+# or lean against a wall (a clock, a screen, a book on a shelf) and appliances built in flush with a wall of
+# cupboards (the oven's door in the cupboard fronts). Every other class is 3-D, so a detection of it whose points
+# lie in a wall is a picture of one (a poster of a plant, a photo of a person).
 FLAT_CLASSES: tuple[int, ...] = (
     62,  # tv (screens, monitors)
     63,  # laptop
@@ -71,6 +72,9 @@ FLAT_CLASSES: tuple[int, ...] = (
     65,  # remote
     66,  # keyboard
     67,  # cell phone
+    68,  # microwave (built in)
+    69,  # oven (built in)
+    72,  # refrigerator (built in)
     73,  # book
     74,  # clock
     76,  # scissors
