@@ -90,7 +90,8 @@ class ObjectLayerConfig:
       area) of a non-dynamic object that nothing the layer knows explains (no mapped object and no earlier
       candidate of its class projects inside its box) asks tracking for a keyframe (`wants_keyframe`): the layer
       runs on keyframes only, so an object seen for less than a keyframe interval, or seen whole only between
-      two keyframes, never became a candidate.
+      two keyframes, never becomes a candidate. Off by default: the split node graph's tracking keeps no object
+      map, so with it on the lossless graph would take other keyframes than the offline run.
     - `session_belief_decay`: a map loaded for a new session (multi-session) pulls every object's belief this
       fraction of the way back to 0.5 (0 = keep, 1 = forget): time has passed and the room may have changed, so
       what the last session saw counts less than what this one sees (a one-step stand-in for a survival-time
@@ -104,7 +105,7 @@ class ObjectLayerConfig:
     band_map_points: bool = True
     session_belief_decay: float = 0.5
     cut_min_side_m: float = 0.1
-    new_object_keyframes: bool = True
+    new_object_keyframes: bool = False
     association: ObjectMapConfig = field(default_factory=ObjectMapConfig)
 
     def __post_init__(self) -> None:

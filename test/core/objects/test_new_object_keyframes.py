@@ -15,6 +15,7 @@ from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayer
 CAM = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
 CHAIR, CUP = 56, 41
 CHAIR_BOX = (100.0, 60.0, 180.0, 180.0)
+ON = dataclasses.replace(ObjectLayerConfig(), new_object_keyframes=True)
 
 
 def _state(class_id: int, box: tuple[float, float, float, float], sid: int = 7,
@@ -31,7 +32,7 @@ def _layer_with_chair() -> ObjectLayer:
                   np.zeros((0, 32), np.uint8), np.zeros(0, np.float32), np.zeros(0, np.int64))
     m = SlamMap(0)
     m.add_keyframe(kf)
-    layer = ObjectLayer()
+    layer = ObjectLayer(ON)
     layer.after_keyframe(kf, m, depth, [_state(CHAIR, CHAIR_BOX)])
     assert len(layer.objects(0)) == 1
     return layer
@@ -56,6 +57,5 @@ def test_cut_small_and_dynamic_detections_ask_for_nothing() -> None:
     assert not layer.wants_keyframe(0, [_state(CUP, (200.0, 100.0, 205.0, 105.0))], pose, CAM)  # 25 px < 40
     moving = _state(CUP, (200.0, 100.0, 240.0, 140.0), motion=ObjectMotion.DYNAMIC)
     assert not layer.wants_keyframe(0, [moving], pose, CAM)
-    off = ObjectLayer(dataclasses.replace(ObjectLayerConfig(), new_object_keyframes=False))
-    assert not off.wants_keyframe(0, [_state(CUP, (200.0, 100.0, 240.0, 140.0))], pose, CAM)
-    assert ObjectLayer().wants_keyframe(0, [_state(CUP, (200.0, 100.0, 240.0, 140.0))], pose, CAM)  # empty map
+    assert not ObjectLayer().wants_keyframe(0, [_state(CUP, (200.0, 100.0, 240.0, 140.0))], pose, CAM)  # off: default
+    assert ObjectLayer(ON).wants_keyframe(0, [_state(CUP, (200.0, 100.0, 240.0, 140.0))], pose, CAM)  # empty map
