@@ -10,11 +10,7 @@ belief, a text label), both transient-local so late subscribers get them; `~/obj
 QueryObjects by class and region; SaveMap / LoadMap as the project's semantic-map file
 (`io/semantic_map_file.py`, JSON or YAML, atomic); Reset clears it. With `map_file` set the map is loaded from it
 at start (so a restarted node comes back with its last map) and saved to it after every update.
-What changed: the node keeps the map it started from (`changes_from`, else the map loaded from `map_file`, else
-the first map received) and after every update publishes the change report against it
-(`core.objects.change_report`): `~/changes` (std_msgs/String, the JSON document of `io.change_report_file`) and
-`~/change_markers` (MarkerArray, `nodes.change_markers`), both transient-local; `~/report_changes` answers with
-the same JSON. Open: candidates on `/local_mapping/object_candidates` are received but not associated here (the
+What changed since the map it started from: see `ObjectMapNode`. Open: candidates on `/local_mapping/object_candidates` are received but not associated here (the
 object layer associates them where it runs), and a loaded map is served, not fed back into the object layer.
 
 Inputs: /tracking/semantic_map (MapObjectArray; remap), /local_mapping/object_candidates (MapObjectArray)
@@ -127,6 +123,12 @@ def _config_belief_threshold(config: str) -> float:
 
 
 class ObjectMapNode(Node):
+    """The semantic map's node (module doc). What changed: it keeps the map it started from (`changes_from`, else
+    the map loaded from `map_file`, else the first map received) and after every update publishes the change
+    report against it (`core.objects.change_report`): `~/changes` (std_msgs/String, the JSON document of
+    `io.change_report_file`) and `~/change_markers` (MarkerArray, `nodes.change_markers`), both transient-local;
+    `~/report_changes` answers with the same JSON."""
+
     def __init__(self, output_qos: QoSProfile | int = 10, **node_kwargs: Any) -> None:
         super().__init__("object_map", **node_kwargs)
         self.params = declare_parameters(self, [

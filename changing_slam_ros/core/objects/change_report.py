@@ -1,20 +1,15 @@
 """What changed between two object maps of one room (ours): objects moved, removed, added and replaced.
 
-Both maps must share a frame: the later one continued the earlier one (a multi-session run with `--map-in`), or
-both were aligned. `compare_maps(before, after)` takes each map's objects (`ObjectEvidence`) and decides, in order:
-
-1. the same object (same id, class and first keyframe: the later map continued the earlier) present in both:
-   unchanged within `same_place_m`, else moved (its points followed it: a short move merged into it);
-2. an earlier present object without such a twin: unchanged when a present later object of its class lies within
-   `same_place_m`, else gone from its place;
-3. a later present object not matched so far, within `same_place_m` of a matched later object of its class or of
-   an unmatched one with more points, is that object mapped twice and left out; the rest are new at their place;
-4. gone and new objects of one class pair up nearest first: moved (from, to, distance); two objects of different
-   classes swapped come out as two moves;
-5. a gone object and a new one of another class within `replace_radius_m`: replaced;
-6. what is left: gone objects are removed, new ones added.
-Every change carries the records it rests on: the earlier object, the later one, and for a gone object its own
-record in the later map when it continued (its belief history shows the misses that took it out).
+Both maps share a frame (the later continued the earlier, `--map-in`, or both were aligned). `compare_maps`
+decides, in order: (1) the same object (same id, class and first keyframe) present in both is unchanged within
+`same_place_m`, else moved; (2) an earlier present object without such a twin is unchanged when a present later
+object of its class lies within `same_place_m`, else gone; (3) later present objects not matched so far are new
+at their place (one per place: within `same_place_m` of a matched or a better-supported new object of its class
+is the object mapped twice); (4) gone and new objects of one class pair up nearest first: moved (two objects of
+different classes swapped are two moves); (5) a gone object and a new one of another class within
+`replace_radius_m`: replaced; (6) the rest: removed, added. Every change carries the records it rests on: the
+earlier object, the later one, and for a gone object its own record in the later map when that map continued
+it (its belief history shows the misses that took it out).
 """
 
 from __future__ import annotations

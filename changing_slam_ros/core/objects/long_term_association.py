@@ -24,11 +24,6 @@ detection box, with the box's class) are compared with the mapped objects:
    (`detected_boxes`: the dynamic stage flagged them dynamic in this keyframe, which happens for a frame or
    two while the robot turns fast): measured on `vanishing`, a plant in full view lost 0.5 -> 0.18 that way.
 
-Two rules of ours for a changed room: a candidate of a 3-D class whose points lie in a wall of the room's planes
-is a picture and skipped (`picture_check.py`); and a lost object (belief below `semantic_min_belief`) takes no
-candidate that its position model says is elsewhere (`relocation` in `ObjectMapConfig`): that is the class
-seen at a new place, a new object. Each object keeps its belief steps and sighting keyframes (`MapObject`).
-
 Objects created in this keyframe are not candidates for merging within the same keyframe, so two
 same-class detections of one image never fuse. The result lists the point ids whose active flag the
 map must set (`activated_point_ids`, `deactivated_point_ids`), the new and merged objects and every
@@ -138,7 +133,12 @@ class AssociationResult:
 
 
 class LongTermAssociation:
-    """Owns the MapObjects of one map and runs Algorithm 1 on each keyframe's candidates."""
+    """Owns the MapObjects of one map and runs Algorithm 1 on each keyframe's candidates.
+
+    Two rules of ours for a changed room: a candidate of a 3-D class whose points lie in a wall of the room's
+    planes is a picture and skipped (`picture_check.py`); and a lost object (belief below `semantic_min_belief`)
+    takes no candidate that its position model says is elsewhere (`relocated`): that is the class seen at a new
+    place, a new object. Each object keeps its belief steps and sighting keyframes (`MapObject`)."""
 
     def __init__(self, config: ObjectMapConfig, first_object_id: int = 0) -> None:
         self.config = config
