@@ -20,7 +20,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("eval", "evaluate trajectories (ATE / RPE) against ground truth"),
     "convert": ("convert", "convert a TUM folder or ROS 1 bag to a ROS 2 mcap"),
     "simulate": ("simulate", "render a dynamic / changing scenario with ground truth"),
-    "bench": ("bench", "print speed and memory figures"),
+    "bench": ("bench", "benchmark a scenario family over seeds: ATE, lost frames, CPU, moving keypoints"),
     "graph": ("graph", "run the ROS 2 node graph over a bag without ros2 launch"),
     "changes": ("changes", "what changed between two object maps: moved, removed, added, replaced"),
 }

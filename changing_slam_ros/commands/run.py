@@ -73,6 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-in", metavar="MAP", help="start from a map saved by an earlier run (its DIR/map.npz): "
                         "relocalise in it first (tracking.loaded_map_grace_s), poses in its frame, objects and "
                         "beliefs carried over")
+    parser.add_argument("--keypoint-log", type=Path, default=None, metavar="FILE",
+                        help="write every frame's keypoints and the dynamic stage's verdict on each to FILE (.npz; "
+                             "see commands/keypoint_log.py), for scoring against ground-truth masks")
     add_dynamic_arguments(parser)
     add_object_arguments(parser)
 
@@ -96,7 +99,13 @@ def main(args: argparse.Namespace) -> int:
     closing = None if args.no_loop else _loop_closing(data, where)
     dynamic = dynamic_setup(args, data, where)
     objects = object_layer_setup(args, data, where)
-    system = SlamSystem(config, loop_closer=closing, keyframe_index=closing, dynamic_filter=dynamic.filter,
+    keypoint_log = None
+    if args.keypoint_log is not None and dynamic.filter is not None:
+        from changing_slam_ros.commands.keypoint_log import KeypointLog
+
+        keypoint_log = KeypointLog(dynamic.filter)
+    system = SlamSystem(config, loop_closer=closing, keyframe_index=closing,
+                        dynamic_filter=keypoint_log or dynamic.filter,  # type: ignore[arg-type]
                         object_layer=objects)
     session = SessionChanges.start(loaded, objects) if loaded is not None else None  # before the layer moves beliefs
     if loaded is not None:
@@ -105,10 +114,14 @@ def main(args: argparse.Namespace) -> int:
 
     n_total = len(source) if not args.max_frames else min(args.max_frames, len(source))
     t0 = time.perf_counter()
+    cpu0 = time.process_time()  # every thread of this process: the reader, OpenCV, the detector's
     for rgbd in _progress(_prefetch(source, n_total), n_total, args.quiet):
         if system.process(rgbd, dynamic.detections_for(rgbd)).loop_corrected:
             loops.record(closing, system)
     wall_s = time.perf_counter() - t0
+    cpu_s = time.process_time() - cpu0
+    if keypoint_log is not None:
+        keypoint_log.write(args.keypoint_log)
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -131,6 +144,7 @@ def main(args: argparse.Namespace) -> int:
         "wall_s": wall_s,
         "fps": len(system.records) / wall_s if wall_s > 0 else 0.0,
         "tracking_ms_median": timing.get("tracking", {}).get("p50", 0.0),
+        "cpu_ms_per_frame": 1e3 * cpu_s / len(system.records) if system.records else 0.0,
         "dynamic": dynamic.summary(),
     }
     if args.map_in:

@@ -12,6 +12,8 @@ from changing_slam_ros.errors import SimError
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", nargs="?", help="scenario name (see --list)")
     parser.add_argument("--list", action="store_true", help="list the scenarios and exit")
+    parser.add_argument("--control", action="store_true",
+                        help="render the scenario's control (SCENARIO_control: the same scene without movers)")
     parser.add_argument("--out", type=Path, help="output folder (TUM layout plus ground truth)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--frames", type=int, default=None, help="render only the first N frames")
@@ -19,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, default=640, help="image width (default 640)")
     parser.add_argument("--height", type=int, default=480, help="image height (default 480)")
     parser.add_argument("--shadows", action="store_true", help="cast shadows (about 4x slower)")
+    parser.add_argument("--sensor", choices=("scenario", "exact", "kinect", "realsense"), default="scenario",
+                        help="sensor model: the scenario's own (default; exact for the hand-made scenarios), "
+                             "exact, or Kinect- / RealSense-like noise, holes, blur and exposure changes")
     parser.add_argument("--mcap", type=Path, default=None,
                         help="also write an mcap (Image, CameraInfo, ground-truth PoseStamped) to this file")
     parser.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality of the mcap's colour (default 90)")
@@ -49,9 +54,17 @@ def main(args: argparse.Namespace) -> int:
         raise SimError("--out DIR is required")
     from changing_slam_ros.sim.sequence import RenderOptions, simulate
 
-    scenario = build_scenario(args.scenario, args.seed)
+    name = args.scenario
+    if args.control and not name.endswith("_control"):
+        name = f"{name}_control"
+        if name not in SCENARIOS:
+            raise SimError(f"--control: scenario {args.scenario!r} has no control ({name} is not a scenario)")
+    scenario = build_scenario(name, args.seed)
+    from changing_slam_ros.sim.sensor_model import preset
+
+    sensor = None if args.sensor == "scenario" else preset(args.sensor)
     options = RenderOptions(width=args.width, height=args.height, frames=args.frames, fps=args.fps,
-                            shadows=args.shadows)
+                            shadows=args.shadows, sensor=sensor)
 
     def progress(done: int, total: int) -> None:
         if not args.quiet and (done == total or done % 25 == 0):

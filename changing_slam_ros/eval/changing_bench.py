@@ -12,6 +12,9 @@ distance, to the objects present at the end of the last lap: same class, estimat
   of an earlier lap and has left; spurious: the other unmatched ones, split into pictures (within reach of a picture's box on
   a wall) and other (structure, furniture of another class, nothing).
 Camera ATE comes from the run's metrics.json, against the control run's (the seed rendered without changes).
+Each missed object gets a reason (`missed_reasons`): a same-class map object lies within reach but its belief
+keeps it out of the semantic map (inactive), a same-class active object lies within twice the reach (off), an
+active object of another class lies within reach (wrong class), or nothing (unmapped).
 """
 
 from __future__ import annotations
@@ -186,6 +189,35 @@ def score_semantic_map(objects: Iterable[SemanticObject], truth: ChangingTruth, 
                     tuple(pictures), tuple(other), structure)
 
 
+MISSED_REASONS = ("inactive", "off", "wrong_class", "unmapped")
+
+
+def missed_reasons(score: MapScore, truth: ChangingTruth, active: Sequence[SemanticObject],
+                   everything: Sequence[SemanticObject], lap: int = -1, max_distance_m: float = MAX_DISTANCE_M,
+                   match_on: str = "centroid") -> dict[str, str]:
+    """Ground-truth name -> why `score` missed it (MISSED_REASONS, first that applies): `everything` holds the
+    active objects and those below the semantic map's belief."""
+    present = {o.name: o for o in truth.laps[lap]}
+    active_ids = {e.id for e in active}
+
+    def where(e: SemanticObject) -> F64:
+        return np.asarray(e.centroid_w if match_on == "centroid" else e.box_center_w, float)
+
+    out = {}
+    for name in score.missed:
+        o = present[name]
+        near = [(e, float(np.linalg.norm(where(e) - o.centre_w))) for e in everything]
+        if any(e.class_id == o.class_id and e.id not in active_ids and d <= max_distance_m for e, d in near):
+            out[name] = "inactive"
+        elif any(e.class_id == o.class_id and e.id in active_ids and d <= 2 * max_distance_m for e, d in near):
+            out[name] = "off"
+        elif any(e.class_id != o.class_id and e.id in active_ids and d <= max_distance_m for e, d in near):
+            out[name] = "wrong_class"
+        else:
+            out[name] = "unmapped"
+    return out
+
+
 def _left_place(p: F64, class_id: int, truth: ChangingTruth, lap: int, max_distance_m: float) -> str | None:
     """Name of a same-class object whose place at an earlier lap's end lies within reach of `p`, where no
     same-class object stands at the end of `lap`."""
@@ -212,6 +244,7 @@ class SeedResult:
     wrong_loops: int
     changes: tuple[str, ...] = ()
     error: str = ""
+    missed_reasons: tuple[tuple[str, str], ...] = ()  # (ground-truth name, reason), see `missed_reasons`
 
     @property
     def ate_ratio(self) -> float:
@@ -247,6 +280,8 @@ def summarise(results: Sequence[SeedResult]) -> dict[str, Any]:
         "ate_ratio_median": float(np.median(ratios)) if ratios else math.nan,
         "ate_ratio_max": max(ratios) if ratios else math.nan,
         "wrong_loops": sum(r.wrong_loops for r in results),
+        "missed_reasons": {k: sum(reason == k for r in results for _, reason in r.missed_reasons)
+                           for k in MISSED_REASONS},
         "seeds_meeting": {
             "recall": sum(x.recall >= RECALL_TARGET for x in s),
             "precision": sum(x.precision >= PRECISION_TARGET for x in s),
@@ -267,9 +302,10 @@ def _read_json(path: Path) -> dict[str, Any]:
     return doc
 
 
-def run_semantic_map(scene_dir: Path, run_dir: Path) -> list[SemanticObject]:
+def run_semantic_map(scene_dir: Path, run_dir: Path, include_inactive: bool = False) -> list[SemanticObject]:
     """The run's semantic map in the ground-truth frame: its MapObjects moved by the run's object-placing
-    trajectory alignment, selected and boxed with the object-map settings of the run's config."""
+    trajectory alignment, selected and boxed with the object-map settings of the run's config (with
+    `include_inactive`, also the objects whose belief keeps them out of it)."""
     from changing_slam_ros.commands.objects_options import aligned_objects, aligned_planes, trajectory_alignment
     from changing_slam_ros.config import find_config, load_yaml
     from changing_slam_ros.core.objects.object_layer import object_layer_config
@@ -291,7 +327,8 @@ def run_semantic_map(scene_dir: Path, run_dir: Path) -> list[SemanticObject]:
     T = trajectory_alignment(gt, est)
     if T is None:
         raise EvalError(f"{run_dir}: no trajectory alignment with ground truth (fewer than 3 matched poses)")
-    smap = build_semantic_map(aligned_objects(objects, T), cfg, planes=aligned_planes(planes, T))
+    smap = build_semantic_map(aligned_objects(objects, T), cfg, include_inactive=include_inactive,
+                              planes=aligned_planes(planes, T))
     return list(smap.objects)
 
 
@@ -304,7 +341,11 @@ def score_run(seed: int, scene_dir: Path, run_dir: Path, control_run_dir: Path |
     if control_run_dir is not None and (control_run_dir / "metrics.json").is_file():
         control = float(_read_json(control_run_dir / "metrics.json").get("ate_rmse_m", math.nan))
     loops = metrics.get("loops", {})
-    score = score_semantic_map(run_semantic_map(scene_dir, run_dir), truth, -1, max_distance_m, match_on)
+    active = run_semantic_map(scene_dir, run_dir)
+    score = score_semantic_map(active, truth, -1, max_distance_m, match_on)
+    everything = run_semantic_map(scene_dir, run_dir, include_inactive=True)
+    reasons = missed_reasons(score, truth, active, everything, -1, max_distance_m, match_on)
     return SeedResult(seed, score, int(metrics.get("frames", 0)), int(metrics.get("frames_tracked", 0)),
                       float(metrics.get("ate_rmse_m", math.nan)), control, int(loops.get("accepted", 0)),
-                      int(loops.get("wrong", 0)), tuple(str(c["kind"]) for c in truth.changes))
+                      int(loops.get("wrong", 0)), tuple(str(c["kind"]) for c in truth.changes),
+                      missed_reasons=tuple(sorted(reasons.items())))

@@ -14,6 +14,8 @@ Rendering is MuJoCo's, offscreen through OSMesa on the CPU (Debian `libosmesa6`,
 - `room`: the furnished room; `scene`: MJCF generation; `renderer`: colour, depth and instance ids.
 - `scenarios`: the registry; `sequence`: the render loop; `writer`: the output folder;
   `oracle`: boxes from instance masks; `bag`: the folder as an mcap; `contact_sheet`.
+- `sensor_model`: Kinect- / RealSense-like depth noise, holes, blur and exposure (`--sensor`).
+- `random_dynamic` (with `random_room`, `random_movers`): one randomised dynamic scene per seed.
 
 Conventions: world z up, origin at the floor centre of the room; camera poses are the optical frame
 (x right, y down, z forward) in the world, TUM format; depth is metres along the optical axis (PNG x

@@ -19,20 +19,21 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
-from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim import actors as cat
 from changing_slam_ros.sim.actors import Actor, Change, ChangeKind, Part
 from changing_slam_ros.sim.camera_path import RobotLoop, robot_loop
 from changing_slam_ros.sim.motions import changed
-from changing_slam_ros.sim.renderer import intrinsics_for
-from changing_slam_ros.sim.scenarios import DEFAULT_HEIGHT, DEFAULT_WIDTH, Scenario, check_changes_out_of_view
+from changing_slam_ros.sim.path_views import OUT_OF_VIEW_MARGIN_PX, PathViews
+from changing_slam_ros.sim.renderer import fovy_for_focal
+from changing_slam_ros.sim.scenarios import DEFAULT_FY_PX, DEFAULT_HEIGHT, Scenario, check_changes_out_of_view
 from changing_slam_ros.sim.scene import Light, Room
-from changing_slam_ros.sim.track import Track, pose_xyz_rpy
+from changing_slam_ros.sim.sensor_model import EXACT, SensorModel, draw_sensor
+from changing_slam_ros.sim.track import pose_xyz_rpy
 
 F64 = npt.NDArray[np.float64]
 
-FAMILY_FPS = 5.0  # frames per second of the family (see docs: 3-5 cm and 6-9 deg between frames)
+FAMILY_FPS = 5.0  # at most 6 cm and 4.4 deg between frames (docs/changing_bench.md)
 WALL_T_M = 0.05
 WALL_PHOTOS = ("brick", "brick_grey", "plaster", "wallpaper", "stucco")
 FLOOR_PHOTOS = ("gravel", "wood")
@@ -45,9 +46,9 @@ PICTURE_PHOTOS: dict[str, str] = {
 FLOOR_KINDS = ("chair", "couch", "potted_plant", "suitcase")
 TABLE_KINDS = ("monitor", "bottle")
 WALL_KINDS = ("wall_clock", "wall_tv")
+KIND_CLASS = {"chair": 56, "couch": 57, "potted_plant": 58, "suitcase": 28, "monitor": 62, "bottle": 39,
+              "wall_clock": 74, "wall_tv": 62}  # catalogue kind -> COCO class id
 CHANGE_KINDS = ("moved_short", "moved_long", "removed", "added", "replaced", "swapped")
-SEEN_DEPTH_M = (0.3, 4.5)  # a place counts as seen when its centre is in the inner 80 % of the image this near
-OUT_OF_VIEW_MARGIN_PX = 40.0  # as check_changes_out_of_view
 PATH_CLEARANCE_M = 0.4  # floor objects keep this far from the robot's square
 
 
@@ -77,8 +78,9 @@ class Item:
 
 @dataclass(frozen=True)
 class DrawnChange:
-    """A change at `t_s` in lap `lap`: `kind` (CHANGE_KINDS) of `actor`; `other` the replacement or swap partner.
-    `to_poses`: actor name -> pose (4, 4) after the change, None when it leaves the room."""
+    """A change at `t_s`, timed within half a lap of the start of lap `lap`: `kind` (CHANGE_KINDS) of `actor`;
+    `other` the replacement or swap partner. `to_poses`: actor name -> pose (4, 4) after the change, None when it
+    leaves the room."""
 
     t_s: float
     lap: int
@@ -105,6 +107,7 @@ class ChangingRoom:
     lap_s: float
     changes: tuple[DrawnChange, ...]
     params: dict[str, object] = field(default_factory=dict)
+    sensor: SensorModel = EXACT
 
     def scenario(self, with_changes: bool = True) -> Scenario:
         """The scenario with the changes applied, or (False) the control: same room, objects and path."""
@@ -126,7 +129,8 @@ class ChangingRoom:
         desc = (f"seed {self.seed}: {len(self.pictures)} pictures, {sum(p is not None for p in self.initial.values())}"
                 f" objects, {self.n_laps} laps, " + (f"{len(self.changes)} changes" if with_changes else "no change"))
         s = Scenario(name, desc, self.room, tuple(actors), camera, tuple(sorted(records, key=lambda r: r.t_s)),
-                     camera.end_s, FAMILY_FPS, preview_t_s=min(camera.end_s, 0.5 * self.lap_s))
+                     camera.end_s, FAMILY_FPS, preview_t_s=min(camera.end_s, 0.5 * self.lap_s), sensor=self.sensor,
+                     parameters=self.params)
         check_changes_out_of_view(s, OUT_OF_VIEW_MARGIN_PX)
         doc = truth_document(self, s, with_changes)
         return replace(s, extra_files=(("changing_truth.json", doc),))
@@ -191,63 +195,6 @@ def _lights(rng: np.random.Generator, hx: float, hy: float, hz: float) -> tuple[
     return tuple(out)
 
 
-# --- visibility along the robot's path ---
-
-@dataclass(frozen=True)
-class _Views:
-    """The camera at every frame time: T_cam_world (N, 4, 4) and the intrinsics used for the checks."""
-
-    times_s: F64
-    T_cam_world: F64
-
-    @staticmethod
-    def of(camera: Track, fps: float, fovy_deg: float) -> "_Views":
-        n = int(np.floor(camera.end_s * fps + 1e-9))
-        times = np.arange(n) / fps
-        poses = []
-        for t in times:
-            T = camera.pose_at(float(t))
-            assert T is not None
-            poses.append(invert(T))
-        return _Views(times, np.array(poses))
-
-    def project(self, pts_w: F64, fovy_deg: float) -> tuple[F64, F64]:
-        """Pixels (N, P, 2) and depths (N, P) of world points (P, 3) in every frame."""
-        cam = intrinsics_for(DEFAULT_WIDTH, DEFAULT_HEIGHT, fovy_deg)
-        pc = np.einsum("nij,pj->npi", self.T_cam_world[:, :3, :3], pts_w) + self.T_cam_world[:, None, :3, 3]
-        z = pc[..., 2]
-        zs = np.where(z > 1e-3, z, 1e-3)
-        uv = np.stack([cam.fx * pc[..., 0] / zs + cam.cx, cam.fy * pc[..., 1] / zs + cam.cy], axis=-1)
-        return uv, z
-
-    def seen(self, item: Item, pose: F64, fovy_deg: float) -> npt.NDArray[np.bool_]:
-        """Frames where the item's box centre lies in the inner 80 % of the image within SEEN_DEPTH_M."""
-        return self.seen_point(_world_corners(item, pose).mean(axis=0), fovy_deg)
-
-    def seen_point(self, p_w: F64, fovy_deg: float) -> npt.NDArray[np.bool_]:
-        """Frames where the world point `p_w` (3,) lies in the inner 80 % of the image within SEEN_DEPTH_M."""
-        uv, z = self.project(np.asarray(p_w, float)[None], fovy_deg)
-        w, h = DEFAULT_WIDTH, DEFAULT_HEIGHT
-        return ((z[:, 0] > SEEN_DEPTH_M[0]) & (z[:, 0] < SEEN_DEPTH_M[1]) & (uv[:, 0, 0] > 0.1 * w)
-                & (uv[:, 0, 0] < 0.9 * w) & (uv[:, 0, 1] > 0.1 * h) & (uv[:, 0, 1] < 0.9 * h))
-
-    def in_view(self, item: Item, pose: F64, fovy_deg: float) -> npt.NDArray[np.bool_]:
-        """Frames where any corner of the item's box projects within the image grown by the margin (the test of
-        `check_changes_out_of_view`)."""
-        uv, z = self.project(_world_corners(item, pose), fovy_deg)
-        m = OUT_OF_VIEW_MARGIN_PX
-        inside = ((z > 0.05) & (uv[..., 0] > -m) & (uv[..., 0] < DEFAULT_WIDTH + m) & (uv[..., 1] > -m)
-                  & (uv[..., 1] < DEFAULT_HEIGHT + m))
-        return np.asarray(inside.any(axis=1))
-
-
-def _world_corners(item: Item, pose: F64) -> F64:
-    corners = np.concatenate([p.corners_m() for p in item.parts])
-    lo, hi = corners.min(axis=0), corners.max(axis=0)
-    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    return np.asarray(box @ pose[:3, :3].T + pose[:3, 3])
-
-
 def footprint_radius_m(item: Item) -> float:
     """Half the diagonal of the item's footprint (m)."""
     corners = np.concatenate([p.corners_m() for p in item.parts])
@@ -284,7 +231,7 @@ class _Planner:
     at any time."""
 
     def __init__(self, rng: np.random.Generator, hx: float, hy: float, loop_centre: F64, loop_half_m: float,
-                 views: _Views, fovy_deg: float) -> None:
+                 views: PathViews, fovy_deg: float) -> None:
         self.rng, self.hx, self.hy = rng, hx, hy
         self.centre, self.half = loop_centre, loop_half_m
         self.views, self.fovy = views, fovy_deg
@@ -338,6 +285,7 @@ class _Planner:
         return None
 
     def on_table(self, item: Item) -> F64 | None:
+        """A pose on the table top, near its room-side edge and clear of the other table items."""
         if self.table is None:
             return None
         xy, yaw, half, top = self.table
@@ -354,7 +302,8 @@ class _Planner:
                 return pose
         return None
 
-    def on_wall(self, item: Item, pictures: Sequence[Picture], half_w: float, z: float) -> F64 | None:
+    def on_wall(self, item: Item, half_w: float, z: float) -> F64 | None:
+        """A pose on a wall at height `z` (centre) for an item `2 half_w` wide, clear of the other wall items."""
         for _ in range(100):
             wall = WALLS[int(self.rng.integers(4))]
             origin, along, normal, half = _wall_frame(wall, self.hx, self.hy)
@@ -369,6 +318,7 @@ class _Planner:
         return None
 
     def pictures(self, n: int) -> list[Picture]:
+        """Up to `n` pictures at free wall places whose centres are seen from the path."""
         out = []
         photos = list(PICTURE_PHOTOS)
         for k in range(200):
@@ -403,9 +353,7 @@ def picture_part(p: Picture) -> Part:
 # --- the draw ---
 
 def _fovy() -> float:
-    from changing_slam_ros.sim.scenarios import DEFAULT_FY_PX
-    from changing_slam_ros.sim.renderer import fovy_for_focal
-
+    """The family's vertical field of view (degrees): the scenarios' 525 px focal length at 640x480."""
     return fovy_for_focal(DEFAULT_HEIGHT, DEFAULT_FY_PX)
 
 
@@ -416,7 +364,7 @@ def _turned(pose: F64, dyaw: float, xy: F64 | None = None) -> F64:
     return out
 
 
-def _when(views: _Views, fovy: float, lap: int, lap_s: float, fps: float, rng: np.random.Generator,
+def _when(views: PathViews, fovy: float, lap: int, lap_s: float, fps: float, rng: np.random.Generator,
           involved: Sequence[tuple[Item, F64 | None, F64 | None]]) -> float | None:
     """A time near the start of lap `lap` at which every place involved (old and new poses) is out of view for
     two frames, each old place was seen before, and every old and new place is seen again after; None if none."""
@@ -438,10 +386,10 @@ def _when(views: _Views, fovy: float, lap: int, lap_s: float, fps: float, rng: n
     return None
 
 
-def _plan_change(rng: np.random.Generator, kind: str, lap: int, room: dict[str, object], planner: _Planner,
+def _plan_change(rng: np.random.Generator, kind: str, lap: int, lap_s: float, planner: _Planner,
                  items: dict[str, Item], poses: dict[str, F64 | None], free: list[str]) -> DrawnChange | None:
     """One change of `kind` among the still unchanged objects `free` (names); None when it cannot be placed."""
-    views, fovy, lap_s = planner.views, planner.fovy, float(room["lap_s"])  # type: ignore[arg-type]
+    views, fovy = planner.views, planner.fovy
     floor = [n for n in free if items[n].support == "floor" and poses[n] is not None]
     movable = [n for n in free if items[n].support in ("floor", "table") and poses[n] is not None]
     to: dict[str, F64 | None] = {}
@@ -474,7 +422,7 @@ def _plan_change(rng: np.random.Generator, kind: str, lap: int, room: dict[str, 
         old_item, old = items[actor], poses[actor]
         assert old is not None
         kinds = [k for k in (TABLE_KINDS if old_item.support == "table" else FLOOR_KINDS) if k != "couch"]
-        choices = [k for k in kinds if _floor_item(np.random.default_rng(0), k, "x").class_id != old_item.class_id]
+        choices = [k for k in kinds if KIND_CLASS[k] != old_item.class_id]
         other = f"added_{len(items)}"
         items[other] = _floor_item(rng, choices[int(rng.integers(len(choices)))], other)
         poses[other] = None
@@ -506,7 +454,7 @@ def draw_changing_room(seed: int) -> ChangingRoom:
     parts, textures = _room_parts(rng, hx, hy, hz)
     lights = _lights(rng, hx, hy, hz)
     n_laps = 3 if rng.random() < 0.35 else 2
-    side, speed, turn = round(_u(rng, 0.6, 1.0), 3), round(_u(rng, 0.2, 0.3), 3), round(_u(rng, 30.0, 45.0), 2)
+    side, speed, turn = round(_u(rng, 0.6, 1.0), 3), round(_u(rng, 0.2, 0.3), 3), round(_u(rng, 15.0, 22.0), 2)
     height, tilt = round(_u(rng, 0.75, 1.1), 3), round(_u(rng, -5.0, 2.0), 2)  # tilt > 0: pitched down
     centre = np.array([_u(rng, -0.2, 0.2), _u(rng, -0.2, 0.2)])
     yaw0 = float(int(rng.integers(4)) * np.pi / 2)
@@ -517,7 +465,7 @@ def draw_changing_room(seed: int) -> ChangingRoom:
     lap_s = 4 * (side / speed + 90.0 / turn)
     camera, _ = robot_loop(loop)
     fovy = _fovy()
-    planner = _Planner(rng, hx, hy, centre, side / 2, _Views.of(camera, FAMILY_FPS, fovy), fovy)
+    planner = _Planner(rng, hx, hy, centre, side / 2, PathViews.of(camera, FAMILY_FPS), fovy)
 
     items: dict[str, Item] = {}
     poses: dict[str, F64 | None] = {}
@@ -530,7 +478,7 @@ def draw_changing_room(seed: int) -> ChangingRoom:
         item = _floor_item(rng, kind, f"{kind}_{k}")
         z = _u(rng, 1.0, 1.4)
         half_w = float(np.max(np.abs(np.concatenate([p.corners_m() for p in item.parts])[:, 1])))
-        pose = planner.on_wall(item, [], half_w, z)
+        pose = planner.on_wall(item, half_w, z)
         if pose is not None:
             items[item.name], poses[item.name] = item, pose
     pictures = planner.pictures(int(rng.integers(3, 8)))
@@ -558,14 +506,13 @@ def draw_changing_room(seed: int) -> ChangingRoom:
         if p is not None:
             items[item.name], poses[item.name] = item, p
 
-    room_info: dict[str, object] = {"lap_s": lap_s}
     changes: list[DrawnChange] = []
     free = [n for n in items if n != "table"]
     for _ in range(int(rng.integers(1, 5))):
         for _attempt in range(6):
             kind = CHANGE_KINDS[int(rng.integers(len(CHANGE_KINDS)))]
             lap = int(rng.integers(1, n_laps))
-            c = _plan_change(rng, kind, lap, room_info, planner, items, poses, free)
+            c = _plan_change(rng, kind, lap, lap_s, planner, items, poses, free)
             if c is not None:
                 changes.append(c)
                 free = [n for n in free if n not in c.to_poses]
@@ -584,8 +531,10 @@ def draw_changing_room(seed: int) -> ChangingRoom:
         "changes": [{"kind": c.kind, "object": c.actor, "other": c.other, "lap": c.lap, "t_s": round(c.t_s, 4)}
                     for c in changes],
     }
+    sensor = draw_sensor(np.random.default_rng([seed, 20, 1]))  # its own stream: the scene draws stay put
+    params["sensor"] = sensor.as_dict()
     return ChangingRoom(seed, hx, hy, hz, room, tuple(pictures), items, initial, loop, n_laps, lap_s,
-                        tuple(sorted(changes, key=lambda c: c.t_s)), params)
+                        tuple(sorted(changes, key=lambda c: c.t_s)), params, sensor)
 
 
 def random_changing(seed: int, with_changes: bool = True) -> Scenario:

@@ -19,14 +19,16 @@ sees the old place empty (second east side) before it reaches the new one (secon
 larger box pushed slowly (3 cm/s) along the table, for the local-mapping (multi-frame) segmentation
 (`slow_mover_control`: the box stays).
 `walking_changing`: a short panning shot with a walker and an out-of-view move (the sample bag).
+`random_dynamic` / `random_dynamic_control`: one randomised scene per seed and its control (`random_dynamic.py`).
 
 A seed jitters placements, walking paths, speeds and motion phases; the same seed gives the same scenario.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -42,6 +44,7 @@ from changing_slam_ros.sim.motions import carried_by_hand, changed, seated, walk
 from changing_slam_ros.sim.renderer import fovy_for_focal, intrinsics_for
 from changing_slam_ros.sim.room import default_room
 from changing_slam_ros.sim.scene import Room
+from changing_slam_ros.sim.sensor_model import EXACT, SensorModel
 from changing_slam_ros.sim.track import PoseKey, Track, pose_xyz_rpy, function_track
 
 F64 = npt.NDArray[np.float64]
@@ -65,6 +68,8 @@ class Scenario:
     fps: float
     fovy_deg: float = fovy_for_focal(DEFAULT_HEIGHT, DEFAULT_FY_PX)
     preview_t_s: float = 5.0  # a representative moment, for contact sheets
+    sensor: SensorModel = EXACT  # how the scene is seen (RenderOptions.sensor overrides it)
+    parameters: Mapping[str, Any] = field(default_factory=dict, compare=False)  # drawn values, written out
     extra_files: tuple[tuple[str, str], ...] = ()  # (file name, text) written beside the render (more ground truth)
 
     def n_frames(self) -> int:
@@ -550,12 +555,23 @@ SCENARIOS: dict[str, ScenarioInfo] = {
                                        lambda seed: _slow_mover(seed, pushed=False)),
     "walking_changing": ScenarioInfo("15 s pan with a walker and an out-of-view move (the sample bag)",
                                      _walking_changing),
+    "random_dynamic": ScenarioInfo("a randomised dynamic scene per seed: room, camera path, 1-4 people or "
+                                   "objects moving 0.6-3 m away, sensor model (sim/random_dynamic.py)",
+                                   lambda seed: _random_dynamic(seed, control=False)),
+    "random_dynamic_control": ScenarioInfo("random_dynamic's seed with the movers left out (its control)",
+                                           lambda seed: _random_dynamic(seed, control=True)),
     "random_changing": ScenarioInfo("the randomised changing-room family: a room, pictures and 3-8 objects drawn "
                                     "per seed, 2-3 robot laps, changes between laps (sim/random_changing.py)",
                                     lambda seed: _random_changing(seed, True)),
     "random_changing_control": ScenarioInfo("random_changing's seed with no change applied (its control)",
                                             lambda seed: _random_changing(seed, False)),
 }
+
+
+def _random_dynamic(seed: int, control: bool) -> Scenario:
+    from changing_slam_ros.sim.random_dynamic import build_random_dynamic  # it builds on this module
+
+    return build_random_dynamic(seed, control=control)
 
 
 def _random_changing(seed: int, with_changes: bool) -> Scenario:

@@ -25,11 +25,13 @@ CYLINDER_SEGMENTS = 24
 
 @dataclass(frozen=True)
 class Light:
-    """A spot light on the ceiling pointing down; colour (r, g, b) diffuse intensity."""
+    """A spot light on the ceiling, pointing along `dir` (straight down by default); colour (r, g, b) diffuse
+    intensity."""
 
     pos_m: tuple[float, float, float]
     diffuse: tuple[float, float, float]
     cast_shadow: bool = False
+    dir: tuple[float, float, float] = (0.0, 0.0, -1.0)
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,7 @@ class Room:
     parts: tuple[Part, ...]
     lights: tuple[Light, ...]
     size_m: tuple[float, float, float]
+    ambient: float | None = None  # the headlight's ambient level; None = SceneSpec's
 
 
 @dataclass(frozen=True)
@@ -189,7 +192,7 @@ def build_mjcf(spec: SceneSpec) -> Mjcf:
         bodies.append(f'<body name="{actor_body_name(a_idx)}" mocap="true" pos="{_fmt(PARK_POSITION_M)}">'
                       + "".join(geoms) + "</body>")
     lights = [
-        f'<light name="light{i}" pos="{_fmt(l.pos_m)}" dir="0 0 -1" directional="false" '
+        f'<light name="light{i}" pos="{_fmt(l.pos_m)}" dir="{_fmt(l.dir)}" directional="false" '
         f'diffuse="{_fmt(l.diffuse)}" specular="0.08 0.08 0.08" attenuation="1 0.03 0.01" cutoff="80" '
         f'exponent="2" castshadow="{"true" if (spec.shadows and l.cast_shadow) else "false"}"/>'
         for i, l in enumerate(spec.room.lights)
@@ -198,7 +201,7 @@ def build_mjcf(spec: SceneSpec) -> Mjcf:
     mat_xml = "".join(
         f'<material name="mat_{t}" texture="tex_{t}" specular="0.12" shininess="0.25"/>' for t in textures
     )
-    amb = spec.ambient
+    amb = spec.ambient if spec.room.ambient is None else spec.room.ambient
     xml = f"""<mujoco model="changing_slam_sim">
   <compiler angle="radian"/>
   <option><flag contact="disable" gravity="disable"/></option>

@@ -1,7 +1,9 @@
-"""Render a scenario frame by frame and write it out: the simulator's top-level loop."""
+"""Render a scenario frame by frame, pass each frame through the sensor model, and write it out: the
+simulator's top-level loop. Ground truth (poses, masks, oracle boxes) comes from the exact render."""
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -10,10 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from changing_slam_ros.errors import SimError
+from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.sim.oracle import oracle_detections
 from changing_slam_ros.sim.renderer import SimRenderer
 from changing_slam_ros.sim.scenarios import Scenario
 from changing_slam_ros.sim.scene import SceneSpec
+from changing_slam_ros.sim.sensor_model import SensorModel, frame_rng
 from changing_slam_ros.sim.writer import SequenceWriter
 
 DEFAULT_START_STAMP_NS = 1_700_000_000_000_000_000  # first frame's stamp; TUM-like absolute seconds
@@ -21,7 +25,8 @@ DEFAULT_START_STAMP_NS = 1_700_000_000_000_000_000  # first frame's stamp; TUM-l
 
 @dataclass(frozen=True)
 class RenderOptions:
-    """Image size, how many frames (None = the whole scenario), rate override, shadows, first stamp."""
+    """Image size, how many frames (None = the whole scenario), rate override, shadows, first stamp, and the
+    sensor (None = the scenario's own)."""
 
     width: int = 640
     height: int = 480
@@ -30,6 +35,7 @@ class RenderOptions:
     shadows: bool = False
     start_stamp_ns: int = DEFAULT_START_STAMP_NS
     min_box_pixels: int = 40
+    sensor: SensorModel | None = None
 
 
 @dataclass(frozen=True)
@@ -58,6 +64,8 @@ def simulate(scenario: Scenario, out_dir: Path, options: RenderOptions, seed: in
     if n <= 0:
         raise SimError(f"--frames {options.frames}: expected at least 1 frame")
     stamps = frame_stamps_ns(n, fps, options.start_stamp_ns)
+    sensor = options.sensor if options.sensor is not None else scenario.sensor
+    sensor.validate()
     spec = SceneSpec(scenario.room, scenario.actors, scenario.fovy_deg, options.width, options.height,
                      shadows=options.shadows)
     t_start = time.perf_counter()
@@ -74,9 +82,19 @@ def simulate(scenario: Scenario, out_dir: Path, options: RenderOptions, seed: in
             frame = renderer.render(T_world_cam, poses)
             render_s.append(time.perf_counter() - t0)
             dets = oracle_detections(frame.instance_ids, scenario.actors, options.min_box_pixels)
+            if not sensor.is_exact():
+                t_prev_s = (stamps[k - 1] - options.start_stamp_ns) * 1e-9 if k > 0 else t_s
+                T_prev = scenario.camera.pose_at(t_prev_s) if k > 0 else None
+                frame = sensor.apply(frame, renderer.camera, frame_rng(seed, k), t_s, T_world_cam, T_prev,
+                                     t_s - t_prev_s)
             writer.add_frame(stamp, frame, T_world_cam, poses, dets)
             if progress is not None:
                 progress(k + 1, n)
         writer.finish(options.start_stamp_ns)
+    if not sensor.is_exact():  # an exact render keeps the scenario's folder as it always was
+        atomic_write_text(Path(out_dir) / "sensor.json", json.dumps(sensor.as_dict(), indent=1) + "\n")
+    if scenario.parameters:
+        atomic_write_text(Path(out_dir) / "scenario.json", json.dumps(
+            {"scenario": scenario.name, "seed": seed, "parameters": scenario.parameters}, indent=1) + "\n")
     timed = render_s[1:] if len(render_s) > 1 else render_s
     return SimulationResult(Path(out_dir), n, 1000.0 * float(np.mean(timed)), time.perf_counter() - t_start)

@@ -8,6 +8,7 @@ Layout of `out_dir`:
 - `objects.json`: every object's class, box and pose per frame (null while absent), and the changes.
 - `detections.json`: oracle detections per frame (see `oracle.py`).
 - the scenario's `extra_files` (e.g. `changing_truth.json` of the changing-room family).
+`sequence.py` adds `sensor.json` (the sensor model, unless exact) and `scenario.json` (a random family's draws).
 Every file is written atomically.
 """
 

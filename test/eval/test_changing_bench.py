@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from changing_slam_ros.commands.bench_changing import parse_seeds
 from changing_slam_ros.core.objects.semantic_map import SemanticObject
 from changing_slam_ros.errors import EvalError
 from changing_slam_ros.eval.changing_bench import (
-    SeedResult, load_changing_truth, score_semantic_map, summarise,
+    SeedResult, load_changing_truth, missed_reasons, score_semantic_map, summarise,
 )
+from changing_slam_ros.eval.seed_bench import parse_seeds
 
 
 def _obj(name: str, class_id: int, class_name: str, centre: tuple[float, float, float],
@@ -124,3 +124,51 @@ def test_seed_ranges_parse_and_bad_ones_fail() -> None:
     for text in ("3-1", "a", "-2"):
         with pytest.raises(EvalError, match="--seeds"):
             parse_seeds(text)
+
+
+def test_a_perfect_map_of_a_family_seed_scores_one_and_its_pictures_count_as_pictures(tmp_path: Path) -> None:
+    from changing_slam_ros.sim.random_changing import random_changing
+
+    path = tmp_path / "changing_truth.json"
+    path.write_text(dict(random_changing(2).extra_files)["changing_truth.json"])
+    truth = load_changing_truth(path)
+    final = [o for o in truth.laps[-1] if o.class_id != 60]
+    perfect = [_est(i, o.class_id, tuple(o.centre_w)) for i, o in enumerate(final)]
+    s = score_semantic_map(perfect, truth)
+    assert s.recall == 1.0 and s.precision == 1.0 and s.n_present == len(final)
+    pictures = [w for w in truth.wall_items if not w.is_object]
+    on_walls = [_est(100 + k, 58, tuple((w.box_min_w + w.box_max_w) / 2)) for k, w in enumerate(pictures)]
+    s = score_semantic_map(perfect + on_walls, truth)
+    assert len(s.spurious_pictures) == len(pictures) and s.spurious_other == ()
+    assert s.precision == pytest.approx(len(final) / (len(final) + len(pictures)))
+
+
+def test_the_plot_is_written(tmp_path: Path) -> None:
+    from changing_slam_ros.eval.changing_bench_plot import plot_changing_bench
+
+    truth = load_changing_truth(_truth(tmp_path))
+    score = score_semantic_map([_est(1, 56, (1.0, 1.5, 0.5))], truth)
+    png = tmp_path / "bench.png"
+    plot_changing_bench([SeedResult(1, score, 10, 10, 0.01, 0.01, 0, 0),
+                         SeedResult(2, None, 0, 0, math.nan, math.nan, 0, 0, error="x")], png, title="t")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_changing_refuses_bad_seeds_on_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from changing_slam_ros.cli import main
+
+    assert main(["bench", "changing", "--seeds", "9-1", "--out", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--seeds '9-1'" in err[0]
+
+
+def test_missed_objects_get_their_reason(tmp_path: Path) -> None:
+    truth = load_changing_truth(_truth(tmp_path))
+    active = [_est(1, 62, (3.0, 0.45, 1.0)),   # the tv, 0.45 m off: "off"
+              _est(2, 41, (1.0, 1.5, 0.5))]    # a cup where the chair stands: the chair is "wrong_class"
+    inactive = [_est(3, 58, (2.0, 1.05, 0.6))]  # the plant, belief too low: "inactive"
+    score = score_semantic_map(active, truth)
+    reasons = missed_reasons(score, truth, active, active + inactive)
+    assert reasons == {"chair_a": "wrong_class", "plant_b": "inactive", "tv_d": "off", "clock_w": "unmapped"}
+    s = summarise([SeedResult(1, score, 10, 10, 0.01, 0.01, 0, 0, missed_reasons=tuple(sorted(reasons.items())))])
+    assert s["missed_reasons"] == {"inactive": 1, "off": 1, "wrong_class": 1, "unmapped": 1}
