@@ -3,8 +3,9 @@
     changing-slam changes BEFORE/map.npz AFTER/map.npz [--out DIR] [--map-id N] [--same-place-m 0.3]
         [--replace-radius-m 0.5] [--no-plot]
 
-Each map is a map file (`map.npz`, with keyframe thumbnails) or an object-map JSON file (`object_map.json`); both
-must be in one frame (the later run started from the earlier map with `--map-in`, or both aligned). Prints one
+Each map is a map file (`map.npz`, with keyframe thumbnails), an object-map JSON file (`object_map.json`) or a
+semantic-map file (`semantic_map.json`, or what `object_map`'s SaveMap writes: no belief history); both must be in
+one frame (the later run started from the earlier map with `--map-in`, or both aligned). Prints one
 line per change (moved, removed, added, replaced; `core.objects.change_report`); with --out, DIR receives
 `changes.json` (`io.change_report_file`) and `changes.png` (`eval.change_plot`: top view, before / after markers,
 keyframe thumbnails). `changing-slam run --map-in` writes the same two files at the end of its run.
@@ -15,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from changing_slam_ros.core.objects.change_report import ChangeReport, ChangeReportConfig, compare_object_maps
+from changing_slam_ros.core.objects.change_report import ChangeReport, ChangeReportConfig, compare_maps
 from collections.abc import Mapping
 
 import numpy as np
@@ -29,7 +30,8 @@ Thumbs = Mapping[int, npt.NDArray[np.uint8]]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("before", metavar="MAP_BEFORE", help="the earlier map: map.npz or object_map.json")
+    parser.add_argument("before", metavar="MAP_BEFORE",
+                        help="the earlier map: map.npz, object_map.json or a semantic map (JSON / YAML)")
     parser.add_argument("after", metavar="MAP_AFTER", help="the later map, in the same frame")
     parser.add_argument("--out", metavar="DIR", help="write changes.json and changes.png here")
     parser.add_argument("--map-id", type=int, default=None, help="map of the Atlas to compare (default: current)")
@@ -55,8 +57,9 @@ def write_change_outputs(out: Path, report: ChangeReport, up_w: F64 | None, befo
 def main(args: argparse.Namespace) -> int:
     before = read_report_objects(args.before, args.map_id)
     after = read_report_objects(args.after, args.map_id)
-    report = compare_object_maps(before.objects, after.objects, EvidenceConfig(args.present_belief),
-                                 ChangeReportConfig(args.same_place_m, args.replace_radius_m))
+    evidence = EvidenceConfig(args.present_belief)
+    report = compare_maps(before.evidence(evidence), after.evidence(evidence),
+                          ChangeReportConfig(args.same_place_m, args.replace_radius_m))
     for line in summary_lines(report):
         print(line)
     counts = report.counts()

@@ -8,8 +8,9 @@ Layout (version 1):
     unchanged: [{before_id, after_id, class_name, distance_m}, ...]
 An <object> is {id, class_id, class_name, centroid_m, box_size_m, belief, n_points, present, first_keyframe,
 last_seen_keyframe, belief_history: [[keyframe id, belief, reason], ...], seen_keyframes: [...]}, map frame,
-metres. `read_report_objects` reads the objects of a map file (`map.npz`, with thumbnails) or of an object-map
-JSON file (`object_map.json`, without). Writes are atomic.
+metres. `read_report_objects` reads the objects of a map file (`map.npz`, with thumbnails), of an object-map
+JSON file (`object_map.json`) or of a semantic-map file (JSON / YAML, as `object_map` saves it: no evidence
+beyond the first and last sighting). Writes are atomic.
 """
 
 from __future__ import annotations
@@ -24,7 +25,10 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.objects.change_report import ChangeReport
 from changing_slam_ros.core.objects.map_object import MapObject
-from changing_slam_ros.core.objects.object_evidence import ObjectEvidence
+from changing_slam_ros.core.objects.object_evidence import (
+    EvidenceConfig, ObjectEvidence, evidence_of, evidence_of_semantic,
+)
+from changing_slam_ros.core.objects.semantic_map import SemanticObject
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.atomic import atomic_write_text
 
@@ -34,19 +38,33 @@ VERSION = 1
 
 @dataclass
 class ReportObjects:
-    """The objects of one map for the report and the thumbnails of its keyframes (id -> (72, 96, 3) uint8)."""
+    """The objects of one map for the report (MapObjects, or semantic-map records when the file holds only
+    those) and the thumbnails of its keyframes (id -> (72, 96, 3) uint8)."""
 
     objects: list[MapObject]
     thumbnails: dict[int, npt.NDArray[np.uint8]] = field(default_factory=dict)
+    semantic: list[SemanticObject] = field(default_factory=list)
+
+    def evidence(self, config: EvidenceConfig) -> list[ObjectEvidence]:
+        return [evidence_of(o, config) for o in self.objects] + [evidence_of_semantic(o, config) for o in self.semantic]
 
 
 def read_report_objects(path: str | Path, map_id: int | None = None) -> ReportObjects:
-    """The objects of `map_id` (default: the current map) of a map file, or of an object-map JSON file."""
+    """The objects of `map_id` (default: the current map) of a map file, or of an object-map or semantic-map file
+    (told apart by their `format` field)."""
     from changing_slam_ros.io.map_file import load_object_maps
-    from changing_slam_ros.io.semantic_map_file import read_object_map
+    from changing_slam_ros.io.semantic_map_file import FORMAT, read_object_map, read_semantic_map
 
     p = Path(path)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        return ReportObjects([], semantic=list(read_semantic_map(p).objects))
     if p.suffix.lower() == ".json":
+        try:
+            is_semantic = json.loads(p.read_text()).get("format") == FORMAT
+        except (OSError, json.JSONDecodeError, AttributeError):
+            is_semantic = False  # the reader below names the problem
+        if is_semantic:
+            return ReportObjects([], semantic=list(read_semantic_map(p).objects))
         return ReportObjects(read_object_map(p))
     maps, current = load_object_maps(p)
     wanted = current if map_id is None else int(map_id)

@@ -62,3 +62,18 @@ def test_a_run_from_a_saved_map_reports_against_the_map_it_loaded(tmp_path: Path
     doc = json.loads((out / "changes.json").read_text())
     assert doc["before"] == "first/map.npz" and doc["counts"] == counts
     assert (out / "changes.png").is_file()
+
+
+def test_changes_command_reads_semantic_map_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+    from changing_slam_ros.core.objects.semantic_map import build_semantic_map
+    from changing_slam_ros.io.semantic_map_file import write_semantic_map
+
+    before, after = changed_room_maps()
+    cfg = ObjectMapConfig()
+    write_semantic_map(tmp_path / "before.yaml", build_semantic_map(before, cfg, include_inactive=True))
+    write_semantic_map(tmp_path / "after.json", build_semantic_map(after, cfg, include_inactive=True))
+    assert main(["changes", str(tmp_path / "before.yaml"), str(tmp_path / "after.json"), "--out", str(tmp_path / "r")]) == 0
+    assert "1 moved, 1 removed, 1 added, 1 replaced, 1 unchanged" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "r" / "changes.json").read_text())
+    assert doc["changes"][0]["before"]["belief_history"] == []  # a semantic map keeps no history
