@@ -52,15 +52,6 @@ class ObjectEvidence:
     belief_history: tuple[tuple[int, float, str], ...] = ()
     seen_keyframes: tuple[int, ...] = ()
 
-    @property
-    def evidence_keyframes(self) -> tuple[int, ...]:
-        """Every keyframe this record names (sightings and belief steps), ascending."""
-        return tuple(sorted({*self.seen_keyframes, *(k for k, _, _ in self.belief_history)}))
-
-    def same_object(self, other: ObjectEvidence) -> bool:
-        """True when `other` is this object in a map that continues this one's (same id, class, first keyframe)."""
-        return (self.id, self.class_id, self.first_keyframe) == (other.id, other.class_id, other.first_keyframe)
-
 
 def _vec3(a: object) -> Vec3:
     v = np.asarray(a, float).reshape(3)
