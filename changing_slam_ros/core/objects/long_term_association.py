@@ -177,14 +177,16 @@ class LongTermAssociation:
     def process_keyframe(self, keyframe_id: int, candidates: Sequence[ObjectCandidate], T_world_cam: F64,
                          camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None,
                          detected_boxes: Sequence[tuple[int, BoxXyxy]] = (),
-                         up_w: F64 | None = None, planes: Sequence[Plane] = ()) -> AssociationResult:
+                         up_w: F64 | None = None, planes: Sequence[Plane] = (),
+                         walls_up_w: F64 | None = None) -> AssociationResult:
         """Associate this keyframe's candidates, update beliefs, run the vicinity search.
 
         T_world_cam (4, 4) optical-frame pose of the keyframe; depth_m (H, W) its depth image in metres
         (0 = invalid) for the occlusion test, or None to skip that test. `detected_boxes`: (class, box) of
         the keyframe's detections that are no candidate; they only explain misses away (see the module doc).
         `up_w` (3,): the map's up direction, recorded with each whole view (`MapObject.add_view`; box completion),
-        which also tells walls from floors among `planes`, the room's large planes (map frame) for the picture check.
+        `planes`: the room's large planes (map frame) for the picture check, whose walls are told from floors by
+        `walls_up_w` (3,) (default `up_w`; the layer passes the camera's up when the floor is unknown).
         """
         cfg = self.config
         before = {oid: (obj.active, obj.n_points) for oid, obj in self.objects.items()}
@@ -203,7 +205,7 @@ class LongTermAssociation:
             if len(pts) < cfg.min_points:
                 assignments.append(-1)
                 continue
-            if is_picture(cand.class_id, pts, planes, up_w, cfg):
+            if is_picture(cand.class_id, pts, planes, up_w if walls_up_w is None else walls_up_w, cfg):
                 pictures.append(index)
                 assignments.append(-1)
                 continue

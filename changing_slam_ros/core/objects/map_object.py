@@ -159,6 +159,7 @@ class ObjectMapConfig:
       `picture_min_fraction` of its points within this of one wall (a structure plane whose normal makes an angle
       of at least `wall_min_tilt_deg` with the map's up) is a picture on that wall, not an object (0: off). A box in
       front of the wall has its front face a box depth away; a clock or a screen (`flat_classes`) stays an object.
+      Walls are structure planes whose static points span at least `wall_min_extent_m` along the plane.
     Moved objects (ours, §4.7 read for a changed room):
     - `relocation`: a candidate does not merge into a lost object (belief below `semantic_min_belief`: the room
       contradicted it) when it is where that object's position model says it is not (the "seen" likelihood ratio
@@ -211,6 +212,7 @@ class ObjectMapConfig:
     picture_plane_dist_m: float = 0.04
     picture_min_fraction: float = 0.8
     wall_min_tilt_deg: float = 60.0
+    wall_min_extent_m: float = 1.0
     flat_classes: tuple[int, ...] = FLAT_CLASSES
     relocation: bool = True
 

@@ -58,7 +58,7 @@ from changing_slam_ros.core.objects.box_depth import (  # noqa: F401 - re-export
 from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
 from changing_slam_ros.core.objects.object_box_completion import gravity_up
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
-from changing_slam_ros.core.objects.picture_check import is_picture
+from changing_slam_ros.core.objects.picture_check import is_picture, plane_extent_m
 from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.core.objects.semantic_map import SemanticMap, build_semantic_map
 from changing_slam_ros.core.map.slam_map import SlamMap
@@ -201,6 +201,7 @@ class _MapObjects:
     anchors: _Anchors = field(default_factory=_Anchors)
     next_sample_id: int = -2
     planes: list[Plane] = field(default_factory=list)  # the room's large planes (`object_point_weights`)
+    room_planes: list[Plane] = field(default_factory=list)  # those spanning a room's size (`picture_check.walls`)
     keyframes_since_planes: int = -1  # keyframes since the planes were fitted (-1: never)
     thumbnails: dict[int, U8] = field(default_factory=dict)  # keyframe id -> (72, 96, 3) image its objects name
     places: list[tuple[int, F64]] = field(default_factory=list)  # (class, centroid (3,)) of recent candidates
@@ -304,13 +305,18 @@ class ObjectLayer:
         flagged = [(int(o.class_id), tuple(float(v) for v in o.box_xyxy)) for o in short_term_objects]
         was_active = {oid: obj.active for oid, obj in mo.lta.objects.items()}
         up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])  # the camera's -y is its up
+        # walls for the picture check: without a floor among the planes (a camera at robot height sees it at a
+        # grazing angle) the camera's own up stands in, a robot's camera being held about level
+        walls_up = up if up is not None else -kf.T_world_cam[:3, 1]
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
-                                      detected_boxes=flagged, up_w=up, planes=mo.planes)  # type: ignore[arg-type]
+                                      detected_boxes=flagged, up_w=up, planes=mo.room_planes,
+                                      walls_up_w=walls_up)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
         mo.places = (mo.places + [(c.class_id, c.centroid_w) for c, _ in cands])[-MAX_PLACES:]
         n_freed = 0
         if self._reweight(mo, slam_map, kf.id):
-            n_freed = self._drop_pictures(mo, slam_map, gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1]))
+            refit_up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])
+            n_freed = self._drop_pictures(mo, slam_map, refit_up if refit_up is not None else walls_up)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)
         self._flip_labelled(mo, slam_map, was_active)
@@ -379,6 +385,8 @@ class ObjectLayer:
             mo.planes = fit_structure_planes(pts.positions[:n][static], cfg.structure_plane_dist_m,
                                              cfg.structure_plane_min_fraction, cfg.structure_max_planes,
                                              cfg.structure_plane_iterations, cfg.structure_plane_max_points, seed=kf_id)
+            mo.room_planes = [p for p in mo.planes if plane_extent_m(p, pts.positions[:n][static],
+                                                                      cfg.structure_plane_dist_m) >= cfg.wall_min_extent_m]
             mo.keyframes_since_planes = 0
             refit = True
         else:
@@ -404,7 +412,7 @@ class ObjectLayer:
         Returns how many map points were freed."""
         cfg = self.config.association
         pictures = [oid for oid, obj in mo.lta.objects.items()
-                    if is_picture(obj.class_id, obj.points_w, mo.planes, up_w, cfg)]
+                    if is_picture(obj.class_id, obj.points_w, mo.room_planes, up_w, cfg)]
         pts = slam_map.points
         n = pts.size
         freed = 0

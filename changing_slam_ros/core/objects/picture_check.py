@@ -4,7 +4,8 @@ A detector names what an image shows, also on a poster: a photo of a plant is a 
 face a "person". A real plant, chair or ball has depth: its points stand off the wall behind it by a good part
 of its size, while every point of a picture lies in the wall's plane (within the depth noise). The object layer
 already fits the room's large planes to the static map points (`object_point_weights.fit_structure_planes`);
-walls are those whose normal is far from the map's up. A candidate of a class outside `flat_classes` with at least
+walls are those that span at least `wall_min_extent_m` (`plane_extent_m`: a plane through one object's own map
+points, fitted before they were labelled, is no wall) and whose normal is far from the map's up. A candidate of a class outside `flat_classes` with at least
 `picture_min_fraction` of its points within `picture_plane_dist_m` of one wall is a picture. Thin classes that do
 hang on walls as real objects (a clock, a screen: `flat_classes`) are never pictures. Floors and table tops are
 not walls: a book on a table, or a rug, is left to the other rules.
@@ -32,6 +33,20 @@ def walls(planes: Sequence[Plane], up_w: F64 | None, min_tilt_deg: float) -> lis
     up = up / np.linalg.norm(up)
     max_cos = float(np.cos(np.radians(min_tilt_deg)))
     return [p for p in planes if abs(float(p.normal @ up)) <= max_cos + 1e-12]
+
+
+def plane_extent_m(plane: Plane, points_w: F64, dist_m: float) -> float:
+    """The larger 5-95 % spread (metres) of the points (N, 3) within `dist_m` of `plane`, along two axes in it."""
+    pts = np.asarray(points_w, np.float64).reshape(-1, 3)
+    on = pts[plane.distance(pts) < dist_m]
+    if len(on) < 3:
+        return 0.0
+    seed = np.eye(3)[int(np.argmin(np.abs(plane.normal)))]
+    e1 = seed - (seed @ plane.normal) * plane.normal
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(plane.normal, e1)
+    spans = [float(np.subtract(*np.percentile(on @ e, [95, 5]))) for e in (e1, e2)]
+    return max(spans)
 
 
 def wall_fraction(points_w: F64, wall_planes: Sequence[Plane], dist_m: float) -> float:

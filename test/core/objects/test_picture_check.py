@@ -87,3 +87,14 @@ def test_is_picture_needs_a_wall_and_a_three_dimensional_class() -> None:
     on_floor = np.c_[on_wall[:, 0], np.full(50, FLOOR_Y_M), on_wall[:, 1] + 2.0]
     assert not is_picture(PLANT, on_floor, [WALL, FLOOR], UP, cfg)  # a floor is no wall
     assert not is_picture(PLANT, on_wall, [WALL], UP, ObjectMapConfig(picture_plane_dist_m=0.0))  # off
+
+
+def test_a_plane_through_one_object_is_no_wall() -> None:
+    from changing_slam_ros.core.objects.picture_check import plane_extent_m
+
+    rng = np.random.default_rng(1)
+    wall = np.c_[rng.uniform(-1.5, 1.5, 200), rng.uniform(-1.0, 0.9, 200), np.full(200, WALL_Z_M)]
+    chair_front = np.c_[rng.uniform(-0.2, 0.2, 30), rng.uniform(0.0, 0.45, 30), np.full(30, 2.0)]
+    pts = np.vstack([wall, chair_front])
+    assert 2.6 < plane_extent_m(WALL, pts, 0.02) < 3.0
+    assert 0.3 < plane_extent_m(Plane(np.array([0.0, 0.0, 1.0]), -2.0), pts, 0.02) < 0.45  # under wall_min_extent_m
