@@ -22,6 +22,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("simulate", "render a dynamic / changing scenario with ground truth"),
     "bench": ("bench", "benchmark a scenario family over seeds: ATE, lost frames, CPU, moving keypoints"),
     "graph": ("graph", "run the ROS 2 node graph over a bag without ros2 launch"),
+    "changes": ("changes", "what changed between two object maps: moved, removed, added, replaced"),
 }
 
 

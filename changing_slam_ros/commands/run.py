@@ -7,7 +7,9 @@
 
 SOURCE is anything `io.dataset.open_dataset` reads (TUM-layout folder, 7-Scenes, ROS 1/2 bag, mcap). DIR
 receives the trajectories, keyframes, the map (`map.npz`), metrics and timing (see `main`). With
-`--map-in PREVIOUS/map.npz` the run continues a saved map (multi-session; see `multi_session_summary`).
+`--map-in PREVIOUS/map.npz` the run continues a saved map (multi-session; see `multi_session_summary`). With the object layer
+on, a `--map-in` run ends with the "what changed" report against the loaded map (`changes.json`,
+`changes.png`; `commands/changes.py`), one printed line per change and its counts in metrics.json `changes`.
 The run is deterministic for a given config (single-threaded OpenCV, seeded RNG, frames in order).
 """
 
@@ -20,10 +22,12 @@ import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dynamic_setup
 from changing_slam_ros.commands.objects_options import (
@@ -38,8 +42,13 @@ from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.errors import ConfigError, EvalError, OutputError
 from changing_slam_ros.io.atomic import atomic_write_text
-from changing_slam_ros.io.map_file import load_map, save_map
+from changing_slam_ros.io.map_file import LoadedMap, load_map, save_map
 from changing_slam_ros.io.output_dir import OutputDir
+from changing_slam_ros.commands.changes import write_change_outputs
+from changing_slam_ros.core.objects.change_report import compare_maps
+from changing_slam_ros.core.objects.object_evidence import EvidenceConfig, ObjectEvidence, evidence_of, map_up
+from changing_slam_ros.core.objects.object_layer import ObjectLayer
+from changing_slam_ros.io.change_report_file import summary_lines
 from changing_slam_ros.io.moving_objects_file import write_moving_objects
 from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
 
@@ -125,6 +134,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     system = SlamSystem(config, loop_closer=closing, keyframe_index=closing,
                         dynamic_filter=keypoint_log or dynamic.filter,  # type: ignore[arg-type]
                         object_layer=objects)
+    session = SessionChanges.start(loaded, objects) if loaded is not None else None  # before the layer moves beliefs
     if loaded is not None:
         system.start_from_map(loaded.atlas, loaded.next_keyframe_id, loaded.objects,
                               Mode.LOCALIZATION if args.localization else Mode.MAPPING)
@@ -171,6 +181,8 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
         sightings = [s.as_dict() for _, s in sorted(system.sightings.by_object.items())]
         atomic_write_text(out / "object_sightings.json", json.dumps(sightings, indent=2) + "\n")
         metrics["localization"] = {"objects_seen": len(sightings), "frames_lost": len(system.records) - system.n_tracked()}
+    if session is not None and objects is not None and objects.enabled:
+        metrics["changes"] = session.finish(objects, out, (str(args.map_in), str(out / "map.npz")), args.no_plot)
     gt = source.groundtruth
     if gt is not None and len(final) >= 3:
         metrics.update(evaluate(gt, final, online, out, args.no_plot))
@@ -206,6 +218,39 @@ def run_warnings(metrics: dict[str, Any]) -> list[str]:
         out.append(f"never relocalised in the loaded map {ms['map_in']}; a new map was started (a map of another "
                    "scene, or made with another camera?)")  # fmt: skip
     return out
+
+
+@dataclass
+class SessionChanges:
+    """The object map a multi-session run started from (evidence records taken before the layer decays the
+    beliefs, and the thumbnails), for the change report at the end of the run."""
+
+    map_id: int
+    before: list[ObjectEvidence]
+    thumbnails: dict[int, npt.NDArray[np.uint8]]
+
+    @classmethod
+    def start(cls, loaded: LoadedMap, layer: ObjectLayer | None) -> SessionChanges | None:
+        map_id = loaded.atlas.current.id
+        if layer is None or not layer.enabled or map_id not in loaded.objects:
+            return None
+        saved = loaded.objects[map_id]
+        return cls(map_id, [evidence_of(o, _evidence_config(layer)) for o in saved.objects], dict(saved.thumbnails))
+
+    def finish(self, layer: ObjectLayer, out: Path, names: tuple[str, str], no_plot: bool) -> dict[str, int]:
+        """Write `changes.json` / `changes.png` to `out` and print the changes; returns the counts."""
+        after = layer.objects(self.map_id)
+        report = compare_maps(self.before, [evidence_of(o, _evidence_config(layer)) for o in after])
+        write_change_outputs(out, report, map_up(after), self.thumbnails, layer.saved_objects(self.map_id).thumbnails,
+                             names, not no_plot)
+        for line in summary_lines(report):
+            print(f"change: {line}")
+        return report.counts()
+
+
+def _evidence_config(layer: ObjectLayer) -> EvidenceConfig:
+    cfg = layer.config.association
+    return EvidenceConfig(cfg.semantic_min_belief, cfg.min_points)
 
 
 def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:

@@ -33,6 +33,7 @@ from changing_slam_ros.core.slam.localization import Mode, Sightings
 from changing_slam_ros.core.slam.loop_closing import MapMerge
 from changing_slam_ros.core.slam.map_merging import MergeResult, merge_maps, move_frame
 from changing_slam_ros.core.objects.map_object import MapObject
+from changing_slam_ros.core.objects.object_evidence import keyframe_thumbnail
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
 from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo
@@ -199,6 +200,9 @@ class SlamSystem:
         res: TrackResult = self.tracker.track(frame)
         if dyn is not None:
             self._after_dynamic(dyn, res)
+            if (self.object_layer is not None and res.state == TrackingState.OK and res.new_keyframe is None
+                    and self.object_layer.wants_keyframe(self.atlas.current.id, dyn.objects, res.T_world_cam, rgbd.camera)):
+                self.tracker.request_keyframe()  # an object the map has not seen: a keyframe soon, while in view
         self._record(frame, res)  # relative to the reference keyframe, before mapping moves it
         seen: list[int] = []
         if self.mode is Mode.LOCALIZATION and res.state == TrackingState.OK:
@@ -279,7 +283,8 @@ class SlamSystem:
         """The object layer on a mapped keyframe (before loop closing, so that it sees the points this keyframe
         deactivated); the loop closer re-indexes keyframes whose points changed state."""
         assert self.object_layer is not None
-        out = self.object_layer.after_keyframe(kf, self.atlas.current, rgbd.depth_m, dyn.objects if dyn is not None else ())
+        out = self.object_layer.after_keyframe(kf, self.atlas.current, rgbd.depth_m, dyn.objects if dyn is not None else (),
+                                               thumbnail=_thumbnail(rgbd))
         refresh = getattr(self.loop_closer, "refresh_active_points", None)
         if out.active_flags_changed and refresh is not None:
             refresh(self.atlas.current)
@@ -414,3 +419,11 @@ class SlamSystem:
                 "p90": float(np.percentile(a, 90)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
             }
         return out
+
+
+def _thumbnail(rgbd: RgbdFrame) -> npt.NDArray[np.uint8] | None:
+    """The keyframe thumbnail of a colour frame (`object_evidence`); None for a grey or empty image."""
+    rgb = np.asarray(rgbd.rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
+        return None
+    return keyframe_thumbnail(rgb)

@@ -2,8 +2,9 @@
 
 One deflate-compressed npz archive (numpy arrays, no pickles), written atomically and
 byte-for-byte deterministically (fixed zip member dates, sorted members), so that save -> load -> save
-gives the same bytes. Version `MAP_FORMAT_VERSION` (2); version 1 (keyframe poses and usable points only,
-written before multi-session support) is refused with an error that says so.
+gives the same bytes. Version `MAP_FORMAT_VERSION` (3); version 2 (no keyframe thumbnails, no object evidence)
+still loads; version 1 (keyframe poses and usable points only, written before multi-session support) is refused
+with an error that says so.
 
 Top level: `format_version` (), `map_ids` (M,), `current_map_id` (), `next_keyframe_id` (), `merged_into` (E, 2)
 rows (merged-away map, the map it went into; such a map is stored empty).
@@ -23,7 +24,9 @@ Per map, prefixed `m{map_id}_`:
   `origin_kf_id` ();
 - object map (when the run had an object layer for this map): `objects_json` (the `io.semantic_map_file`
   object-map document: objects, points, beliefs), `obj_anchor_ids` (A,), `obj_anchor_kf_ids` (A,),
-  `obj_anchor_points_cam` (A, 3), `obj_next_sample_id` ().
+  `obj_anchor_points_cam` (A, 3), `obj_next_sample_id` (); from version 3 the thumbnails of the keyframes the
+  objects' evidence names (`core.objects.object_evidence`), `obj_thumb_kf_ids` (T,), `obj_thumbs` (T, 72, 96, 3)
+  uint8 RGB.
 
 `load_map` checks every field (present, shape, dtype kind, ids that refer to stored keyframes and points)
 and raises `MapFileError` naming the file and the field.
@@ -45,12 +48,14 @@ import numpy.typing as npt
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.objects.object_evidence import THUMBNAIL_SIZE_PX
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, SavedObjectMap
 from changing_slam_ros.core.map.slam_map import Atlas, RemovedKeyframe, SlamMap
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.atomic import atomic_write_bytes
 
-MAP_FORMAT_VERSION = 2
+MAP_FORMAT_VERSION = 3
+READABLE_VERSIONS = (2, 3)  # version 2 has no thumbnails; its object documents have no evidence (both optional)
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 Arrays = dict[str, npt.NDArray[Any]]
 
@@ -178,7 +183,11 @@ def _object_arrays(saved: SavedObjectMap) -> Arrays:
     from changing_slam_ros.io.semantic_map_file import object_map_to_dict
 
     doc = json.dumps(object_map_to_dict(saved.objects), separators=(",", ":"))
+    w, h = THUMBNAIL_SIZE_PX
+    thumb_ids = sorted(saved.thumbnails)
     return {
+        "obj_thumb_kf_ids": np.array(thumb_ids, np.int64),
+        "obj_thumbs": np.array([saved.thumbnails[k] for k in thumb_ids], np.uint8).reshape(-1, h, w, 3),
         "objects_json": np.array(doc),
         "obj_anchor_ids": np.asarray(saved.anchor_ids, np.int64),
         "obj_anchor_kf_ids": np.asarray(saved.anchor_kf_ids, np.int64),
@@ -201,16 +210,25 @@ def read_map_arrays(path: str | Path) -> Arrays:
     if "format_version" not in arrays:
         raise MapFileError(f"{path}: not a map file (no format_version)")
     version = int(np.asarray(arrays["format_version"]).reshape(-1)[0])
-    if version != MAP_FORMAT_VERSION:
+    if version not in READABLE_VERSIONS:
         hint = (" (written before multi-session support: keyframe poses and points only; run the sequence again"
                 " to write a loadable map)" if version == 1 else "")
-        raise MapFileError(f"{path}: map format version {version}, expected {MAP_FORMAT_VERSION}{hint}")
+        raise MapFileError(f"{path}: map format version {version}, expected one of {list(READABLE_VERSIONS)}{hint}")
     return arrays
 
 
 def load_map(path: str | Path) -> LoadedMap:
     """Read a map file written by `save_map` back into an Atlas and object maps."""
     return _Reader(read_map_arrays(path), str(path)).loaded()
+
+
+def load_object_maps(path: str | Path) -> tuple[dict[int, SavedObjectMap], int]:
+    """Only the object maps of a map file (map id -> object map) and its current map id; the keyframes and points
+    are not rebuilt (the change report needs the objects and their thumbnails only)."""
+    reader = _Reader(read_map_arrays(path), str(path))
+    map_ids = reader.get("map_ids", "i", (None,)).tolist()
+    objects = {int(i): reader._objects(int(i)) for i in map_ids if f"m{i}_objects_json" in reader.a}
+    return objects, reader.scalar("current_map_id")
 
 
 class _Reader:
@@ -408,4 +426,12 @@ class _Reader:
         nxt = self.scalar(pre + "obj_next_sample_id")
         if nxt > -2:
             raise self.fail(pre + "obj_next_sample_id", f"expected <= -2, got {nxt}")
-        return SavedObjectMap(objects, ids.astype(np.int64), kfs.astype(np.int64), pts.astype(np.float64), nxt)
+        thumbs: dict[int, npt.NDArray[np.uint8]] = {}
+        if pre + "obj_thumb_kf_ids" in self.a:  # version 3
+            t_ids = self.get(pre + "obj_thumb_kf_ids", "i", (None,))
+            w, h = THUMBNAIL_SIZE_PX
+            imgs = self.get(pre + "obj_thumbs", "u", (len(t_ids), h, w, 3))
+            if imgs.dtype != np.uint8:
+                raise self.fail(pre + "obj_thumbs", f"expected uint8, got {imgs.dtype}")
+            thumbs = {int(k): imgs[i].copy() for i, k in enumerate(t_ids.tolist())}
+        return SavedObjectMap(objects, ids.astype(np.int64), kfs.astype(np.int64), pts.astype(np.float64), nxt, thumbs)

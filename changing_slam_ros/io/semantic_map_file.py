@@ -8,9 +8,15 @@ Layout (version 1):
     objects:                      # ordered by id
       - {id, class_id, class_name, centroid_m: [x, y, z], box_center_m: [x, y, z], box_size_m: [dx, dy, dz],
          belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
-Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`); load
-errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`). The object map (every MapObject with its points, weights, boxes and persistence state, for a saved map that a
-later run starts from) has its own document (`object_map_to_dict`, format "changing_slam_ros object map").
+Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`).
+Load errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
+
+The object map (every MapObject with its point ids, point positions, optional `point_weights` (one per point,
+the centroid's weights), boxes and persistence state, for a
+saved map that a later session starts from) has its own document, `object_map_to_dict` /
+`object_map_from_dict` (format "changing_slam_ros object map", version 1), meant to be embedded in the
+map file or written alone with `write_object_map` / `read_object_map`. Each object's evidence for the change
+report, `belief_history` ([[keyframe id, belief, reason], ...]) and `seen_keyframes`, is optional (empty when absent).
 """
 
 from __future__ import annotations
@@ -134,6 +140,8 @@ def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
                 **({} if o.point_weights is None else {"point_weights": [float(w) for w in o.point_weights]}),
                 "view_sum_w": [float(v) for v in o.view_sum_w], "n_views": o.n_views,
                 "up_sum_w": [float(v) for v in o.up_sum_w],
+                "belief_history": [[int(k), float(b), str(r)] for k, b, r in o.belief_history],
+                "seen_keyframes": [int(k) for k in o.seen_keyframes],
             }
             for o in sorted(objects, key=lambda o: o.id)
         ],
@@ -178,12 +186,37 @@ def object_map_from_dict(doc: Any, where: str) -> list[MapObject]:
             n_observations=_field(item, "n_observations", int, w),
             point_weights=None if weights is None else np.asarray(weights, float),
             view_sum_w=view_sum, n_views=n_views, up_sum_w=up_sum,
+            belief_history=_belief_history(item, w), seen_keyframes=_keyframe_list(item, "seen_keyframes", w),
         )
         out.append(obj)
     ids = [o.id for o in out]
     if len(set(ids)) != len(ids):
         raise MapFileError(f"{where}: objects: duplicated ids")
     return out
+
+
+BELIEF_REASONS = ("new", "seen", "missed", "session")
+
+
+def _belief_history(item: dict[str, Any], where: str) -> list[tuple[int, float, str]]:
+    """Optional [[keyframe id, belief in [0, 1], reason], ...] (empty when absent: files written before it)."""
+    rows = item.get("belief_history", [])
+    ok = isinstance(rows, list) and all(
+        isinstance(r, list) and len(r) == 3 and isinstance(r[0], int) and not isinstance(r[0], bool)
+        and isinstance(r[1], (int, float)) and not isinstance(r[1], bool) and 0.0 <= r[1] <= 1.0
+        and r[2] in BELIEF_REASONS for r in rows)
+    if not ok:
+        raise MapFileError(f"{where}.belief_history: expected [[keyframe id, belief in [0, 1], reason], ...] with a "
+                           f"reason in {list(BELIEF_REASONS)}")
+    return [(int(k), float(b), str(r)) for k, b, r in rows]
+
+
+def _keyframe_list(item: dict[str, Any], key: str, where: str) -> list[int]:
+    """Optional list of keyframe ids (empty when absent)."""
+    v = item.get(key, [])
+    if not isinstance(v, list) or any(isinstance(k, bool) or not isinstance(k, int) for k in v):
+        raise MapFileError(f"{where}.{key}: expected a list of keyframe ids")
+    return [int(k) for k in v]
 
 
 def _optional_vec3(item: dict[str, Any], key: str, where: str) -> npt.NDArray[np.float64]:

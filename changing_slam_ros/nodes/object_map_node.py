@@ -10,17 +10,19 @@ belief, a text label), both transient-local so late subscribers get them; `~/obj
 QueryObjects by class and region; SaveMap / LoadMap as the project's semantic-map file
 (`io/semantic_map_file.py`, JSON or YAML, atomic); Reset clears it. With `map_file` set the map is loaded from it
 at start (so a restarted node comes back with its last map) and saved to it after every update.
-Open: candidates on `/local_mapping/object_candidates` are received but not associated here (the object
-layer associates them where it runs), and a loaded map is served, not fed back into the object layer.
+What changed since the map it started from: see `ObjectMapNode`. Open: candidates on `/local_mapping/object_candidates` are received but not associated here (the
+object layer associates them where it runs), and a loaded map is served, not fed back into the object layer.
 
 Inputs: /tracking/semantic_map (MapObjectArray; remap), /local_mapping/object_candidates (MapObjectArray)
-Outputs: ~/object_states (ObjectStateArray: belief, active), ~/semantic_map, ~/markers
-Services: ~/query_objects (QueryObjects), ~/save_map (SaveMap), ~/load_map (LoadMap), ~/reset (std_srvs/Trigger)
+Outputs: ~/object_states (ObjectStateArray: belief, active), ~/semantic_map, ~/markers, ~/changes, ~/change_markers
+Services: ~/query_objects (QueryObjects), ~/save_map (SaveMap), ~/load_map (LoadMap), ~/reset (std_srvs/Trigger),
+~/report_changes (std_srvs/Trigger: the change report's JSON in `message`)
 """
 
 from __future__ import annotations
 
 import colorsys
+import json
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -28,14 +30,17 @@ from typing import Any
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import ColorRGBA, Header
+from std_msgs.msg import ColorRGBA, Header, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from changing_slam_msgs.msg import MapObject, MapObjectArray, ObjectState, ObjectStateArray
 from changing_slam_msgs.srv import LoadMap, QueryObjects, SaveMap
+from changing_slam_ros.core.objects.change_report import ChangeReport, compare_maps
+from changing_slam_ros.core.objects.object_evidence import evidence_of_semantic
 from changing_slam_ros.core.objects.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import SlamError
+from changing_slam_ros.nodes.change_markers import change_markers
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -118,6 +123,12 @@ def _config_belief_threshold(config: str) -> float:
 
 
 class ObjectMapNode(Node):
+    """The semantic map's node (module doc). What changed: it keeps the map it started from (`changes_from`, else
+    the map loaded from `map_file`, else the first map received) and after every update publishes the change
+    report against it (`core.objects.change_report`): `~/changes` (std_msgs/String, the JSON document of
+    `io.change_report_file`) and `~/change_markers` (MarkerArray, `nodes.change_markers`), both transient-local;
+    `~/report_changes` answers with the same JSON."""
+
     def __init__(self, output_qos: QoSProfile | int = 10, **node_kwargs: Any) -> None:
         super().__init__("object_map", **node_kwargs)
         self.params = declare_parameters(self, [
@@ -129,6 +140,8 @@ class ObjectMapNode(Node):
                              "path; empty = none"),
             ("map_dir", "", "folder SaveMap / LoadMap request paths must lie in (names ending .json/.yaml/.yml; "
                             "an existing file is replaced only when it is a semantic map); empty = paths refused"),
+            ("changes_from", "", "semantic map file the change report compares against; empty = the map loaded "
+                                 "from map_file at start, else the first map received"),
         ])  # fmt: skip
         if self.params["belief_threshold"] < 0:
             self.params["belief_threshold"] = _config_belief_threshold(self.params["config"])
@@ -139,6 +152,10 @@ class ObjectMapNode(Node):
         self.state_pub = self.create_publisher(ObjectStateArray, "~/object_states", output_qos)
         self.map_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, "~/markers", LATCHED)
+        self.changes_pub = self.create_publisher(String, "~/changes", LATCHED)
+        self.change_marker_pub = self.create_publisher(MarkerArray, "~/change_markers", LATCHED)
+        self.start_map: SemanticMap | None = None
+        self.create_service(Trigger, "~/report_changes", self.on_report_changes)
         self.create_service(QueryObjects, "~/query_objects", self.on_query)
         self.create_service(SaveMap, "~/save_map", self.on_save)
         self.create_service(LoadMap, "~/load_map", self.on_load)
@@ -151,6 +168,15 @@ class ObjectMapNode(Node):
                 start = f", {len(self.objects)} objects loaded from {map_file}"
             except SlamError as err:
                 self.get_logger().error(f"object_map: {err}; starting empty")
+        if self.params["changes_from"]:
+            from changing_slam_ros.io.semantic_map_file import read_semantic_map
+
+            try:
+                self.start_map = read_semantic_map(self.params["changes_from"])
+            except SlamError as err:
+                self.get_logger().error(f"object_map: changes_from: {err}; comparing with the first map instead")
+        elif self.objects:
+            self.start_map = self.semantic_map()
         self.get_logger().info(f"object_map: started (semantic map from /tracking/semantic_map{start})")
 
     # -- inputs ---------------------------------------------------------------------------------
@@ -158,7 +184,10 @@ class ObjectMapNode(Node):
         """The object layer's current map (from local_mapping, or tracking's in-process backend)."""
         self.objects = {int(o.id): o for o in msg.objects}
         self.updates_in += 1
+        if self.start_map is None:
+            self.start_map = self.semantic_map()
         self.publish_map(msg.header.stamp)
+        self.publish_changes(msg.header.stamp)
         if self.params["map_file"]:
             try:
                 self.save(self.params["map_file"])
@@ -183,6 +212,25 @@ class ObjectMapNode(Node):
             states.objects.append(ObjectState(id=o.id, class_id=o.class_id, class_name=o.class_name, position=o.centroid,
                                               belief=o.belief, active=o.active))  # fmt: skip
         self.state_pub.publish(states)
+
+    def change_report(self) -> ChangeReport:
+        """The change report from the map the node started from to the current one (empty before either)."""
+        start = self.start_map.objects if self.start_map is not None else ()
+        return compare_maps([evidence_of_semantic(o) for o in start],
+                            [evidence_of_semantic(o) for o in self.semantic_map().objects])
+
+    @staticmethod
+    def changes_json(report: ChangeReport) -> str:
+        from changing_slam_ros.io.change_report_file import change_report_to_dict
+
+        return json.dumps(change_report_to_dict(report, "start", "current"))
+
+    def publish_changes(self, stamp: Any = None) -> None:
+        header = Header(frame_id=self.params["map_frame"])
+        header.stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
+        report = self.change_report()
+        self.changes_pub.publish(String(data=self.changes_json(report)))
+        self.change_marker_pub.publish(change_markers(report, header))
 
     def semantic_map(self) -> SemanticMap:
         objs = tuple(semantic_object_from_msg(o) for o in sorted(self.objects.values(), key=lambda o: o.id))
@@ -237,6 +285,10 @@ class ObjectMapNode(Node):
         except (SlamError, OSError) as err:
             response.success, response.message = False, f"object_map: {err}"
             self.get_logger().warning(response.message)
+        return response
+
+    def on_report_changes(self, request: Any, response: Any) -> Any:
+        response.success, response.message = True, self.changes_json(self.change_report())
         return response
 
     def on_reset(self, request: Any, response: Any) -> Any:

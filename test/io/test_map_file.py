@@ -112,7 +112,8 @@ def _rewrite(path: Path, out: Path, change) -> Path:  # noqa: ANN001 - test help
     (lambda a: a.__setitem__("current_map_id", np.array(7)), "current_map_id: 7 is not one of"),
     (lambda a: a.__setitem__("m0_objects_json", np.array("{not json")), "m0_objects_json: not valid JSON"),
     (lambda a: a.__setitem__("m0_parent", np.array([[10**6, 0]])), "m0_parent: unknown keyframe ids"),
-    (lambda a: a.__setitem__("format_version", np.array(1)), "version 1, expected 2 .written before multi-session"),
+    (lambda a: a.__setitem__("format_version", np.array(1)), "version 1, expected one of .2, 3. .written before multi-session"),
+    (lambda a: a.__setitem__("m0_obj_thumbs", a["m0_obj_thumbs"][:, :10]), "m0_obj_thumbs: expected shape"),
 ])
 def test_damaged_fields_are_named(mapped: tuple[SlamSystem, Path], tmp_path: Path, change, message) -> None:  # noqa: ANN001
     _, path = mapped
@@ -174,3 +175,41 @@ def test_merged_away_maps_round_trip(mapped: tuple[SlamSystem, Path], tmp_path: 
     back = load_map(out).atlas
     assert back.merged_into == {1: 0} and len(back.maps) == 2 and not back.maps[1].keyframes
     assert back.resolve(1) is back.maps[0] and back.current is back.maps[0]
+
+
+def test_object_evidence_and_thumbnails_round_trip(mapped: tuple[SlamSystem, Path]) -> None:
+    system, path = mapped
+    assert system.object_layer is not None
+    saved = system.object_layer.saved_objects(0)
+    back = load_map(path).objects[0]
+    assert saved.thumbnails and sorted(back.thumbnails) == sorted(saved.thumbnails)
+    named = {k for o in saved.objects for k in (*o.seen_keyframes, *(r[0] for r in o.belief_history))}
+    assert set(saved.thumbnails) <= named  # only the keyframes the evidence names keep a thumbnail
+    for k, img in saved.thumbnails.items():
+        assert img.shape == (72, 96, 3) and img.dtype == np.uint8
+        np.testing.assert_array_equal(back.thumbnails[k], img)
+    for a, b in zip(saved.objects, back.objects):
+        assert a.belief_history and a.belief_history[0][2] == "new"
+        assert b.belief_history == a.belief_history and b.seen_keyframes == a.seen_keyframes
+
+
+def test_a_version_2_map_still_loads_without_evidence(mapped: tuple[SlamSystem, Path], tmp_path: Path) -> None:
+    import json
+
+    _, path = mapped
+
+    def to_v2(a: dict) -> None:  # noqa: ANN001
+        a["format_version"] = np.array(2)
+        a.pop("m0_obj_thumbs")
+        a.pop("m0_obj_thumb_kf_ids")
+        doc = json.loads(str(a["m0_objects_json"]))
+        for item in doc["objects"]:
+            item.pop("belief_history")
+            item.pop("seen_keyframes")
+        a["m0_objects_json"] = np.array(json.dumps(doc))
+
+    old = load_map(_rewrite(path, tmp_path / "v2.npz", to_v2))
+    new = load_map(path)
+    assert old.objects[0].thumbnails == {}
+    assert [o.belief_history for o in old.objects[0].objects] == [[] for _ in new.objects[0].objects]
+    assert [(o.id, o.belief) for o in old.objects[0].objects] == [(o.id, o.belief) for o in new.objects[0].objects]

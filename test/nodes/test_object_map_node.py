@@ -77,3 +77,46 @@ def test_object_map_mirrors_tracking_saves_loads_and_restarts_from_its_map_file(
     assert sorted(again.objects) == [4, 7] and again.objects[4].class_name == "chair"
     again.destroy_node()
     probe.destroy_node()
+
+
+def test_object_map_reports_what_changed_since_the_map_it_started_from(ros_context, tmp_path):
+    from std_msgs.msg import String
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from changing_slam_ros.core.objects.semantic_map import SemanticMap
+    from changing_slam_ros.io.semantic_map_file import write_semantic_map
+    from changing_slam_ros.nodes.object_map_node import semantic_object_from_msg
+
+    start = tmp_path / "start.json"  # the earlier session: a chair at x = 1, a cup at x = 2
+    write_semantic_map(start, SemanticMap(tuple(semantic_object_from_msg(o) for o in (
+        _obj(4, 56, "chair", 1.0, 0.9), _obj(7, 41, "cup", 2.0, 0.7))), 0.6))
+    node = ObjectMapNode(context=ros_context, parameter_overrides=[Parameter("map_file", value=str(start))])
+    assert node.start_map is not None and len(node.start_map.objects) == 2
+    probe = Node("probe_changes", context=ros_context)
+    tracking_map = probe.create_publisher(MapObjectArray, "/tracking/semantic_map", LATCHED)
+    got: list[String] = []
+    markers: list[MarkerArray] = []
+    probe.create_subscription(String, "/object_map/changes", got.append, LATCHED)
+    probe.create_subscription(MarkerArray, "/object_map/change_markers", markers.append, LATCHED)
+    client = probe.create_client(Trigger, "/object_map/report_changes")
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    # now: the chair missed at x = 1 (belief 0.2) and seen at x = 3.5 (a new object), the cup gone, a new tv
+    tracking_map.publish(MapObjectArray(header=Header(frame_id="map"), objects=[
+        _obj(4, 56, "chair", 1.0, 0.2), _obj(7, 41, "cup", 2.0, 0.2), _obj(9, 56, "chair", 3.5, 0.5),
+        _obj(10, 62, "tv", -2.0, 0.5)]))  # fmt: skip
+    assert spin_until(executor, lambda: node.updates_in == 1 and got and markers)
+    doc = json.loads(got[-1].data)
+    assert doc["counts"] == {"moved": 1, "removed": 1, "added": 1, "replaced": 0, "unchanged": 0}
+    moved = next(c for c in doc["changes"] if c["kind"] == "moved")
+    assert (moved["before"]["id"], moved["after"]["id"], moved["distance_m"]) == (4, 9, pytest.approx(2.5))
+    arrows = [m for m in markers[-1].markers if m.type == Marker.ARROW and m.action == Marker.ADD]
+    assert len(arrows) == 1 and (arrows[0].points[0].x, arrows[0].points[1].x) == (1.0, 3.5)
+    assert spin_until(executor, client.service_is_ready)
+    future = client.call_async(Trigger.Request())
+    assert spin_until(executor, future.done)
+    assert json.loads(future.result().message)["counts"] == doc["counts"]
+    executor.shutdown()
+    node.destroy_node()
+    probe.destroy_node()

@@ -42,8 +42,10 @@ from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.map.map_point import PointStore
 from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig
+from changing_slam_ros.core.objects.object_point_weights import Plane
 from changing_slam_ros.core.objects.object_visibility import Visibility, check_visibility
-from changing_slam_ros.core.objects.persistence_filter import BeliefUpdate, update_missed, update_seen
+from changing_slam_ros.core.objects.persistence_filter import BeliefUpdate, likelihood_seen, update_missed, update_seen
+from changing_slam_ros.core.objects.picture_check import is_picture
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -116,8 +118,8 @@ class BeliefChange:
 class AssociationResult:
     """What one keyframe changed. `assignments[i]` is the map object id candidate i went to (new or
     merged; for a truncated candidate: the object its points are labelled with), -1 if it was skipped (truncated
-    with `truncated_views` off, or fewer than `min_points` points). `visibility`: the verdict
-    of the vicinity search for every mapped object that no candidate matched."""
+    with `truncated_views` off, fewer than `min_points` points, or a picture: its index is then in `pictures`).
+    `visibility`: the verdict of the vicinity search for every mapped object that no candidate matched."""
 
     keyframe_id: int
     assignments: tuple[int, ...]
@@ -127,10 +129,16 @@ class AssociationResult:
     activated_point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
     deactivated_point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
     visibility: dict[int, Visibility] = field(default_factory=dict)
+    pictures: tuple[int, ...] = ()
 
 
 class LongTermAssociation:
-    """Owns the MapObjects of one map and runs Algorithm 1 on each keyframe's candidates."""
+    """Owns the MapObjects of one map and runs Algorithm 1 on each keyframe's candidates.
+
+    Two rules of ours for a changed room: a candidate of a 3-D class whose points lie in a wall of the room's
+    planes is a picture and skipped (`picture_check.py`); and a lost object (belief below `semantic_min_belief`)
+    takes no candidate that its position model says is elsewhere (`relocated`): that is the class seen at a new
+    place, a new object. Each object keeps its belief steps and sighting keyframes (`MapObject`)."""
 
     def __init__(self, config: ObjectMapConfig, first_object_id: int = 0) -> None:
         self.config = config
@@ -146,11 +154,12 @@ class LongTermAssociation:
     def new_session(self, first_keyframe_id: int) -> None:
         """Start a session on a loaded map (multi-session): keyframe ids may restart, and time has passed, so
         every object counts as unseen for more than N keyframes; its first sighting or expected miss in the
-        new session updates its belief."""
+        new session updates its belief. Each object's belief history gets a "session" step at `first_keyframe_id`."""
         stale = first_keyframe_id - self.config.n_keyframes_unseen - 1
         for obj in self.objects.values():
             obj.last_seen_keyframe = stale
             obj.last_belief_update_keyframe = stale
+            obj.record_belief(first_keyframe_id, "session")
 
     def refresh_points(self, positions_of: PointLookup) -> None:
         """Re-read every object's point positions from the map (after local BA / loop correction) and drop
@@ -168,13 +177,16 @@ class LongTermAssociation:
     def process_keyframe(self, keyframe_id: int, candidates: Sequence[ObjectCandidate], T_world_cam: F64,
                          camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None,
                          detected_boxes: Sequence[tuple[int, BoxXyxy]] = (),
-                         up_w: F64 | None = None) -> AssociationResult:
+                         up_w: F64 | None = None, planes: Sequence[Plane] = (),
+                         walls_up_w: F64 | None = None) -> AssociationResult:
         """Associate this keyframe's candidates, update beliefs, run the vicinity search.
 
         T_world_cam (4, 4) optical-frame pose of the keyframe; depth_m (H, W) its depth image in metres
         (0 = invalid) for the occlusion test, or None to skip that test. `detected_boxes`: (class, box) of
         the keyframe's detections that are no candidate; they only explain misses away (see the module doc).
-        `up_w` (3,): the map's up direction, recorded with each whole view (`MapObject.add_view`; box completion).
+        `up_w` (3,): the map's up direction, recorded with each whole view (`MapObject.add_view`; box completion),
+        `planes`: the room's large planes (map frame) for the picture check, whose walls are told from floors by
+        `walls_up_w` (3,) (default `up_w`; the layer passes the camera's up when the floor is unknown).
         """
         cfg = self.config
         before = {oid: (obj.active, obj.n_points) for oid, obj in self.objects.items()}
@@ -187,9 +199,14 @@ class LongTermAssociation:
         attached: list[int] = []
         attached_on: list[I64] = []
         attached_off: list[I64] = []
-        for cand in candidates:
+        pictures: list[int] = []
+        for index, cand in enumerate(candidates):
             pts = np.asarray(cand.points_w, float).reshape(-1, 3)
             if len(pts) < cfg.min_points:
+                assignments.append(-1)
+                continue
+            if is_picture(cand.class_id, pts, planes, up_w if walls_up_w is None else walls_up_w, cfg):
+                pictures.append(index)
                 assignments.append(-1)
                 continue
             centroid = pts.mean(axis=0)  # line 2
@@ -223,6 +240,9 @@ class LongTermAssociation:
                                 n_observations=0 if cand.truncated else 1)
                 obj.add_view(T_world_cam[:3, 3], centroid, up_w)  # a cut view's direction is still where it was seen from
                 obj.last_belief_update_keyframe = keyframe_id
+                obj.record_belief(keyframe_id, "new")
+                if not cand.truncated:
+                    obj.record_sighting(keyframe_id)
                 self.objects[obj.id] = obj
                 self._next_id += 1
                 new_ids.append(obj.id)
@@ -238,11 +258,13 @@ class LongTermAssociation:
                 target.belief = upd.posterior
                 target.last_belief_update_keyframe = keyframe_id
                 target.active = target.belief >= cfg.belief_threshold  # lines 11-15
+                target.record_belief(keyframe_id, "seen")
                 changes.append(BeliefChange(target.id, "seen", upd))
             target.add_points(np.asarray(cand.point_ids, np.int64), pts)  # line 7
             target.current_box_xyxy = cand.box_xyxy
             target.last_seen_keyframe = keyframe_id  # lines 10 and 17
             target.n_observations += 1
+            target.record_sighting(keyframe_id)
             target.add_view(T_world_cam[:3, 3], centroid, up_w)
             if target.id not in merged_ids:
                 merged_ids.append(target.id)
@@ -256,17 +278,29 @@ class LongTermAssociation:
         if attached_off:
             deactivated = np.unique(np.concatenate([deactivated, *attached_off]))
         return AssociationResult(keyframe_id, tuple(assignments), tuple(new_ids), tuple(merged_ids), tuple(changes),
-                                 activated, deactivated, visibility)
+                                 activated, deactivated, visibility, tuple(pictures))
 
     def _nearest_same_class(self, pool: list[MapObject], class_id: int, centroid_w: F64) -> MapObject | None:
+        """The nearest mapped object of the class within `ltda_threshold_m` (lines 3-6) that may take a candidate
+        at `centroid_w`: a lost object only where its position model expects it (`relocated`)."""
         best, best_d = None, self.config.ltda_threshold_m
         for obj in pool:
             if obj.class_id != class_id or obj.n_points < self.config.min_points:
                 continue
             d = float(np.linalg.norm(obj.centroid_w - centroid_w))  # line 5
-            if d < best_d:
+            if d < best_d and not self.relocated(obj, centroid_w):
                 best, best_d = obj, d
         return best
+
+    def relocated(self, obj: MapObject, centroid_w: F64) -> bool:
+        """True when `obj` is lost (belief below `semantic_min_belief`) and a candidate centroid at `centroid_w`
+        (3,) is less likely under its position model than a same-class object elsewhere (the "seen" likelihood
+        ratio below 1): the class seen at a new place. Always False with `relocation` off."""
+        cfg = self.config
+        if not cfg.relocation or obj.belief >= cfg.semantic_min_belief:
+            return False
+        l1, l0 = likelihood_seen(centroid_w, obj.centroid_w, obj.n_points, cfg, float(np.max(obj.box_size_m)))
+        return l1 < l0
 
     def _vicinity_search(self, keyframe_id: int, pool: list[MapObject], seen: set[int],
                          boxes: Sequence[tuple[int, BoxXyxy]], T_world_cam: F64, camera: CameraIntrinsics,
@@ -292,6 +326,7 @@ class LongTermAssociation:
             obj.belief = upd.posterior
             obj.last_belief_update_keyframe = keyframe_id
             obj.active = obj.belief >= cfg.belief_threshold
+            obj.record_belief(keyframe_id, "missed")
             changes.append(BeliefChange(obj.id, "missed", upd))
         return out
 

@@ -61,6 +61,30 @@ TYPICAL_CLASS_DEPTH_M: dict[int, float] = {
     77: 0.2,   # teddy bear
 }
 
+# COCO classes (0-based) whose seen face may lie in a wall plane as real objects: flat or thin things that hang on
+# or lean against a wall (a clock, a screen, a book on a shelf) and appliances built in flush with a wall of
+# cupboards (the oven's door in the cupboard fronts). Every other class is 3-D, so a detection of it whose points
+# lie in a wall is a picture of one (a poster of a plant, a photo of a person).
+FLAT_CLASSES: tuple[int, ...] = (
+    62,  # tv (screens, monitors)
+    63,  # laptop
+    64,  # mouse
+    65,  # remote
+    66,  # keyboard
+    67,  # cell phone
+    68,  # microwave (built in)
+    69,  # oven (built in)
+    72,  # refrigerator (built in)
+    73,  # book
+    74,  # clock
+    76,  # scissors
+)
+
+# Evidence kept per MapObject for the change report: at most this many belief steps and sighting keyframes, the
+# first EVIDENCE_HEAD of them always (how it was first mapped) and the most recent ones after that.
+EVIDENCE_CAP = 24
+EVIDENCE_HEAD = 4
+
 
 @dataclass(frozen=True)
 class ObjectMapConfig:
@@ -130,6 +154,18 @@ class ObjectMapConfig:
     - `completion_min_concentration`: the object's viewing directions must agree (length of their mean unit
       vector >= this; 1 = one direction, 0.64 = spread evenly over a half circle): an object seen from around has
       its depth in its points already.
+    Pictures (ours, `picture_check.py`):
+    - `picture_plane_dist_m`: a candidate of a 3-D class (not in `flat_classes`) with at least
+      `picture_min_fraction` of its points within this of one wall (a structure plane whose normal makes an angle
+      of at least `wall_min_tilt_deg` with the map's up) is a picture on that wall, not an object (0: off). A box in
+      front of the wall has its front face a box depth away; a clock or a screen (`flat_classes`) stays an object.
+      Walls are structure planes whose static points span at least `wall_min_extent_m` along the plane.
+    Moved objects (ours, §4.7 read for a changed room):
+    - `relocation`: a candidate does not merge into a lost object (belief below `semantic_min_belief`: the room
+      contradicted it) when it is where that object's position model says it is not (the "seen" likelihood ratio
+      of `persistence_filter` below 1, i.e. farther than about 2 centroid sigmas): the class seen at a new place
+      is a new object (moved, re-found), not evidence for the old place; close to the old place it merges and
+      the object is back.
     Semantic map (§4.8):
     - `min_points`: objects with fewer points are left out of the semantic map and never merged into.
     - `semantic_min_belief`: the semantic map holds the objects with belief >= this (0.5: every object seen
@@ -173,6 +209,12 @@ class ObjectMapConfig:
     box_completion: bool = True
     class_depth_m: dict[int, float] = field(default_factory=lambda: dict(TYPICAL_CLASS_DEPTH_M))
     completion_min_concentration: float = 0.75
+    picture_plane_dist_m: float = 0.04
+    picture_min_fraction: float = 0.8
+    wall_min_tilt_deg: float = 60.0
+    wall_min_extent_m: float = 1.0
+    flat_classes: tuple[int, ...] = FLAT_CLASSES
+    relocation: bool = True
 
     def __post_init__(self) -> None:
         where = "objects"
@@ -181,6 +223,11 @@ class ObjectMapConfig:
         if not 0.0 <= self.completion_min_concentration <= 1.0:
             raise ConfigError(f"{where}.completion_min_concentration: expected within [0, 1], got "
                               f"{self.completion_min_concentration}")
+        if self.picture_plane_dist_m < 0.0 or not 0.0 < self.picture_min_fraction <= 1.0:
+            raise ConfigError(f"{where}.picture_plane_dist_m / picture_min_fraction: expected >= 0 / within (0, 1], "
+                              f"got {self.picture_plane_dist_m} / {self.picture_min_fraction}")
+        if not 0.0 <= self.wall_min_tilt_deg <= 90.0:
+            raise ConfigError(f"{where}.wall_min_tilt_deg: expected within [0, 90], got {self.wall_min_tilt_deg}")
         if self.ltda_threshold_m <= 0.0:
             raise ConfigError(f"{where}.ltda_threshold_m: expected > 0, got {self.ltda_threshold_m}")
         if self.n_keyframes_unseen < 0:
@@ -262,6 +309,9 @@ class MapObject:
     an object known only from cut views; `add_view`), map frame; its length over `n_views` says how
     much the viewing directions agree; `up_sum_w` (3,) the sum of the up directions known at those views (the
     floor's normal, `object_box_completion.gravity_up`; zero: none known). Both serve box completion only.
+    Evidence for the change report (`change_report.py`), each bounded (`EVIDENCE_CAP`): `belief_history`, rows
+    (keyframe id, belief after the step, reason: "new", "seen", "missed", "session"), and `seen_keyframes`, the
+    keyframes whose whole view went into the object, ascending.
     """
 
     id: int
@@ -283,6 +333,8 @@ class MapObject:
     view_sum_w: F64 = field(default_factory=lambda: np.zeros(3))
     n_views: int = 0
     up_sum_w: F64 = field(default_factory=lambda: np.zeros(3))
+    belief_history: list[tuple[int, float, str]] = field(default_factory=list)
+    seen_keyframes: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.view_sum_w = np.asarray(self.view_sum_w, dtype=np.float64).reshape(3)
@@ -325,6 +377,17 @@ class MapObject:
             if up_w is not None:
                 self.up_sum_w = self.up_sum_w + np.asarray(up_w, np.float64).reshape(3)
 
+    def record_belief(self, keyframe_id: int, reason: str) -> None:
+        """Append the current belief to `belief_history` with the keyframe and the reason of the step."""
+        self.belief_history.append((int(keyframe_id), float(self.belief), reason))
+        _bound(self.belief_history)
+
+    def record_sighting(self, keyframe_id: int) -> None:
+        """Append a keyframe whose whole view went into the object to `seen_keyframes` (once per keyframe)."""
+        if not self.seen_keyframes or self.seen_keyframes[-1] != int(keyframe_id):
+            self.seen_keyframes.append(int(keyframe_id))
+            _bound(self.seen_keyframes)
+
     def set_weights(self, weights: F64 | None) -> None:
         """Re-weight the current points (see `set_points`)."""
         self.set_points(self.point_ids, self.points_w, weights)
@@ -351,3 +414,9 @@ class MapObject:
             self.set_points(self.point_ids, pts, w)
         else:
             self.set_points(self.point_ids[keep], pts[keep], None if w is None else w[keep])
+
+
+def _bound(rows: list[Any]) -> None:
+    """Keep at most EVIDENCE_CAP rows: the first EVIDENCE_HEAD and the newest (the oldest after the head goes)."""
+    while len(rows) > EVIDENCE_CAP:
+        del rows[EVIDENCE_HEAD]

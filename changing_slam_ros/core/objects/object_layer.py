@@ -52,9 +52,13 @@ from changing_slam_ros.core.objects.long_term_association import (
     AssociationResult, LongTermAssociation, ObjectCandidate, apply_to_point_store, box_truncated,
 )
 from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.objects.box_depth import (  # noqa: F401 - re-exported: the layer's depth band
+    MIN_DEPTH_BAND_M, DepthBand, box_depth_band, box_depth_samples,
+)
 from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
 from changing_slam_ros.core.objects.object_box_completion import gravity_up
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
+from changing_slam_ros.core.objects.picture_check import is_picture, plane_extent_m
 from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.core.objects.semantic_map import SemanticMap, build_semantic_map
 from changing_slam_ros.core.map.slam_map import SlamMap
@@ -62,7 +66,8 @@ from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
-MIN_DEPTH_BAND_M = 0.05
+U8 = npt.NDArray[np.uint8]
+MAX_PLACES = 200  # candidates' places kept for `wants_keyframe` (the newest)
 
 
 @dataclass(frozen=True)
@@ -81,6 +86,12 @@ class ObjectLayerConfig:
       smaller side spans at least this many metres at its median depth: a sliver at the image edge is mostly
       what lies behind the object (shift: a 2-pixel-wide chair box, 1.5 cm at 2 m, gave 25 samples of the
       wall and a spurious chair 1 m from the real one). Whole boxes are not concerned (a cup is small).
+    - `new_object_keyframes`: a whole detection (not cut by the border, at least the visibility's minimum box
+      area) of a non-dynamic object that nothing the layer knows explains (no mapped object and no earlier
+      candidate of its class projects inside its box) asks tracking for a keyframe (`wants_keyframe`): the layer
+      runs on keyframes only, so an object seen for less than a keyframe interval, or seen whole only between
+      two keyframes, never becomes a candidate. Off by default: the split node graph's tracking keeps no object
+      map, so with it on the lossless graph would take other keyframes than the offline run.
     - `session_belief_decay`: a map loaded for a new session (multi-session) pulls every object's belief this
       fraction of the way back to 0.5 (0 = keep, 1 = forget): time has passed and the room may have changed, so
       what the last session saw counts less than what this one sees (a one-step stand-in for a survival-time
@@ -94,6 +105,7 @@ class ObjectLayerConfig:
     band_map_points: bool = True
     session_belief_decay: float = 0.5
     cut_min_side_m: float = 0.1
+    new_object_keyframes: bool = False
     association: ObjectMapConfig = field(default_factory=ObjectMapConfig)
 
     def __post_init__(self) -> None:
@@ -111,7 +123,7 @@ class ObjectLayerConfig:
 
 
 _OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "depth_band_near_quantile": float,
-             "band_map_points": bool,
+             "band_map_points": bool, "new_object_keyframes": bool,
              "session_belief_decay": float, "cut_min_side_m": float}
 
 
@@ -189,20 +201,24 @@ class _MapObjects:
     anchors: _Anchors = field(default_factory=_Anchors)
     next_sample_id: int = -2
     planes: list[Plane] = field(default_factory=list)  # the room's large planes (`object_point_weights`)
+    room_planes: list[Plane] = field(default_factory=list)  # those spanning a room's size (`picture_check.walls`)
     keyframes_since_planes: int = -1  # keyframes since the planes were fitted (-1: never)
+    thumbnails: dict[int, U8] = field(default_factory=dict)  # keyframe id -> (72, 96, 3) image its objects name
+    places: list[tuple[int, F64]] = field(default_factory=list)  # (class, centroid (3,)) of recent candidates
 
 
 @dataclass
 class SavedObjectMap:
     """The object map of one SlamMap as a saved map holds it (multi-session): the MapObjects with beliefs, the
     anchors of their points (ids (M,), keyframe ids (M,), camera-frame positions (M, 3)) and the next
-    depth-sample id (negative)."""
+    depth-sample id (negative), and the thumbnails of the keyframes the objects' evidence names."""
 
     objects: list[MapObject]
     anchor_ids: I64
     anchor_kf_ids: I64
     anchor_points_cam: F64
     next_sample_id: int = -2
+    thumbnails: dict[int, U8] = field(default_factory=dict)  # keyframe id -> thumbnail (`object_evidence`)
 
 
 class ObjectLayer:
@@ -245,7 +261,8 @@ class ObjectLayer:
         """The object map of `map_id` in the form a map file stores."""
         mo = self._for(map_id)
         ids, kfs, pts = mo.anchors.arrays()
-        return SavedObjectMap(self.objects(map_id), ids.copy(), kfs.copy(), pts.copy(), mo.next_sample_id)
+        return SavedObjectMap(self.objects(map_id), ids.copy(), kfs.copy(), pts.copy(), mo.next_sample_id,
+                              dict(mo.thumbnails))
 
     def load_objects(self, map_id: int, saved: SavedObjectMap, first_keyframe_id: int,
                      points: PointStore | None = None) -> None:
@@ -253,7 +270,8 @@ class ObjectLayer:
         and the active flags of the objects and of their map points in `points` (the loaded map's) follow. The
         new session's keyframes start at `first_keyframe_id`, and every object counts as long unseen
         (`LongTermAssociation.new_session`): its first sighting, or expected miss, updates its belief."""
-        mo = _MapObjects(LongTermAssociation(self.config.association), next_sample_id=saved.next_sample_id)
+        mo = _MapObjects(LongTermAssociation(self.config.association), next_sample_id=saved.next_sample_id,
+                         thumbnails=dict(saved.thumbnails))
         keep = 1.0 - self.config.session_belief_decay
         for obj in saved.objects:
             obj.belief = 0.5 + (obj.belief - 0.5) * keep
@@ -271,9 +289,11 @@ class ObjectLayer:
 
     # --- per keyframe ---
     def after_keyframe(self, kf: Keyframe, slam_map: SlamMap, depth_m: npt.NDArray[np.floating] | None,
-                       short_term_objects: Sequence[ObjectState]) -> ObjectLayerResult:
+                       short_term_objects: Sequence[ObjectState], thumbnail: U8 | None = None) -> ObjectLayerResult:
         """Run the layer on a mapped keyframe. depth_m (H, W) metres (0 invalid) of the keyframe, or None;
-        `short_term_objects`: the dynamic stage's objects in the keyframe's frame (dynamic ones are ignored)."""
+        `short_term_objects`: the dynamic stage's objects in the keyframe's frame (dynamic ones are ignored);
+        `thumbnail`: the keyframe's image (`object_evidence.keyframe_thumbnail`), kept while an object's evidence
+        names the keyframe (a sighting or a belief step), for the change report."""
         t0 = time.perf_counter()
         if not self.config.enabled:
             return ObjectLayerResult(slam_map.id, None, (), 0, 0, 0.0)
@@ -285,16 +305,26 @@ class ObjectLayer:
         flagged = [(int(o.class_id), tuple(float(v) for v in o.box_xyxy)) for o in short_term_objects]
         was_active = {oid: obj.active for oid, obj in mo.lta.objects.items()}
         up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])  # the camera's -y is its up
+        # walls for the picture check: without a floor among the planes (a camera at robot height sees it at a
+        # grazing angle) the camera's own up stands in, a robot's camera being held about level
+        walls_up = up if up is not None else -kf.T_world_cam[:3, 1]
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
-                                      detected_boxes=flagged, up_w=up)  # type: ignore[arg-type]
+                                      detected_boxes=flagged, up_w=up, planes=mo.room_planes,
+                                      walls_up_w=walls_up)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
-        self._reweight(mo, slam_map, kf.id)
+        mo.places = (mo.places + [(c.class_id, c.centroid_w) for c, _ in cands])[-MAX_PLACES:]
+        n_freed = 0
+        if self._reweight(mo, slam_map, kf.id):
+            refit_up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])
+            n_freed = self._drop_pictures(mo, slam_map, refit_up if refit_up is not None else walls_up)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)
         self._flip_labelled(mo, slam_map, was_active)
+        self._keep_thumbnail(mo, kf.id, thumbnail)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
-        return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands), int((res.activated_point_ids >= 0).sum()),
+        return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands),
+                                 int((res.activated_point_ids >= 0).sum()) + n_freed,
                                  int((res.deactivated_point_ids >= 0).sum()), ms)
 
     def _candidates(self, mo: _MapObjects, kf: Keyframe, slam_map: SlamMap,
@@ -340,12 +370,13 @@ class ObjectLayer:
             out.append((cand, pts_c))
         return out
 
-    def _reweight(self, mo: _MapObjects, slam_map: SlamMap, kf_id: int) -> None:
+    def _reweight(self, mo: _MapObjects, slam_map: SlamMap, kf_id: int) -> bool:
         """Point weights of every object (`object_point_weights`): the room's planes are refitted to the static
-        map points every `structure_refit_keyframes` keyframes."""
+        map points every `structure_refit_keyframes` keyframes. True when the planes were refitted now."""
         cfg = self.config.association
+        refit = False
         if cfg.centroid_voxel_m <= 0.0 and cfg.structure_plane_dist_m <= 0.0 and cfg.shared_point_dist_m <= 0.0:
-            return  # the paper's plain mean
+            return refit  # the paper's plain mean
         if cfg.structure_plane_dist_m > 0.0 and (mo.keyframes_since_planes < 0
                                                  or mo.keyframes_since_planes + 1 >= cfg.structure_refit_keyframes):
             pts = slam_map.points
@@ -354,10 +385,45 @@ class ObjectLayer:
             mo.planes = fit_structure_planes(pts.positions[:n][static], cfg.structure_plane_dist_m,
                                              cfg.structure_plane_min_fraction, cfg.structure_max_planes,
                                              cfg.structure_plane_iterations, cfg.structure_plane_max_points, seed=kf_id)
+            mo.room_planes = [p for p in mo.planes if plane_extent_m(p, pts.positions[:n][static],
+                                                                      cfg.structure_plane_dist_m) >= cfg.wall_min_extent_m]
             mo.keyframes_since_planes = 0
+            refit = True
         else:
             mo.keyframes_since_planes += 1
         reweight_objects(list(mo.lta.objects.values()), mo.planes, cfg)
+        return refit
+
+    @staticmethod
+    def _keep_thumbnail(mo: _MapObjects, kf_id: int, thumbnail: U8 | None) -> None:
+        """Keep this keyframe's thumbnail when an object's evidence names it; drop those no evidence names now."""
+        named: set[int] = set()
+        for obj in mo.lta.objects.values():
+            named.update(obj.seen_keyframes)
+            named.update(k for k, _, _ in obj.belief_history)
+        if thumbnail is not None and kf_id in named:
+            mo.thumbnails[kf_id] = np.asarray(thumbnail, np.uint8)
+        for k in [k for k in mo.thumbnails if k not in named]:
+            del mo.thumbnails[k]
+
+    def _drop_pictures(self, mo: _MapObjects, slam_map: SlamMap, up_w: F64 | None) -> int:
+        """Objects mapped before the walls were known that turn out to be pictures (`picture_check`) leave the
+        object map; their map points become plain static points again (unlabelled, active): a poster is wall.
+        Returns how many map points were freed."""
+        cfg = self.config.association
+        pictures = [oid for oid, obj in mo.lta.objects.items()
+                    if is_picture(obj.class_id, obj.points_w, mo.room_planes, up_w, cfg)]
+        pts = slam_map.points
+        n = pts.size
+        freed = 0
+        for oid in pictures:
+            del mo.lta.objects[oid]
+            sel = np.flatnonzero(pts.object_id[:n] == oid)
+            pts.object_id[sel] = -1
+            pts.class_id[sel] = 0
+            pts.active[sel] = True
+            freed += len(sel)
+        return freed
 
     @staticmethod
     def _settle_shared(mo: _MapObjects, slam_map: SlamMap, res: AssociationResult) -> None:
@@ -427,6 +493,32 @@ class ObjectLayer:
             usable[need[sel]] = True
         return pos, usable
 
+    def wants_keyframe(self, map_id: int, short_term_objects: Sequence[ObjectState], T_world_cam: F64,
+                       camera: CameraIntrinsics) -> bool:
+        """True when a frame at pose T_world_cam (4, 4) shows a whole, non-dynamic detection that no mapped object
+        and no recent candidate of its class explains (its centroid projects inside the box, in front of the
+        camera): an object the map has not seen yet (`new_object_keyframes`)."""
+        if not (self.config.enabled and self.config.new_object_keyframes):
+            return False
+        mo = self._maps.get(map_id)
+        known = [(o.class_id, o.centroid_w) for o in mo.lta.objects.values()] + list(mo.places) if mo else []
+        cfg = self.config.association
+        min_area = max(cfg.min_projected_area_fraction * camera.width * camera.height, cfg.min_projected_area_px)
+        T_cw = invert(T_world_cam)
+        for o in short_term_objects:
+            box = tuple(float(v) for v in o.box_xyxy)
+            if (o.is_dynamic or box_truncated(box, camera)  # type: ignore[arg-type]
+                    or (box[2] - box[0]) * (box[3] - box[1]) < min_area):
+                continue
+            cents = np.array([c for k, c in known if k == int(o.class_id)]).reshape(-1, 3)
+            pc = cents @ T_cw[:3, :3].T + T_cw[:3, 3]
+            front = pc[:, 2] > 1e-6
+            u = camera.fx * pc[front, 0] / pc[front, 2] + camera.cx
+            v = camera.fy * pc[front, 1] / pc[front, 2] + camera.cy
+            if not np.any((u >= box[0]) & (u <= box[2]) & (v >= box[1]) & (v <= box[3])):
+                return True
+        return False
+
     # --- results ---
     def semantic_map(self, map_id: int, min_belief: float | None = None, include_inactive: bool = False) -> SemanticMap:
         """§4.8 semantic map of one map: objects with belief >= min_belief (default `semantic_min_belief`,
@@ -449,88 +541,3 @@ class ObjectLayer:
             "ms_per_keyframe_mean": float(ms.mean()),
             "ms_per_keyframe_p90": float(np.percentile(ms, 90)),
         }
-
-
-@dataclass(frozen=True)
-class DepthBand:
-    """The camera-frame depths (metres) taken as a box's object: within `half_m` of `median_m`, the box's median
-    depth, and from `near_m` (<= median_m - half_m) up to that."""
-
-    median_m: float
-    half_m: float
-    near_m: float
-
-    def contains(self, depth_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-        """Which depths (any shape) lie inside the band."""
-        d = np.asarray(depth_m, float)
-        centred = np.abs(d - self.median_m) < self.half_m
-        return centred | ((d > self.near_m) & (d <= self.median_m - self.half_m))  # type: ignore[no-any-return]
-
-
-def _box_grid(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy,
-              n_samples: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], F64, int] | None:
-    """Pixel columns, rows and depths (metres, 0 invalid) of a regular grid of about `n_samples` pixels of the
-    box, and its smaller side in pixels inside the image; None for a box under 2 pixels a side."""
-    h, w = depth_m.shape[:2]
-    x0, y0 = max(0, int(np.floor(box_xyxy[0]))), max(0, int(np.floor(box_xyxy[1])))
-    x1, y1 = min(w, int(np.ceil(box_xyxy[2]))), min(h, int(np.ceil(box_xyxy[3])))
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        return None
-    step = max(1, int(np.ceil(np.sqrt((x1 - x0) * (y1 - y0) / max(n_samples, 1)))))
-    vv, uu = np.mgrid[y0 + step // 2:y1:step, x0 + step // 2:x1:step]
-    return uu, vv, np.asarray(depth_m[vv, uu], float), min(x1 - x0, y1 - y0)
-
-
-def _band(d_valid: F64, side_px: int, camera: CameraIntrinsics, depth_band_m: float,
-          near_quantile: float) -> DepthBand:
-    """The band of a box from its valid grid depths and its smaller side in pixels (see `box_depth_band`)."""
-    median_m = float(np.median(d_valid))
-    width_m = side_px * median_m / camera.fx
-    half_m = float(np.clip(0.5 * width_m, MIN_DEPTH_BAND_M, depth_band_m))
-    near_m = median_m - half_m
-    if near_quantile > 0.0:  # toward the nearest depths, but at most one band width (the box's side) in front
-        near_m = min(near_m, max(float(np.quantile(d_valid, near_quantile)) - 1e-6, median_m - 2.0 * half_m))
-    return DepthBand(median_m, half_m, near_m)
-
-
-def box_depth_band(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
-                   depth_band_m: float, n_samples: int = 100, near_quantile: float = 0.0) -> DepthBand | None:
-    """The depths of a box's object, as `box_depth_samples` keeps them; None without depth (under 3 valid grid
-    pixels).
-
-    The band is centred on the median depth of the box's pixels, half the box's smaller side in metres at that
-    depth wide on each side, within [MIN_DEPTH_BAND_M, depth_band_m]: a cup keeps 5 cm, not the table top behind
-    it; a monitor keeps its screen, not the wall 30 cm behind. With `near_quantile` > 0 its near end reaches at
-    least the box's `near_quantile` depth: a box holds its object and what is seen past and around it, seldom in
-    front of it (a whole view), so its nearest depths are the object's. An open object seen at a slant (a chair
-    from the side: 0.5 m of depth, its frame seen through) has a median depth at its far part or behind it, and
-    the centred band cut its near half off (vanishing's moved chair: 40 % of its pixels kept in three of its five
-    views, docs/changing_scenes.md, session 8). The near end moves at most one band width (2 `half_m`, the box's
-    smaller side in metres) in front of the median: an object's depth span is about its width, since a footprint
-    seen from any side spans in depth about what it spans across; what is nearer is something else in the box (a
-    table's front edge below a cup seen from the table's height). The far end stays: behind is the background."""
-    grid = _box_grid(depth_m, box_xyxy, n_samples)
-    if grid is None:
-        return None
-    d = grid[2][grid[2] > 0]
-    if len(d) < 3:
-        return None
-    return _band(d, grid[3], camera, depth_band_m, near_quantile)
-
-
-def box_depth_samples(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera: CameraIntrinsics,
-                      n_samples: int, depth_band_m: float, near_quantile: float = 0.0) -> F64:
-    """Camera-frame points (M, 3), M <= about n_samples: the box's pixels on a regular grid with valid depth
-    inside its depth band (`box_depth_band`: the object, not the background seen past it)."""
-    grid = _box_grid(depth_m, box_xyxy, n_samples)
-    if grid is None:
-        return np.zeros((0, 3))
-    uu, vv, d, side_px = grid
-    ok = d > 0
-    if ok.sum() < 3:
-        return np.zeros((0, 3))
-    band = _band(d[ok], side_px, camera, depth_band_m, near_quantile)
-    ok &= band.contains(d)
-    px = np.c_[uu[ok], vv[ok]].astype(float)
-    pts: F64 = camera.backproject(px, d[ok])
-    return pts

@@ -71,6 +71,9 @@ class TrackingConfig:
       `max_frames_between_keyframes` frames since the last one, or tracking weak (inliers under this fraction of
       the reference keyframe's points) or short of close points, as ORB-SLAM's c1a / c1c; an idle mapper takes one
       whenever the ratio rule holds (c1b). 0 = insert as if idle. Offline and lossless, mapping is always idle.
+    - `object_keyframe_min_frames`: a keyframe asked for by the object layer (`Tracker.request_keyframe`: a whole
+      detection of an object the object map does not explain yet, so that an object seen briefly between two
+      keyframes still reaches the map) is taken once this many frames have passed since the last keyframe.
     - `deferred_refinement`: real time with late detections, a tracked frame's pose in the final trajectory is
       optimised again once the detection sets before and after it are in (`core.deferred_refinement`; on, inert
       offline and lossless where every frame has its own detections).
@@ -97,6 +100,7 @@ class TrackingConfig:
     busy_mapping_weak_ratio: float = 0.25
     pose_iterations_per_round: int = 6
     motion_pose_rounds: int = 4
+    object_keyframe_min_frames: int = 10
     deferred_refinement: RefinementConfig = field(default_factory=RefinementConfig)
 
     def __post_init__(self) -> None:
@@ -156,6 +160,7 @@ class Tracker:
         self.velocity_dt_s = 0.0  # the stamp step `velocity` was measured over
         self.ref_kf_id = -1
         self.last_kf_index = -(10**9)
+        self.keyframe_requested = False  # the object layer asked for a keyframe (`request_keyframe`)
         self.last_reloc_index = -(10**9)
         self.n_lost = 0
         self.next_kf_id = 0
@@ -424,11 +429,17 @@ class Tracker:
         self.last_good_pose = frame.T_world_cam
         return TrackResult(TrackingState.OK, frame.T_world_cam, n_inliers, kf)
 
+    def request_keyframe(self) -> None:
+        """Ask for a keyframe at the next tracked frame that is `object_keyframe_min_frames` after the last one."""
+        self.keyframe_requested = True
+
     def _need_keyframe(self, frame: Frame, n_inliers: int) -> bool:
         cfg = self.cfg
         since = frame.index - self.last_kf_index
         if since < cfg.min_frames_between_keyframes or self.ref_kf_id not in self.map.keyframes:
             return False
+        if self.keyframe_requested and since >= max(1, cfg.object_keyframe_min_frames) and n_inliers > 15:
+            return True
         n_kfs = len(self.map.keyframes)
         # ORB-SLAM counts a stereo observation twice (min 3 / 2); with single counts: 2 / 1.
         n_ref = self.map.n_tracked_points(self.ref_kf_id, min_obs=2 if n_kfs > 2 else 1)
@@ -463,4 +474,5 @@ class Tracker:
         self.ref_kf_id = kf.id
         frame.ref_kf_id = kf.id
         self.last_kf_index = frame.index
+        self.keyframe_requested = False
         return kf
