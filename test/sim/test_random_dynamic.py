@@ -151,3 +151,16 @@ def test_a_seed_renders_through_its_sensor_and_writes_what_it_drew(tmp_path: Pat
     assert json.loads((tmp_path / "sensor.json").read_text())["name"] == "kinect"
     depth = cv2.imread(str(next((tmp_path / "depth").glob("*.png"))), cv2.IMREAD_UNCHANGED)
     assert 0.0 < (depth == 0).mean() < 0.5  # holes, but most pixels read
+
+
+def test_simulate_control_flag_renders_the_control_or_names_the_missing_one(tmp_path: Path,
+                                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    from changing_slam_ros.cli import main as cli_main
+
+    out = tmp_path / "c"
+    assert cli_main(["simulate", "random_dynamic", "--seed", "5", "--control", "--frames", "1", "--width", "64",
+                     "--height", "48", "--quiet", "--out", str(out)]) == 0
+    doc = json.loads((out / "scenario.json").read_text())
+    assert doc["scenario"] == "random_dynamic_control" and doc["parameters"]["control"]
+    assert cli_main(["simulate", "sitting_xyz", "--control", "--out", str(tmp_path / "x")]) == 1
+    assert "sitting_xyz_control is not a scenario" in capsys.readouterr().err
