@@ -1,4 +1,4 @@
-"""System test of issue 6 on `one_chair_closeup`: the object layer keeps loop closing off a moved object.
+"""System test on `one_chair_closeup`: the object layer keeps loop closing off a moved object.
 
 `one_chair_closeup` (sim/scenarios.py) shows the printed chair with the teddy bear close-up at A (the robot's first
 corner) and, after an out-of-view move, close-up at B (the second corner, second lap), against different walls: an

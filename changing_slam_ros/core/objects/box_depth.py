@@ -74,7 +74,7 @@ def box_depth_band(depth_m: npt.NDArray[np.floating], box_xyxy: BoxXyxy, camera:
     front of it (a whole view), so its nearest depths are the object's. An open object seen at a slant (a chair
     from the side: 0.5 m of depth, its frame seen through) has a median depth at its far part or behind it, and
     the centred band cut its near half off (vanishing's moved chair: 40 % of its pixels kept in three of its five
-    views, docs/changing_scenes.md, session 8). The near end moves at most one band width (2 `half_m`, the box's
+    views). The near end moves at most one band width (2 `half_m`, the box's
     smaller side in metres) in front of the median: an object's depth span is about its width, since a footprint
     seen from any side spans in depth about what it spans across; what is nearer is something else in the box (a
     table's front edge below a cup seen from the table's height). The far end stays: behind is the background."""

@@ -5,7 +5,7 @@ first and current image box, the COCO class (0-based), its map point ids, the ce
 points), the 3D box dimensions, a global id, the persistence belief (§4.6), the keyframe where it was
 last seen and whether its points are active (belief >= `belief_threshold`, §4.7).
 
-Point weights (ours, docs/changing_scenes.md "Session 6"): the centroid is the weighted mean of the points
+Point weights (ours): the centroid is the weighted mean of the points
 and the box is taken over the points of positive weight. Without weights (`point_weights` None) every point
 weighs 1: the paper's mean. The object layer sets them (`object_point_weights.py`): 0 for a point on one of
 the room's large planes or on a smaller object inside the box, 1 / (its voxel's count) otherwise, so that
@@ -37,7 +37,7 @@ I64 = npt.NDArray[np.int64]
 # round figures of common furniture and household objects, not fitted to the simulator's models. Chairs (56) are
 # left out: an open frame is seen through (legs, seat and back from one side), so its points already span most of
 # its depth, and the prior only pushed it back: on the six PUC-like renders, with chair 0.5 m, the chairs' box
-# centres went from 0.5-10.9 cm to 0.9-15.4 cm from the ground truth's (docs/changing_scenes.md, session 7).
+# centres went from 0.5-10.9 cm to 0.9-15.4 cm from the ground truth's.
 TYPICAL_CLASS_DEPTH_M: dict[int, float] = {
     13: 0.4,   # bench
     24: 0.2,   # backpack
@@ -127,7 +127,7 @@ class ObjectMapConfig:
       MapObject, inactive until confirmed; without this an object seen only close up (its box cut by the
       image bottom) had no MapObject and its map points stayed active for place recognition:
       `one_chair_closeup` with the chair's keypoints passed as static closed the wrong loop on the moved
-      chair with the layer on (docs/changing_scenes.md, session 4). Off by default: on the six PUC-like
+      chair with the layer on. Off by default: on the six PUC-like
       scenarios it deactivated many more map points (more objects at belief 0.5) and the one run each showed
       camera ATE up to +2.6 cm (vanishing 3.8 -> 6.5 cm) and shift's chair centroid 5.7 -> 26.7 cm from its
       volume centre (a chair first mapped from a cut view); off, cut views are skipped as before.
@@ -136,7 +136,7 @@ class ObjectMapConfig:
       update, no sighting), and cut boxes give depth samples like whole ones: such an object has nothing
       better, and the union of its cut views covers what was seen of it. Off: it keeps the points of the
       view that created it (a plant whose top the camera never saw: 29 map points of one keyframe).
-    Centroid and box (ours, docs/changing_scenes.md "Session 6"; `object_point_weights.py`):
+    Centroid and box (ours, `object_point_weights.py`):
     - `centroid_voxel_m`: each occupied cube of this side counts once in the centroid (0: every point counts).
     - `structure_plane_dist_m`: object points closer than this to one of the room's large planes (floor,
       walls, table top) are structure and left out of centroid and box (0: off). The planes are fitted by
@@ -146,7 +146,7 @@ class ObjectMapConfig:
     - `shared_point_dist_m`: an object's points within this of the points of another object whose box is
       smaller (the teddy bear on a chair) are that object's and left out (0: off).
     An object keeps all its points (uniform weights) when fewer than `min_points` would be left.
-    Box completion (ours, `object_box_completion.py`; docs/changing_scenes.md "Session 7: box completion"):
+    Box completion (ours, `object_box_completion.py`):
     - `box_completion`: the semantic map's 3D box of an object seen from one side only is grown away from the
       camera until its depth along the mean viewing direction reaches its class's typical depth
       (`class_depth_m`, COCO 0-based id -> metres; classes not listed are never grown). A camera sees the front of

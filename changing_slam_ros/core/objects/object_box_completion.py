@@ -2,8 +2,8 @@
 
 A MapObject's box is the robust extent of its points (`map_object.box_extent`), and its points lie on the
 surfaces the camera saw. A potted plant by a wall, passed on one side, gives points on its front half only:
-its box is 30 x 25 cm where the plant is 44 x 44 cm, and its centre sits 10-15 cm toward the camera
-(docs/changing_scenes.md, "Session 7: box completion"). Object-level SLAM systems fill the unseen part with a
+its box is 30 x 25 cm where the plant is 44 x 44 cm, and its centre sits 10-15 cm toward the camera.
+Object-level SLAM systems fill the unseen part with a
 class prior on the object's size (CubeSLAM's and QuadricSLAM's size priors); here the prior is one figure per
 class, its typical depth on the floor plan (`ObjectMapConfig.class_depth_m`), and the box grows only along the
 horizontal direction it was seen from:

@@ -1,10 +1,10 @@
-"""Which of a MapObject's points are the object's, and how much each counts in its centroid (ours, issue 6).
+"""Which of a MapObject's points are the object's, and how much each counts in its centroid (ours).
 
 An object's point set (map points and depth samples taken inside its boxes, within a depth band) also holds
 what the band cannot separate: the floor between a chair's legs, the wall behind it, the teddy bear sitting on
 it; and parts seen from many keyframes hold many more samples than parts seen once. The mean of such a set
-leans toward all three (docs/changing_scenes.md, "Session 6: centroid estimators": the offline study that chose
-this rule on six simulated scenes). Per point, `point_weights` gives
+leans toward all three (an offline study of centroid estimators on six simulated scenes, `bench/centroid_estimators.py`,
+chose this rule). Per point, `point_weights` gives
 
 - 0 to points closer than `structure_plane_dist_m` to one of the room's large planes (`fit_structure_planes`,
   fitted to the *static* map points, never to the object's own);

@@ -1,4 +1,4 @@
-"""System test of issue 6: the SLAM engine with the dynamic filter and the object layer on a changing scene.
+"""System test of the changing-scene half: the SLAM engine with the dynamic filter and the object layer on a changing scene.
 
 The test renders `one_chair` itself (seed 0, 320x240, 7.5 fps, the first 70 s: the robot faces the chair
 with the teddy bear on the east wall, turns away, the chair and the bear are moved while out of view at

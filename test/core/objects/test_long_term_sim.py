@@ -187,7 +187,7 @@ def test_shift_old_places_drop_and_new_places_are_kept() -> None:
 
 @pytest.mark.slow
 def test_second_session_on_a_saved_map_of_a_changed_room(tmp_path: Path) -> None:
-    """Session 1 maps the `static` room and saves the objects; session 2 starts from the file in the `shift`
+    """A first run maps the `static` room and saves the objects; a second run starts from the file in the `shift`
     room as it is after every move (same layout seed, objects frozen at their final poses)."""
     cfg = SIM_CFG
     first = run_scenario("static", cfg)
@@ -202,7 +202,7 @@ def test_second_session_on_a_saved_map_of_a_changed_room(tmp_path: Path) -> None
     second = run_scenario("shift", cfg, lta=lta, actors_at_s=1e6, first_point_id=10**7)
     moved = ("chair", "teddy_bear", "monitor", "suitcase", "monitor_2", "cup_2")
     loaded = {o.id: o.belief for o in first.lta.objects.values()}
-    for name in moved:  # the old places, mapped in session 1: contradicted
+    for name in moved:  # the old places, mapped in the first run: contradicted
         old = _object_for(first, name, 0, 0.3)
         assert old is not None and old.id < n_loaded, name
         if name == "cup_2":  # 10 cm: big enough to be expected (>= 40 px) in 2 keyframes only at 160x120
@@ -212,7 +212,7 @@ def test_second_session_on_a_saved_map_of_a_changed_room(tmp_path: Path) -> None
     for name in ("table", "plant", "chair_2", "book"):  # unchanged: confirmed again
         obj = _object_for(second, name, -1, 0.6 if name == "table" else 0.3)
         assert obj is not None and obj.id < n_loaded and obj.belief > cfg.belief_threshold, name
-    for name in moved:  # the new places: new objects of session 2, not contradicted
+    for name in moved:  # the new places: new objects of the second run, not contradicted
         new = _object_for(second, name, -1, 0.3)
         if name == "cup_2" and new is None:
             continue  # a 10 cm cup at 160x120 may stay under the detector's 40 pixels

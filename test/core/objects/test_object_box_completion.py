@@ -103,7 +103,7 @@ def test_viewing_directions_are_saved_and_turned_with_the_map():
     assert back.n_views == 2 and np.allclose(back.view_sum_w, obj.view_sum_w) and np.allclose(back.up_sum_w, 2 * UP)
     old = dict(object_map_to_dict([obj]))
     old["objects"] = [{k: v for k, v in old["objects"][0].items() if k not in ("view_sum_w", "n_views")}]
-    assert object_map_from_dict(old, "old file")[0].n_views == 0  # files written before session 7 still load
+    assert object_map_from_dict(old, "old file")[0].n_views == 0  # files without view records still load
     T = np.eye(4)
     T[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # 90 deg about z
     turned = aligned_objects([dataclasses.replace(obj)], T)[0]
