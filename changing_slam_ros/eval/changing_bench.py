@@ -2,19 +2,10 @@
 
 The run's MapObjects are moved into the ground-truth frame with the run's own trajectory alignment (the
 object-placing alignment of `changing-slam run`), turned into the semantic map the run publishes (belief >=
-`semantic_min_belief`: the active objects a subscriber sees), and matched one to one, greedily by increasing
-distance, to the objects present at the end of the last lap: same class, estimated centroid within
-`max_distance_m` (0.3 m) of the ground-truth box centre. Figures:
-- recall: matched present objects / present objects (tables excluded: the object layer treats them as
-  structure by design, see `eval.object_metrics`; a table an estimate matches still makes that estimate right);
-- precision: matched active objects / active objects;
-- stale: unmatched active objects within reach of a place a same-class object occupied at the start or at the end
-  of an earlier lap and has left; spurious: the other unmatched ones, split into pictures (within reach of a picture's box on
-  a wall) and other (structure, furniture of another class, nothing).
-Camera ATE comes from the run's metrics.json, against the control run's (the seed rendered without changes).
-Each missed object gets a reason (`missed_reasons`): a same-class map object lies within reach but its belief
-keeps it out of the semantic map (inactive), a same-class active object lies within twice the reach (off), an
-active object of another class lies within reach (wrong class), or nothing (unmapped).
+`semantic_min_belief`: the active objects a subscriber sees), and matched one to one to the objects present
+at the end of the last lap (`score_semantic_map`: recall, precision, stale and spurious objects). Camera ATE
+comes from the run's metrics.json, against the control run's (the seed rendered without changes). Each
+missed object gets a reason (`missed_reasons`).
 """
 
 from __future__ import annotations
@@ -149,7 +140,17 @@ class MapScore:
 
 def score_semantic_map(objects: Iterable[SemanticObject], truth: ChangingTruth, lap: int = -1,
                        max_distance_m: float = MAX_DISTANCE_M, match_on: str = "centroid") -> MapScore:
-    """Score the active objects `objects` (ground-truth frame) against the objects present at the end of `lap`."""
+    """Score the active objects `objects` (ground-truth frame) against the objects present at the end of `lap`.
+
+    Matching is greedy by increasing distance: same class, estimated centroid within `max_distance_m`
+    (0.3 m) of the ground-truth box centre. Figures:
+    - recall: matched present objects / present objects (tables excluded: the object layer treats them as
+      structure by design, see `eval.object_metrics`; a table an estimate matches still makes that estimate right);
+    - precision: matched active objects / active objects;
+    - stale: unmatched active objects within reach of a place a same-class object occupied at the start or at
+      the end of an earlier lap and has left; spurious: the other unmatched ones, split into pictures (within
+      reach of a picture's box on a wall) and other (structure, furniture of another class, nothing).
+    """
     if match_on not in ("centroid", "box_center"):
         raise EvalError(f"match_on: expected 'centroid' or 'box_center', got {match_on!r}")
     if not -len(truth.laps) <= lap < len(truth.laps):
@@ -196,7 +197,12 @@ def missed_reasons(score: MapScore, truth: ChangingTruth, active: Sequence[Seman
                    everything: Sequence[SemanticObject], lap: int = -1, max_distance_m: float = MAX_DISTANCE_M,
                    match_on: str = "centroid") -> dict[str, str]:
     """Ground-truth name -> why `score` missed it (MISSED_REASONS, first that applies): `everything` holds the
-    active objects and those below the semantic map's belief."""
+    active objects and those below the semantic map's belief.
+
+    Reasons: a same-class map object lies within reach but its belief keeps it out of the semantic map
+    (inactive), a same-class active object lies within twice the reach (off), an active object of another
+    class lies within reach (wrong class), or nothing (unmapped).
+    """
     present = {o.name: o for o in truth.laps[lap]}
     active_ids = {e.id for e in active}
 

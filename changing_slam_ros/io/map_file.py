@@ -4,29 +4,7 @@ One deflate-compressed npz archive (numpy arrays, no pickles), written atomicall
 byte-for-byte deterministically (fixed zip member dates, sorted members), so that save -> load -> save
 gives the same bytes. Version `MAP_FORMAT_VERSION` (3); version 2 (no keyframe thumbnails, no object evidence)
 still loads; version 1 (keyframe poses and usable points only, written before multi-session support) is refused
-with an error that says so.
-
-Top level: `format_version` (), `map_ids` (M,), `current_map_id` (), `next_keyframe_id` (), `merged_into` (E, 2)
-rows (merged-away map, the map it went into; such a map is stored empty).
-Per map, prefixed `m{map_id}_`:
-- keyframes, K rows in id order: `kf_ids`, `kf_stamps_ns`, `kf_poses` (K, 4, 4) camera-to-world,
-  `kf_cameras` (K, 6) width, height, fx, fy, cx, cy, `kf_camera_dist` (K, D) distortion,
-  `kf_n_keypoints` (K,); their N keypoints concatenated in keyframe order: `kp_px` (N, 2) float32,
-  `kp_octaves` (N,) int8, `kp_descriptors` (N, 32) uint8, `kp_depths_m` (N,) float32,
-  `kp_point_ids` (N,) int64, `kp_classes` (N,) int8, `kp_object_ids` (N,) int64;
-- map points, every row of the `PointStore` (ids are rows; culled rows stay, flagged `bad`):
-  `pt_<column>` for each `PointStore.COLUMNS` (position, descriptor, normal, scale range, counters, class,
-  object id, active, bad, ...), `pt_obs` (E, 3) rows (point id, keyframe id, keypoint index) in the
-  point's observation order, `pt_size` ();
-- graph: `cov_keys` (C,), `cov` (E, 3) rows (keyframe, other, shared points); `parent` (E, 2) rows
-  (child, parent); `children_keys`, `children` (E, 2) rows (parent, child); `removed_ids`,
-  `removed_parents`, `removed_T_parent_kf` (R, 4, 4) (culled keyframes); `loop_edges` (E, 2);
-  `origin_kf_id` ();
-- object map (when the run had an object layer for this map): `objects_json` (the `io.semantic_map_file`
-  object-map document: objects, points, beliefs), `obj_anchor_ids` (A,), `obj_anchor_kf_ids` (A,),
-  `obj_anchor_points_cam` (A, 3), `obj_next_sample_id` (); from version 3 the thumbnails of the keyframes the
-  objects' evidence names (`core.objects.object_evidence`), `obj_thumb_kf_ids` (T,), `obj_thumbs` (T, 72, 96, 3)
-  uint8 RGB.
+with an error that says so. The fields are listed in `save_map`.
 
 `load_map` checks every field (present, shape, dtype kind, ids that refer to stored keyframes and points)
 and raises `MapFileError` naming the file and the field.
@@ -105,7 +83,30 @@ def map_arrays(atlas: Atlas, objects: Mapping[int, SavedObjectMap] | None = None
 def save_map(path: str | Path, atlas: Atlas, objects: ObjectLayer | Mapping[int, SavedObjectMap] | None = None,
              next_keyframe_id: int | None = None) -> None:
     """Write the map file (atomic, deterministic bytes); `objects`: the run's object layer, or object maps by map id
-    (a loaded map's, `LoadedMap.objects`); `next_keyframe_id` defaults to one above the largest keyframe id."""
+    (a loaded map's, `LoadedMap.objects`); `next_keyframe_id` defaults to one above the largest keyframe id.
+
+    Top level: `format_version` (), `map_ids` (M,), `current_map_id` (), `next_keyframe_id` (), `merged_into` (E, 2)
+    rows (merged-away map, the map it went into; such a map is stored empty).
+    Per map, prefixed `m{map_id}_`:
+    - keyframes, K rows in id order: `kf_ids`, `kf_stamps_ns`, `kf_poses` (K, 4, 4) camera-to-world,
+      `kf_cameras` (K, 6) width, height, fx, fy, cx, cy, `kf_camera_dist` (K, D) distortion,
+      `kf_n_keypoints` (K,); their N keypoints concatenated in keyframe order: `kp_px` (N, 2) float32,
+      `kp_octaves` (N,) int8, `kp_descriptors` (N, 32) uint8, `kp_depths_m` (N,) float32,
+      `kp_point_ids` (N,) int64, `kp_classes` (N,) int8, `kp_object_ids` (N,) int64;
+    - map points, every row of the `PointStore` (ids are rows; culled rows stay, flagged `bad`):
+      `pt_<column>` for each `PointStore.COLUMNS` (position, descriptor, normal, scale range, counters, class,
+      object id, active, bad, ...), `pt_obs` (E, 3) rows (point id, keyframe id, keypoint index) in the
+      point's observation order, `pt_size` ();
+    - graph: `cov_keys` (C,), `cov` (E, 3) rows (keyframe, other, shared points); `parent` (E, 2) rows
+      (child, parent); `children_keys`, `children` (E, 2) rows (parent, child); `removed_ids`,
+      `removed_parents`, `removed_T_parent_kf` (R, 4, 4) (culled keyframes); `loop_edges` (E, 2);
+      `origin_kf_id` ();
+    - object map (when the run had an object layer for this map): `objects_json` (the `io.semantic_map_file`
+      object-map document: objects, points, beliefs), `obj_anchor_ids` (A,), `obj_anchor_kf_ids` (A,),
+      `obj_anchor_points_cam` (A, 3), `obj_next_sample_id` (); from version 3 the thumbnails of the keyframes the
+      objects' evidence names (`core.objects.object_evidence`), `obj_thumb_kf_ids` (T,), `obj_thumbs` (T, 72, 96, 3)
+      uint8 RGB.
+    """
     maps = object_maps_of(objects) if isinstance(objects, ObjectLayer) else objects
     atomic_write_bytes(path, npz_bytes(map_arrays(atlas, maps, next_keyframe_id)))
 

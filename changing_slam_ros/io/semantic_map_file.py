@@ -1,22 +1,13 @@
 """Semantic map files (Changing-SLAM §4.8): versioned JSON, or YAML for a `.yaml` / `.yml` name.
 
-Layout (version 1):
-    format: "changing_slam_ros semantic map"
-    version: 1
-    frame_id: "map"
-    belief_threshold: 0.6
-    objects:                      # ordered by id
-      - {id, class_id, class_name, centroid_m: [x, y, z], box_center_m: [x, y, z], box_size_m: [dx, dy, dz],
-         belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
-Positions in metres in `frame_id`; boxes axis-aligned in that frame. Writes are atomic (`io/atomic.py`).
-Load errors are `MapFileError`s naming the file and the field (`objects[2].centroid_m`).
+The semantic map (`FORMAT`, version 1; layout in `semantic_map_to_dict`) lists the mapped objects with
+their class, centroid, box, belief and activity. Writes are atomic (`io/atomic.py`). Load errors are
+`MapFileError`s naming the file and the field (`objects[2].centroid_m`).
 
-The object map (every MapObject with its point ids, point positions, optional `point_weights` (one per point,
-the centroid's weights), boxes and persistence state, for a
-saved map that a later session starts from) has its own document, `object_map_to_dict` /
-`object_map_from_dict` (format "changing_slam_ros object map", version 1), meant to be embedded in the
-map file or written alone with `write_object_map` / `read_object_map`. Each object's evidence for the change
-report, `belief_history` ([[keyframe id, belief, reason], ...]) and `seen_keyframes`, is optional (empty when absent).
+The object map (every MapObject with its point ids, point positions, optional point weights, boxes and
+persistence state, for a saved map that a later session starts from) has its own document,
+`object_map_to_dict` / `object_map_from_dict` (format "changing_slam_ros object map", version 1), meant to be
+embedded in the map file or written alone with `write_object_map` / `read_object_map`.
 """
 
 from __future__ import annotations
@@ -48,6 +39,18 @@ def _is_yaml(path: Path) -> bool:
 
 
 def semantic_map_to_dict(smap: SemanticMap) -> dict[str, Any]:
+    """The semantic map as a document (version 1):
+
+        format: "changing_slam_ros semantic map"
+        version: 1
+        frame_id: "map"
+        belief_threshold: 0.6
+        objects:                      # ordered by id
+          - {id, class_id, class_name, centroid_m: [x, y, z], box_center_m: [x, y, z], box_size_m: [dx, dy, dz],
+             belief, active, n_points, first_seen_keyframe, last_seen_keyframe}
+
+    Positions in metres in `frame_id`; boxes axis-aligned in that frame.
+    """
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -126,7 +129,11 @@ def semantic_map_from_dict(doc: Any, where: str) -> SemanticMap:
 
 def object_map_to_dict(objects: list[MapObject]) -> dict[str, Any]:
     """Every field of every MapObject (ordered by id); points as [[id, x, y, z], ...], optional `point_weights` (one
-    per point, the centroid's weights). Embedded in the map file, or written alone with `write_object_map`."""
+    per point, the centroid's weights). Embedded in the map file, or written alone with `write_object_map`.
+
+    Each object's evidence for the change report, `belief_history` ([[keyframe id, belief, reason], ...]) and
+    `seen_keyframes`, is optional (empty when absent).
+    """
     return {
         "format": OBJECT_MAP_FORMAT,
         "version": OBJECT_MAP_VERSION,

@@ -3,15 +3,8 @@
 The object layer (`core.object_layer.ObjectLayer`: long-term association, persistence beliefs, inactive
 points) runs where the metric map is written, because it reads and flags the map's points: in `local_mapping`
 (split graph; `changing-slam graph` remaps this node's input to `/local_mapping/semantic_map`) or in tracking's
-in-process backend (`/tracking/semantic_map`). That node publishes the map it keeps (MapObjectArray,
-transient-local, every object with its belief and activity); this node holds the latest one (`self.objects`, MapObject messages) and serves it:
-`~/semantic_map` (MapObjectArray) and `~/markers` (MarkerArray: a box per object coloured by class, alpha by
-belief, a text label), both transient-local so late subscribers get them; `~/object_states` (belief, active);
-QueryObjects by class and region; SaveMap / LoadMap as the project's semantic-map file
-(`io/semantic_map_file.py`, JSON or YAML, atomic); Reset clears it. With `map_file` set the map is loaded from it
-at start (so a restarted node comes back with its last map) and saved to it after every update.
-What changed since the map it started from: see `ObjectMapNode`. Open: candidates on `/local_mapping/object_candidates` are received but not associated here (the
-object layer associates them where it runs), and a loaded map is served, not fed back into the object layer.
+in-process backend (`/tracking/semantic_map`). This node holds the latest map that node publishes, serves it,
+saves and loads it, and reports what changed (`ObjectMapNode`).
 
 Inputs: /tracking/semantic_map (MapObjectArray; remap), /local_mapping/object_candidates (MapObjectArray)
 Outputs: ~/object_states (ObjectStateArray: belief, active), ~/semantic_map, ~/markers, ~/changes, ~/change_markers
@@ -127,7 +120,19 @@ class ObjectMapNode(Node):
     the map loaded from `map_file`, else the first map received) and after every update publishes the change
     report against it (`core.objects.change_report`): `~/changes` (std_msgs/String, the JSON document of
     `io.change_report_file`) and `~/change_markers` (MarkerArray, `nodes.change_markers`), both transient-local;
-    `~/report_changes` answers with the same JSON."""
+    `~/report_changes` answers with the same JSON.
+
+    The map received (MapObjectArray, transient-local, every object with its belief and activity) is kept in
+    `self.objects` (MapObject messages) and served as `~/semantic_map` (MapObjectArray) and `~/markers`
+    (MarkerArray: a box per object coloured by class, alpha by belief, a text label), both transient-local so
+    late subscribers get them; `~/object_states` (belief, active); QueryObjects by class and region; SaveMap /
+    LoadMap as the project's semantic-map file (`io/semantic_map_file.py`, JSON or YAML, atomic); Reset clears
+    it. With `map_file` set the map is loaded from it at start (so a restarted node comes back with its last
+    map) and saved to it after every update.
+
+    Open: candidates on `/local_mapping/object_candidates` are received but not associated here (the object
+    layer associates them where it runs), and a loaded map is served, not fed back into the object layer.
+    """
 
     def __init__(self, output_qos: QoSProfile | int = 10, **node_kwargs: Any) -> None:
         super().__init__("object_map", **node_kwargs)

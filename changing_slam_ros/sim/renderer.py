@@ -37,7 +37,11 @@ T_OPTICAL_MJCAM = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def intrinsics_for(width: int, height: int, fovy_deg: float) -> CameraIntrinsics:
-    """Exact pinhole intrinsics of a MuJoCo camera with vertical field of view `fovy_deg`."""
+    """Exact pinhole intrinsics of a MuJoCo camera with vertical field of view `fovy_deg`.
+
+    fx = fy = (H / 2) / tan(fovy / 2), cx = (W - 1) / 2, cy = (H - 1) / 2: 525 / 319.5 / 239.5 at 640x480,
+    the ROS default for TUM.
+    """
     f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
     return CameraIntrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
 

@@ -1,25 +1,14 @@
-"""The registry of named scenarios, modelled on the papers' sequences.
+"""The registry of named scenarios (`SCENARIOS`, each entry with its description), modelled on the papers' sequences.
 
-TUM fr3-like (`walking_xyz`, `walking_static`, `walking_rpy`, `walking_halfsphere`, `sitting_xyz`): two
-people walk (or sit) between a hand-held camera and an office corner with a table, a monitor and chairs.
-PUC-USP-like (`static`, `one_chair`, `vanishing`, `changing`, `shift`, `replacing`; `one_chair_static` is
-`one_chair`'s sparser room with nothing moved, its control): a camera on a
-wheeled robot (0.07 m/s, turning 30 deg/s in place) drives 7 or 8 sides of a 0.8 m square, facing the
-walls in turn so that each changed place is seen before and after its change (101 or 115 s, 15 Hz);
-objects are moved, removed, replaced or added while the robot faces away, and every change is checked
-to be out of view when it happens. `one_chair_closeup` (6 sides, stopping 4 s at each corner, 110.6 s) is the
-paper's wrong-loop case made explicit: the printed chair with the teddy bear stands 0.7 m ahead of the first corner
-(facing east), is moved while the robot faces west to 0.7 m ahead of the second corner (facing north), and the
-robot's last views before
-each corner show it as large and from the same side (more than 30 % of the image) against different walls; it
-sees the old place empty (second east side) before it reaches the new one (second north side);
-`one_chair_closeup_static` keeps the chair at the first corner (its control). `office_xyz` is `walking_xyz` without people (its control). Dai-like
-`unknown_mover`: a box of no COCO class carried by hand in front of a nearly still camera
-(`unknown_mover_control`: the same scene and camera path, the box left on the table). `slow_mover`: a
-larger box pushed slowly (3 cm/s) along the table, for the local-mapping (multi-frame) segmentation
-(`slow_mover_control`: the box stays).
-`walking_changing`: a short panning shot with a walker and an out-of-view move (the sample bag).
-`random_dynamic` / `random_dynamic_control`: one randomised scene per seed and its control (`random_dynamic.py`).
+- TUM fr3-like (`walking_*`, `sitting_xyz`; `office_xyz` without people, their control): people between a
+  hand-held camera and an office corner (`_tum_like`).
+- PUC-USP-like (`static`, `one_chair`, `vanishing`, `changing`, `shift`, `replacing`, `one_chair_closeup`,
+  and the `*_static` controls): a camera on a wheeled robot driving a square loop while objects change
+  out of view (`_puc_like`); `one_chair_closeup` is the paper's wrong-loop case (`_one_chair_closeup_plan`).
+- Dai-like movers of no COCO class: `unknown_mover` (carried by hand), `slow_mover` (pushed slowly, for the
+  local-mapping segmentation), each with a `_control`.
+- `walking_changing` (the sample bag); `random_dynamic` and `random_changing` (one randomised scene per seed,
+  each with a `_control`).
 
 A seed jitters placements, walking paths, speeds and motion phases; the same seed gives the same scenario.
 """
@@ -139,6 +128,8 @@ def _walkers(rng: np.random.Generator, duration_s: float, camera: Track) -> list
 
 def _tum_like(name: str, description: str, camera_fn: Callable[[HandHeld, float], Track], sitting: bool,
               seed: int, duration_s: float = 30.0, fps: float = 30.0, people: bool = True) -> Scenario:
+    """TUM fr3-like: two people walk (or sit) between a hand-held camera and an office corner with a table,
+    a monitor and chairs (`people` False: nobody, the control)."""
     rng = np.random.default_rng(seed)
     actors = _office(rng)
     hand = HandHeld(TUM_EYE, TUM_TARGET, phase=float(rng.uniform(0, 2 * np.pi)))
@@ -218,7 +209,13 @@ def _puc_like(name: str, description: str, seed: int, keep: list[str],
     `plan(initial_poses, rng)` returns as (t_s, actor, kind, new pose or None, other actor).
     `extra` declares actors that appear only through an ADDED / REPLACED change; `place(rng)` overrides the
     standard layout's initial poses of some actors (drawn after the layout, before the plan); `pause_s`: the
-    robot stands still that long at the end of each side (`RobotLoop.pause_s`)."""
+    robot stands still that long at the end of each side (`RobotLoop.pause_s`).
+
+    PUC-USP-like: a camera on a wheeled robot (0.07 m/s, turning 30 deg/s in place) drives 7 or 8 sides of a
+    0.8 m square, facing the walls in turn so that each changed place is seen before and after its change (101 or
+    115 s, 15 Hz); objects are moved, removed, replaced or added while the robot faces away, and every change is
+    checked to be out of view when it happens.
+    """
     rng = np.random.default_rng(seed)
     layout = _puc_objects(rng)
     if place is not None:
@@ -328,6 +325,13 @@ def _closeup_b(rng: np.random.Generator) -> F64:
 
 
 def _one_chair_closeup_plan(p: dict[str, F64], rng: np.random.Generator) -> list:
+    """The paper's wrong-loop case made explicit (6 sides, stopping 4 s at each corner, 110.6 s).
+
+    The printed chair with the teddy bear stands 0.7 m ahead of the first corner (facing east) and is moved
+    while the robot faces west to 0.7 m ahead of the second corner (facing north). The robot's last views
+    before each corner show it as large and from the same side (more than 30 % of the image) against different
+    walls; it sees the old place empty (second east side) before it reaches the new one (second north side).
+    """
     chair = _closeup_b(rng)
     return [(T_CLOSEUP_MOVE, "chair", M, chair, ""), (T_CLOSEUP_MOVE, "teddy_bear", M, _on(chair, 0.5, 0.02), "")]
 

@@ -2,16 +2,7 @@
 Platforms").
 
 `odom -> base` must be continuous (it is what controllers integrate); `map -> odom` takes every discrete jump.
-Two sources of odometry:
-
-- `OdomSource.VISUAL`: the robot has no odometry of its own, SLAM publishes both. While tracking goes on
-  normally `T_map_odom` stays fixed and `T_odom_base = T_map_odom^-1 · T_map_base`, so odom -> base moves
-  exactly as the SLAM pose. When the map moves under the robot (loop correction, relocalisation after a loss,
-  a new or merged map), odom -> base continues from its last value by the robot's own motion since then (the
-  tracker's frame-to-frame motion when it has one, else none) and the jump goes into `T_map_odom =
-  T_map_base · T_odom_base^-1`. `T_map_odom` is identity until the first such jump.
-- `OdomSource.TF`: the robot publishes odom -> base itself (wheel odometry, an EKF); SLAM publishes only
-  `T_map_odom = T_map_base · T_odom_base^-1`, with `T_odom_base` the robot's odometry at the image stamp.
+Odometry comes either from SLAM itself or from the robot (`OdomSource`, which says how each frame is formed).
 
 The SLAM pose is the camera's; `base_pose` moves it to the base with the robot's static `T_base_cam`.
 """
@@ -31,7 +22,17 @@ F64 = npt.NDArray[np.float64]
 
 
 class OdomSource(enum.Enum):
-    """Who publishes odom -> base: this package from the visual estimate, or the robot on /tf."""
+    """Who publishes odom -> base: this package from the visual estimate, or the robot on /tf.
+
+    - `VISUAL`: the robot has no odometry of its own, SLAM publishes both. While tracking goes on
+      normally `T_map_odom` stays fixed and `T_odom_base = T_map_odom^-1 · T_map_base`, so odom -> base moves
+      exactly as the SLAM pose. When the map moves under the robot (loop correction, relocalisation after a loss,
+      a new or merged map), odom -> base continues from its last value by the robot's own motion since then (the
+      tracker's frame-to-frame motion when it has one, else none) and the jump goes into `T_map_odom =
+      T_map_base · T_odom_base^-1`. `T_map_odom` is identity until the first such jump.
+    - `TF`: the robot publishes odom -> base itself (wheel odometry, an EKF); SLAM publishes only
+      `T_map_odom = T_map_base · T_odom_base^-1`, with `T_odom_base` the robot's odometry at the image stamp.
+    """
 
     VISUAL = "visual"
     TF = "tf"

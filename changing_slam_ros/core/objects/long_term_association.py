@@ -1,33 +1,12 @@
 """Long-term data association (Changing-SLAM §4.7, Algorithm 1) and the object map it maintains.
 
 At each new keyframe the object candidates of that keyframe (map points created or matched inside one
-detection box, with the box's class) are compared with the mapped objects:
-
-1. the candidate's centroid is the mean of its points (line 2);
-2. among mapped objects of the same class (line 4) the nearest centroid is taken; closer than
-   `ltda_threshold_m` (line 6) the candidate is merged into it, points combined (line 7);
-   the paper loops over every mapped object and could merge one candidate into several; we merge into
-   the nearest only, so two neighbouring objects of one class (two cups on a desk) stay apart;
-3. if the mapped object was not seen in the last N keyframes (`kf - last_seen > n_keyframes_unseen`,
-   line 8), its belief is updated with the "seen" likelihood (line 9, `persistence_filter.py`) and its
-   points switch active / inactive with `belief_threshold` (lines 11-15); otherwise only the keyframe
-   where it was last seen is updated (line 17): objects seen continuously are not re-updated;
-4. otherwise a new MapObject is created with belief 0.5 (lines 20-21), hence inactive by default;
-5. vicinity search (§4.7, last paragraph): every mapped object that no candidate matched, that should
-   have been visible from this keyframe (`object_visibility.py`) and that was neither seen nor
-   belief-updated in the last N keyframes gets the "missed" update (belief down). The same N keeps a
-   detector miss during continuous viewing from counting, and spaces repeated misses N keyframes apart.
-   An object whose projected centroid lies inside the box of a same-class candidate of this keyframe
-   (any candidate, also truncated or too small ones) is not missed: the detector did see an object of
-   its class there, even if the candidate's 3D centroid (a partial view of a large table) did not
-   associate. The same holds for the keyframe's other same-class detections that are no candidate
-   (`detected_boxes`: the dynamic stage flagged them dynamic in this keyframe, which happens for a frame or
-   two while the robot turns fast): measured on `vanishing`, a plant in full view lost 0.5 -> 0.18 that way.
-
-Objects created in this keyframe are not candidates for merging within the same keyframe, so two
-same-class detections of one image never fuse. The result lists the point ids whose active flag the
-map must set (`activated_point_ids`, `deactivated_point_ids`), the new and merged objects and every
-belief change with its reason.
+detection box, with the box's class) are merged into the nearest same-class mapped object, create new
+objects (belief 0.5, inactive), or update the beliefs of mapped objects (`persistence_filter.py`); the
+vicinity search then lowers the belief of objects that should have been seen and were not
+(`object_visibility.py`). The steps, with the paper's line numbers, are in
+`LongTermAssociation.process_keyframe`. The result lists the point ids whose active flag the map must
+set, the new and merged objects and every belief change with its reason.
 """
 
 from __future__ import annotations
@@ -183,10 +162,35 @@ class LongTermAssociation:
 
         T_world_cam (4, 4) optical-frame pose of the keyframe; depth_m (H, W) its depth image in metres
         (0 = invalid) for the occlusion test, or None to skip that test. `detected_boxes`: (class, box) of
-        the keyframe's detections that are no candidate; they only explain misses away (see the module doc).
+        the keyframe's detections that are no candidate; they only explain misses away (step 5 below).
         `up_w` (3,): the map's up direction, recorded with each whole view (`MapObject.add_view`; box completion),
         `planes`: the room's large planes (map frame) for the picture check, whose walls are told from floors by
         `walls_up_w` (3,) (default `up_w`; the layer passes the camera's up when the floor is unknown).
+
+        Steps (Algorithm 1 line numbers):
+
+        1. the candidate's centroid is the mean of its points (line 2);
+        2. among mapped objects of the same class (line 4) the nearest centroid is taken; closer than
+           `ltda_threshold_m` (line 6) the candidate is merged into it, points combined (line 7);
+           the paper loops over every mapped object and could merge one candidate into several; we merge into
+           the nearest only, so two neighbouring objects of one class (two cups on a desk) stay apart;
+        3. if the mapped object was not seen in the last N keyframes (`kf - last_seen > n_keyframes_unseen`,
+           line 8), its belief is updated with the "seen" likelihood (line 9) and its points switch active /
+           inactive with `belief_threshold` (lines 11-15); otherwise only the keyframe where it was last seen is
+           updated (line 17): objects seen continuously are not re-updated;
+        4. otherwise a new MapObject is created with belief 0.5 (lines 20-21), hence inactive by default;
+        5. vicinity search (§4.7, last paragraph): every mapped object that no candidate matched, that should
+           have been visible from this keyframe and that was neither seen nor belief-updated in the last N
+           keyframes gets the "missed" update (belief down). The same N keeps a detector miss during continuous
+           viewing from counting, and spaces repeated misses N keyframes apart. An object whose projected
+           centroid lies inside the box of a same-class candidate of this keyframe (any candidate, also truncated
+           or too small ones) is not missed: the detector did see an object of its class there, even if the
+           candidate's 3D centroid (a partial view of a large table) did not associate. The same holds for the
+           same-class `detected_boxes` (the dynamic stage flagged them dynamic in this keyframe, which happens
+           for a frame or two while the robot turns fast).
+
+        Objects created in this keyframe are not candidates for merging within the same keyframe, so two
+        same-class detections of one image never fuse.
         """
         cfg = self.config
         before = {oid: (obj.active, obj.n_points) for oid, obj in self.objects.items()}

@@ -1,21 +1,9 @@
 """MapObject (Changing-SLAM §4.2) and the configuration of the object layer (§4.6-4.8).
 
-A MapObject groups the map points created inside the boxes of one detected object. It stores the
-first and current image box, the COCO class (0-based), its map point ids, the centroid (mean of its
-points), the 3D box dimensions, a global id, the persistence belief (§4.6), the keyframe where it was
-last seen and whether its points are active (belief >= `belief_threshold`, §4.7).
-
-Point weights (ours): the centroid is the weighted mean of the points
-and the box is taken over the points of positive weight. Without weights (`point_weights` None) every point
-weighs 1: the paper's mean. The object layer sets them (`object_point_weights.py`): 0 for a point on one of
-the room's large planes or on a smaller object inside the box, 1 / (its voxel's count) otherwise, so that
-each occupied `centroid_voxel_m` cube of the object's surface counts once however many views sampled it.
-
-3D box (§4.2: "the median of the 5 % maximum and minimum x, y and z coordinates"): per axis, the
-median of the 5 % largest coordinates minus the median of the 5 % smallest, which trims stray points
-the way a plain max - min would not. The box is axis-aligned in the world (map) frame and centred
-half-way between those two medians (`box_center_w`), which for a surface-sampled object differs
-from the centroid (the centroid leans toward the side the camera saw).
+A MapObject groups the map points created inside the boxes of one detected object: its image boxes, COCO
+class (0-based), map point ids, centroid, 3D box (§4.2, `box_extent`), global id, persistence belief
+(§4.6), the keyframe where it was last seen and whether its points are active (§4.7). The centroid is
+a weighted mean of its points (ours, `object_point_weights.py`); see `MapObject`.
 """
 
 from __future__ import annotations
@@ -283,6 +271,9 @@ def box_extent(points_w: F64, fraction: float = 0.05) -> tuple[F64, F64]:
 
     Per axis: median of the `fraction` largest minus median of the `fraction` smallest coordinates
     (at least one point each side). Empty input gives zeros.
+
+    §4.2: "the median of the 5 % maximum and minimum x, y and z coordinates"; this trims stray points
+    the way a plain max - min would not.
     """
     pts = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
     if len(pts) == 0:
@@ -312,6 +303,14 @@ class MapObject:
     Evidence for the change report (`change_report.py`), each bounded (`EVIDENCE_CAP`): `belief_history`, rows
     (keyframe id, belief after the step, reason: "new", "seen", "missed", "session"), and `seen_keyframes`, the
     keyframes whose whole view went into the object, ascending.
+
+    Points are active when the belief is >= `belief_threshold` (§4.7). Point weights (ours): without
+    weights (`point_weights` None) every point weighs 1, the paper's mean. The object layer sets them
+    (`object_point_weights.py`): 0 for a point on one of the room's large planes or on a smaller object
+    inside the box, 1 / (its voxel's count) otherwise, so that each occupied `centroid_voxel_m` cube of the
+    object's surface counts once however many views sampled it. The box is centred half-way between the
+    per-axis medians (`box_center_w`), which for a surface-sampled object differs from the centroid (the
+    centroid leans toward the side the camera saw).
     """
 
     id: int

@@ -1,30 +1,15 @@
 """Amodal completion of an object's 3D box for the semantic map: the side the camera never saw.
 
 A MapObject's box is the robust extent of its points (`map_object.box_extent`), and its points lie on the
-surfaces the camera saw. A potted plant by a wall, passed on one side, gives points on its front half only:
-its box is 30 x 25 cm where the plant is 44 x 44 cm, and its centre sits 10-15 cm toward the camera.
-Object-level SLAM systems fill the unseen part with a
-class prior on the object's size (CubeSLAM's and QuadricSLAM's size priors); here the prior is one figure per
-class, its typical depth on the floor plan (`ObjectMapConfig.class_depth_m`), and the box grows only along the
-horizontal direction it was seen from:
-
-- `up`: the map's up direction, the mean of the ups recorded with the object's whole views
-  (`MapObject.up_sum_w`; each the floor's normal as the object layer knew it then, `gravity_up`). Without it
-  there is no completion: the map frame is the first camera's, and a camera looking down 20 degrees on a
-  90-cm plant would count 30 cm of its height as depth along the tilted viewing direction.
-- `h`: the mean of the unit vectors from the camera to the object over its whole views (`view_sum_w` /
-  `n_views`) with its vertical part removed. Its length R over the views' says how much they agree; R below
-  `completion_min_concentration` means the object was seen from around, so its points already span its depth.
-- the depth seen, e = the 5-95 % spread along h of the object's points off the room's planes (of positive weight
-  when no planes are given);
-- when e is below the class's typical depth D, the box is extended by D - e along h, away from the camera: its
-  centre moves by (D - e) / 2 and each axis grows by |h_i| (D - e) (the axis-aligned box holding the box and
-  its copy pushed back); never past the first wall behind the object (the room's planes, when given).
+surfaces the camera saw: a potted plant by a wall, passed on one side, gives points on its front half only,
+so its box is too shallow and its centre sits toward the camera. Object-level SLAM systems fill the unseen
+part with a class prior on the object's size (CubeSLAM's and QuadricSLAM's size priors); here the prior is
+one figure per class, its typical depth on the floor plan (`ObjectMapConfig.class_depth_m`), and the box
+grows only along the horizontal direction it was seen from (`completed_box`).
 
 It never shrinks a box, never moves it toward the camera, and leaves classes without a prior alone. It changes
 only what the semantic map reports (box centre and size); the MapObject's own box and centroid (§4.2, used by
-the association and the persistence filter) are untouched. Directions are kept in the map frame when they are
-taken; a later loop correction that turns the map by a few degrees leaves them that much off.
+the association and the persistence filter) are untouched.
 """
 
 from __future__ import annotations
@@ -105,9 +90,26 @@ def _depth_points(obj: MapObject, planes: Sequence[Plane], structure_dist_m: flo
 
 def completed_box(obj: MapObject, config: ObjectMapConfig, planes: Sequence[Plane] = ()) -> CompletedBox:
     """The object's box, grown away from the camera to its class's typical depth when it was seen from one side
-    only (module doc), but not through a wall: `planes` are the room's large planes (`object_point_weights`,
+    only (below), but not through a wall: `planes` are the room's large planes (`object_point_weights`,
     map frame), and the grown box ends at the first one behind the object (a plant against a wall is not pushed
-    into it); the MapObject's own box otherwise."""
+    into it); the MapObject's own box otherwise.
+
+    - `up`: the map's up direction, the mean of the ups recorded with the object's whole views
+      (`MapObject.up_sum_w`; each the floor's normal as the object layer knew it then, `gravity_up`). Without it
+      there is no completion: the map frame is the first camera's, and a camera looking down 20 degrees on a
+      90-cm plant would count 30 cm of its height as depth along the tilted viewing direction.
+    - `h`: the mean of the unit vectors from the camera to the object over its whole views (`view_sum_w` /
+      `n_views`) with its vertical part removed. Its length R over the views' says how much they agree; R below
+      `completion_min_concentration` means the object was seen from around, so its points already span its depth.
+    - the depth seen, e = the 5-95 % spread along h of the object's points off the room's planes (of positive
+      weight when no planes are given);
+    - when e is below the class's typical depth D, the box is extended by D - e along h, away from the camera: its
+      centre moves by (D - e) / 2 and each axis grows by |h_i| (D - e) (the axis-aligned box holding the box and
+      its copy pushed back).
+
+    Directions are kept in the map frame when they are taken; a later loop correction that turns the map by a
+    few degrees leaves them that much off.
+    """
     center = np.asarray(obj.box_center_w, np.float64).copy()
     size = np.asarray(obj.box_size_m, np.float64).copy()
     unchanged = CompletedBox(center, size, 0.0)

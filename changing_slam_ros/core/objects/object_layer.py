@@ -2,34 +2,11 @@
 
 `ObjectLayer` wraps one `LongTermAssociation` per map of the Atlas. `SlamSystem` calls
 `after_keyframe(kf, slam_map, depth_m, short_term_objects)` once per new keyframe, after local mapping
-and before loop closing, so that loop closing already sees the points this keyframe deactivated:
-
-1. every object's points are re-read (bundle adjustment and loop correction move keyframes and points);
-2. the keyframe's candidates, one per short-term object of the dynamic stage that is not dynamic (static,
-   or not yet classified), with its class and its box in this keyframe; boxes touching the border are
-   truncated candidates (`long_term_association.box_truncated`). A candidate's points are
-   - the map points of its keypoints (`Keyframe.object_ids`, set by the dynamic filter): only the keypoints
-     tracking was allowed to use have map points, i.e. those of objects the EKF found static. With
-     `band_map_points` only those within the box's depth band (below) are kept: a box also holds keypoints
-     of the wall or the table seen past the object, which pulled a monitor's box 40 cm back to the wall;
-   - depth samples inside its box (`depth_samples` on a grid, within `depth_band_m` of the box's median
-     depth, back-projected from the keyframe; cut boxes too with `truncated_views` and `cut_only_views_join`,
-     kept only where an object known only from cut views takes them): the object's shape even while its
-     keypoints are filtered (a movable object the EKF has not yet called static has no map point at all).
-     They carry negative ids
-     (below -1) and never enter the metric map;
-3. Algorithm 1 (`LongTermAssociation.process_keyframe`) merges, creates and belief-updates objects and
-   runs the vicinity search with the keyframe's depth image;
-4. the map points take their object's id and class, and their active flag follows the object's belief
-   (`apply_to_point_store`; a point held by two objects follows the one it was last associated with): tracking, local BA, map fusion and place recognition skip inactive points
-   through `PointStore.usable()` and the loop closer's active masks.
-
-Object points outlive metric culling. Inactive points are never matched again, so ORB-SLAM's recent-point
-culling removes most of them two keyframes after their creation; a MapObject that lost its points would
-fall under `min_points` and could never be associated again. Every object point is therefore anchored in
-the keyframe that first gave it to the object (position in that camera's frame); depth samples, and map
-points once the map culled them, are re-expressed from that keyframe's current pose (culled keyframes
-through their parents, `SlamMap.pose_of`). Live map points are read from the map.
+and before loop closing, so that loop closing already sees the points this keyframe deactivated. It builds
+the keyframe's candidates from the dynamic stage's static objects (map points and depth samples in their
+boxes), runs Algorithm 1 and sets the map points' object ids and active flags; tracking, local BA, map
+fusion and place recognition skip inactive points. Object points outlive metric culling (anchored in
+keyframes, see `ObjectLayer`).
 
 `enabled=False` (YAML `objects: {enabled: false}`, CLI `--no-objects`) turns the layer into a no-op:
 every map point stays active, as in the plain engine; this is the "what the layer prevents" baseline.
@@ -222,7 +199,15 @@ class SavedObjectMap:
 
 
 class ObjectLayer:
-    """MapObjects and persistence beliefs for every map of the Atlas; one instance per run."""
+    """MapObjects and persistence beliefs for every map of the Atlas; one instance per run.
+
+    Object points outlive metric culling. Inactive points are never matched again, so ORB-SLAM's recent-point
+    culling removes most of them two keyframes after their creation; a MapObject that lost its points would
+    fall under `min_points` and could never be associated again. Every object point is therefore anchored in
+    the keyframe that first gave it to the object (position in that camera's frame); depth samples, and map
+    points once the map culled them, are re-expressed from that keyframe's current pose (culled keyframes
+    through their parents, `SlamMap.pose_of`). Live map points are read from the map.
+    """
 
     def __init__(self, config: ObjectLayerConfig | None = None) -> None:
         self.config = config or ObjectLayerConfig()
@@ -293,7 +278,30 @@ class ObjectLayer:
         """Run the layer on a mapped keyframe. depth_m (H, W) metres (0 invalid) of the keyframe, or None;
         `short_term_objects`: the dynamic stage's objects in the keyframe's frame (dynamic ones are ignored);
         `thumbnail`: the keyframe's image (`object_evidence.keyframe_thumbnail`), kept while an object's evidence
-        names the keyframe (a sighting or a belief step), for the change report."""
+        names the keyframe (a sighting or a belief step), for the change report.
+
+        Steps:
+
+        1. every object's points are re-read (bundle adjustment and loop correction move keyframes and points);
+        2. the keyframe's candidates, one per short-term object of the dynamic stage that is not dynamic (static,
+           or not yet classified), with its class and its box in this keyframe; boxes touching the border are
+           truncated candidates (`long_term_association.box_truncated`). A candidate's points are
+           - the map points of its keypoints (`Keyframe.object_ids`, set by the dynamic filter): only the keypoints
+             tracking was allowed to use have map points, i.e. those of objects the EKF found static. With
+             `band_map_points` only those within the box's depth band (below) are kept: a box also holds keypoints
+             of the wall or the table seen past the object, which would pull the object's box back to the wall;
+           - depth samples inside its box (`depth_samples` on a grid, within `depth_band_m` of the box's median
+             depth, back-projected from the keyframe; cut boxes too with `truncated_views` and `cut_only_views_join`,
+             kept only where an object known only from cut views takes them): the object's shape even while its
+             keypoints are filtered (a movable object the EKF has not yet called static has no map point at all).
+             They carry negative ids (below -1) and never enter the metric map;
+        3. Algorithm 1 (`LongTermAssociation.process_keyframe`) merges, creates and belief-updates objects and
+           runs the vicinity search with the keyframe's depth image;
+        4. the map points take their object's id and class, and their active flag follows the object's belief
+           (`apply_to_point_store`; a point held by two objects follows the one it was last associated with):
+           tracking, local BA, map fusion and place recognition skip inactive points through
+           `PointStore.usable()` and the loop closer's active masks.
+        """
         t0 = time.perf_counter()
         if not self.config.enabled:
             return ObjectLayerResult(slam_map.id, None, (), 0, 0, 0.0)

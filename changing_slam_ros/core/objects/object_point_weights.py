@@ -3,18 +3,9 @@
 An object's point set (map points and depth samples taken inside its boxes, within a depth band) also holds
 what the band cannot separate: the floor between a chair's legs, the wall behind it, the teddy bear sitting on
 it; and parts seen from many keyframes hold many more samples than parts seen once. The mean of such a set
-leans toward all three (an offline study of centroid estimators on six simulated scenes, `bench/centroid_estimators.py`,
-chose this rule). Per point, `point_weights` gives
-
-- 0 to points closer than `structure_plane_dist_m` to one of the room's large planes (`fit_structure_planes`,
-  fitted to the *static* map points, never to the object's own);
-- 0 to points closer than `shared_point_dist_m` to the points of another object whose box is smaller (what
-  sits on or in front of this object belongs to the more specific object);
-- 1 / (the number of remaining points in its `centroid_voxel_m` cube) to the rest, so that every occupied cube
-  of the surface counts once (0: every remaining point 1).
-
-If fewer than `min_points` points would keep a positive weight, all of them keep weight 1 (an object lying
-wholly on a plane, or wholly covered by a smaller one, is better described by all its points than by none).
+leans toward all three. `point_weights` gives 0 to points on the room's large planes or on a smaller object,
+and down-weights densely sampled parts so that every occupied voxel of the surface counts once (an offline
+study of centroid estimators, `bench/centroid_estimators.py`, chose this rule).
 """
 
 from __future__ import annotations
@@ -95,8 +86,19 @@ def voxel_weights(points: F64, voxel_m: float) -> F64:
 
 
 def point_weights(points: F64, planes: Sequence[Plane], smaller_points: F64 | None, config: ObjectMapConfig) -> F64:
-    """Weights (N,) of one object's points (N, 3); see the module docstring. `smaller_points` (M, 3): the points
-    of the objects whose boxes are smaller than this one's (None or empty: none)."""
+    """Weights (N,) of one object's points (N, 3); rules below. `smaller_points` (M, 3): the points
+    of the objects whose boxes are smaller than this one's (None or empty: none).
+
+    - 0 to points closer than `structure_plane_dist_m` to one of the room's large planes (`fit_structure_planes`,
+      fitted to the *static* map points, never to the object's own);
+    - 0 to points closer than `shared_point_dist_m` to the points of another object whose box is smaller (what
+      sits on or in front of this object belongs to the more specific object);
+    - 1 / (the number of remaining points in its `centroid_voxel_m` cube) to the rest, so that every occupied cube
+      of the surface counts once (0: every remaining point 1).
+
+    If fewer than `min_points` points would keep a positive weight, all of them keep weight 1 (an object lying
+    wholly on a plane, or wholly covered by a smaller one, is better described by all its points than by none).
+    """
     pts = np.asarray(points, float).reshape(-1, 3)
     own = np.ones(len(pts), bool)
     if config.structure_plane_dist_m > 0.0:

@@ -1,17 +1,9 @@
 """Should a mapped object have been seen from this keyframe? (Changing-SLAM §4.6-4.7, the vicinity search)
 
-An object "should have been seen" when its centroid, transformed into the camera,
-1. lies in front of the camera within [min_range_m, max_range_m] along the optical axis,
-2. projects inside the image with `margin_px` to spare on every side,
-3. would look large enough to be detected: its box (`box_size_m`, when the caller gives it) covers at
-   least `min_projected_area(config, camera)` pixels at that depth ((fx / z)^2 times its two largest
-   sides): a fraction of the image (`min_projected_area_fraction`), at least `min_projected_area_px`, and
-4. is not occluded: the measured depth around that pixel (median of the valid depths in a
-   (2 w + 1)^2 window) is not much closer than the centroid:
-       depth_measured >= z_centroid - (occlusion_tolerance_m + half the object's largest box side).
-   The tolerance includes the object's half-size because when the object is there, the camera
-   measures its front surface, which is closer than its centroid. A window with no valid depth
-   counts as "unknown" and the object is not expected (no evidence either way).
+An object "should have been seen" when its centroid, transformed into the camera, lies in front of the
+camera within range, projects inside the image, would look large enough to be detected and is not
+occluded according to the measured depth (the tests are in `check_visibility`). A window with no valid
+depth counts as "unknown" and the object is not expected (no evidence either way).
 
 When an object was removed, the camera sees what stood behind it (a wall, the floor), which is
 farther than the centroid: the object is expected and missed, and its belief drops.
@@ -66,6 +58,20 @@ def check_visibility(centroid_w: F64, T_world_cam: F64, camera: CameraIntrinsics
     `depth_m` (H, W) metres, 0 = invalid, registered to `camera`; None skips the occlusion test (then a
     centroid in the frustum and range counts as visible). `box_size_m` (3,): the object's box; half its
     largest side is added to the occlusion tolerance, and it drives the size test (None skips both).
+
+    Tests, in order:
+
+    1. the centroid lies in front of the camera within [min_range_m, max_range_m] along the optical axis;
+    2. it projects inside the image with `margin_px` to spare on every side;
+    3. the object would look large enough to be detected: its box covers at least
+       `min_projected_area(config, camera)` pixels at that depth ((fx / z)^2 times its two largest sides): a
+       fraction of the image (`min_projected_area_fraction`), at least `min_projected_area_px`;
+    4. it is not occluded: the measured depth around that pixel (median of the valid depths in a
+       (2 w + 1)^2 window) is not much closer than the centroid:
+           depth_measured >= z_centroid - (occlusion_tolerance_m + half the object's largest box side).
+       The tolerance includes the object's half-size because when the object is there, the camera
+       measures its front surface, which is closer than its centroid. A window with no valid depth
+       counts as "unknown" and the object is not expected.
     """
     p_c = invert(np.asarray(T_world_cam, float)) @ np.append(np.asarray(centroid_w, float), 1.0)
     z = float(p_c[2])
