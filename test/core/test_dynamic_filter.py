@@ -97,13 +97,20 @@ def test_ekf_doc_uses_a_static_chair_after_a_few_frames_and_never_the_person() -
     assert len({int(i) for i in results[-1].object_ids[r["chair"]]}) == 1  # one object id for the chair
 
 
-def test_segmentation_flags_a_group_that_moves_between_frames() -> None:
-    """Static points in a room and a 40-point box moving 8 cm per frame; the camera moves too."""
+@pytest.mark.parametrize("method", ["edge_test", "correlation"])
+def test_segmentation_flags_a_group_that_moves_between_frames(method: str) -> None:
+    """Static points in a room and a 40-point box moving 8 cm per frame; the camera moves too. The box hides
+    the wall behind it (no static point projects inside its outline in any frame)."""
     rng = np.random.default_rng(3)
-    static = np.column_stack([rng.uniform(-2, 2, 400), rng.uniform(-1.5, 1.5, 400), rng.uniform(3.0, 5.0, 400)])
+    static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
+    # Directions of the box over its path (x from 0.15 to 0.69 m at 1.8 m, y 0.05 to 0.35 m) are occluded.
+    ray = static[:, :2] / static[:, 2:3] * 1.8
+    hidden = (ray[:, 0] > 0.05) & (ray[:, 0] < 0.79) & (ray[:, 1] > -0.05) & (ray[:, 1] < 0.45)
+    static = static[~hidden][:400]
     box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (40, 3))
     desc = rng.integers(0, 256, (440, 32), dtype=np.uint8)
-    cfg = DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1)
+    cfg = DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
+                        segmentation_method=method)
     flt = DynamicFilter(cfg)
     rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
     moving_hits = []

@@ -7,9 +7,11 @@ It combines, per frame, before the pose is estimated:
 3. short-term association, one EKF per object and the dynamic-object classification (§4.3-4.5,
    `dynamic_objects.DynamicObjectTracker`): keypoints of persons and of moving or not-yet-static objects
    are dropped, those of objects the EKF found static are used;
-4. optionally, the class-agnostic two-frame point-correlation segmentation (Dai et al. 2021,
-   `point_correlation.segment`) of this frame's keypoints matched to a frame `segmentation_gap_frames`
-   earlier: keypoints of any object target (a mover no detector names) are dropped too.
+4. the class-agnostic two-frame point-correlation segmentation (Dai et al. 2021) of this frame's keypoints
+   matched to a frame `segmentation_gap_frames` earlier: keypoints of any object target (a mover no
+   detector names) are dropped too. `segmentation_method` picks the closed-form edge test over a 2D
+   Delaunay graph with a local descriptor search (`edge_test`, the default, a few ms) or the paper's
+   eq. 5 over a 3D Delaunay graph with brute-force matching (`point_correlation.segment`).
 
 `before_tracking(rgbd, features, detections)` returns a `DynamicFrame` (keep mask, keypoint classes and
 object ids, N rows); `after_tracking(T_world_cam)` feeds the tracked pose to the object EKFs and to the
@@ -36,6 +38,7 @@ from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.dynamic.detector import Detection
 from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
+from changing_slam_ros.core.movers.edge_test import edge_test_segment, match_nearby
 from changing_slam_ros.core.movers.mover_tracking import MoverConfig, MoverTracker
 from changing_slam_ros.core.features.orb_features import Features
 from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationConfig, segment
@@ -46,6 +49,7 @@ from changing_slam_ros.errors import ConfigError
 F64 = npt.NDArray[np.float64]
 BoolArr = npt.NDArray[np.bool_]
 
+SEGMENTATION_METHODS = ("edge_test", "correlation")
 NEVER = 10**9  # `min_updates` of an EKF that never gives a verdict: movable objects stay filtered
 
 
@@ -60,12 +64,17 @@ class DynamicConfig:
     - `ekf_doc`: per-object EKF and dynamic-object classification; off = movable objects are never
       found static, so their keypoints are always dropped.
     - `segmentation`: two-frame point-correlation segmentation (Dai et al.); its object targets' keypoints
-      are dropped whatever their class.
+      are dropped whatever their class. On by default: it catches the movers the detector misses (a person
+      cut by the border, too close or in an unusual pose; objects of no COCO class).
+    - `segmentation_method`: "edge_test" (`movers/edge_test.py`: each Delaunay edge's rigidity tested in
+      closed form, matches searched around each keypoint's predicted position) or "correlation" (the
+      paper's eq. 5 solved by Gauss-Newton, `movers/point_correlation.py`, with brute-force matching;
+      about ten times the CPU).
     - `segmentation_gap_frames`: the segmentation compares the frame with the one this many frames earlier
       (a person moves ~3 cm per frame at 30 fps; 0.1 s makes the motion clear of depth noise).
     - `segmentation_max_hamming`: ORB descriptor distance accepted for a match between the two frames.
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
-      are left out).
+      are left out); for "edge_test", the search radius around the predicted position.
     - `segmentation_min_matches`: fewer matches = no segmentation in that frame.
     - `segmentation_spread_px` / `segmentation_spread_depth_m`: a keypoint within this image distance and
       depth difference of a flagged one is flagged too (only matched keypoints can be flagged, about half
@@ -89,7 +98,8 @@ class DynamicConfig:
     detection_filtering: bool = True
     repopulation: bool = True
     ekf_doc: bool = True
-    segmentation: bool = False
+    segmentation: bool = True
+    segmentation_method: str = "edge_test"
     segmentation_gap_frames: int = 3
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
@@ -107,6 +117,10 @@ class DynamicConfig:
     def __post_init__(self) -> None:
         if self.segmentation_gap_frames < 1:
             raise ConfigError(f"dynamic.segmentation_gap_frames: expected >= 1, got {self.segmentation_gap_frames}")
+        if self.segmentation_method not in SEGMENTATION_METHODS:
+            raise ConfigError(
+                f"dynamic.segmentation_method: expected one of {SEGMENTATION_METHODS}, got {self.segmentation_method!r}"
+            )
         if self.segmentation_min_matches < 5:
             raise ConfigError(f"dynamic.segmentation_min_matches: expected >= 5, got {self.segmentation_min_matches}")
 
@@ -166,6 +180,7 @@ class DynamicFilter:
         self.n_keypoints = 0
         self.n_kept = 0
         self.frames_ms: list[float] = []
+        self.segmentation_cpu_ms: list[float] = []  # thread CPU of each frame's segmentation (matching included)
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
         self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
 
@@ -199,7 +214,9 @@ class DynamicFilter:
         self._classified = False
         if cfg.enabled:
             if cfg.segmentation:
+                c0 = time.thread_time()
                 moving = self._segment(features, rgbd.camera)
+                self.segmentation_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if self._movers is not None:
                 moving |= self._movers.before_tracking(rgbd.stamp_ns, features, rgbd.camera)
             if cfg.detection_filtering:
@@ -284,27 +301,53 @@ class DynamicFilter:
         T_now = self._predicted_pose()
         if past.T_world_cam is None or T_now is None or len(past.descriptors) == 0 or len(features) == 0:
             return moving
-        matches = self._matcher.match(features.descriptors, past.descriptors)
-        if not matches:
-            return moving
-        q = np.array([m.queryIdx for m in matches], dtype=np.int64)
-        t = np.array([m.trainIdx for m in matches], dtype=np.int64)
-        dist = np.array([m.distance for m in matches])
-        shift = np.linalg.norm(features.keypoints_px[q] - past.keypoints_px[t], axis=1)
-        ok = (dist <= cfg.segmentation_max_hamming) & (shift <= cfg.segmentation_max_shift_px)
-        ok &= (features.depths_m[q] > 0) & (past.depths_m[t] > 0)
+        if cfg.segmentation_method == "edge_test":
+            q, t = self._match_nearby(features, past, T_now, camera)
+        else:
+            q, t = self._match_brute_force(features, past)
+        ok = (features.depths_m[q] > 0) & (past.depths_m[t] > 0)
         q, t = q[ok], t[ok]
         if len(q) < cfg.segmentation_min_matches:
             return moving
         pixels = np.stack([past.keypoints_px[t], features.keypoints_px[q]])  # (2, M, 2)
         depths = np.stack([past.depths_m[t], features.depths_m[q]])  # (2, M)
         poses = np.stack([past.T_world_cam, T_now])  # (2, 4, 4)
-        window = CorrelationWindow.from_pixels(np.arange(len(q)), pixels, depths, poses, camera)
-        result = segment(window, cfg.correlation)
-        moving[q[result.dynamic_mask]] = True
+        if cfg.segmentation_method == "edge_test":
+            moving[q[edge_test_segment(pixels, depths, poses, camera, cfg.correlation).moving]] = True
+        else:
+            window = CorrelationWindow.from_pixels(np.arange(len(q)), pixels, depths, poses, camera)
+            moving[q[segment(window, cfg.correlation).dynamic_mask]] = True
         if cfg.segmentation_spread_px > 0.0 and moving.any():
             moving = _spread(moving, features, cfg.segmentation_spread_px, cfg.segmentation_spread_depth_m)
         return moving
+
+    def _match_brute_force(self, features: Features, past: _Past) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Cross-checked brute-force matches (current indices, earlier indices) within the distance and shift bounds."""
+        cfg = self.config
+        matches = self._matcher.match(features.descriptors, past.descriptors)
+        q = np.array([m.queryIdx for m in matches], dtype=np.int64)
+        t = np.array([m.trainIdx for m in matches], dtype=np.int64)
+        if not matches:
+            return q, t
+        dist = np.array([m.distance for m in matches])
+        shift = np.linalg.norm(features.keypoints_px[q] - past.keypoints_px[t], axis=1)
+        ok = (dist <= cfg.segmentation_max_hamming) & (shift <= cfg.segmentation_max_shift_px)
+        return q[ok], t[ok]
+
+    def _match_nearby(
+        self, features: Features, past: _Past, T_now: F64, camera: CameraIntrinsics
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Mutual best matches searched around where each current keypoint with depth would be in the
+        earlier image if it were static (predicted pose); a mover's match lies within the search radius."""
+        assert past.T_world_cam is not None
+        cfg = self.config
+        T_past_now = invert(past.T_world_cam) @ T_now
+        z = features.depths_m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pts = camera.backproject(features.keypoints_px, np.where(z > 0, z, np.nan)) @ T_past_now[:3, :3].T
+            predicted = camera.project(pts + T_past_now[:3, 3])
+        return match_nearby(features.keypoints_px, features.descriptors, past.keypoints_px, past.descriptors,
+                            predicted, cfg.segmentation_max_shift_px, cfg.segmentation_max_hamming)
 
 
 def _iou(a: Detection, b: Detection) -> float:
@@ -317,16 +360,20 @@ def _iou(a: Detection, b: Detection) -> float:
     return inter / union if union > 0 else 0.0
 
 
-def _spread(moving: BoolArr, features: Features, radius_px: float, depth_tol_m: float) -> BoolArr:
-    """(N,) `moving` plus keypoints within `radius_px` and `depth_tol_m` of a flagged keypoint with depth."""
+def _spread(moving: BoolArr, features: Features, radius_px: float, depth_tol_m: float, k: int = 8) -> BoolArr:
+    """(N,) `moving` plus keypoints with depth that have one of their `k` nearest flagged keypoints within
+    `radius_px` and `depth_tol_m`."""
     from scipy.spatial import cKDTree  # type: ignore[import-untyped]
 
     src = np.flatnonzero(moving & (features.depths_m > 0))
-    if len(src) == 0:
+    dst = np.flatnonzero(~moving & (features.depths_m > 0))
+    if len(src) == 0 or len(dst) == 0:
         return moving
+    k = min(k, len(src))
+    dist, nn = cKDTree(features.keypoints_px[src]).query(features.keypoints_px[dst], k=k, distance_upper_bound=radius_px)
+    dist, nn = dist.reshape(len(dst), k), nn.reshape(len(dst), k)
+    near = np.isfinite(dist)
+    dz = np.abs(features.depths_m[src[np.where(near, nn, 0)]] - features.depths_m[dst][:, None])
     out = moving.copy()
-    tree = cKDTree(features.keypoints_px[src])
-    for i, near in enumerate(tree.query_ball_point(features.keypoints_px, radius_px)):
-        if not out[i] and near and features.depths_m[i] > 0:
-            out[i] = bool(np.any(np.abs(features.depths_m[src[near]] - features.depths_m[i]) <= depth_tol_m))
+    out[dst[np.any(near & (dz <= depth_tol_m), axis=1)]] = True
     return out
