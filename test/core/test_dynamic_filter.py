@@ -88,13 +88,19 @@ def test_repopulation_keeps_the_wall_behind_the_person_and_still_drops_the_perso
 
 
 def test_ekf_doc_uses_a_static_chair_after_a_few_frames_and_never_the_person() -> None:
-    results, r = _run(DynamicConfig(), 30)
+    results, r = _run(DynamicConfig(keep_undecided=False), 30)  # the paper: new objects filtered a priori
     assert not results[0].keep[r["chair"]].any()  # new object: filtered a priori
     first_kept = next(k for k, res in enumerate(results) if res.keep[r["chair"]].all())
     assert first_kept <= 10
     assert all(res.keep[r["chair"]].all() for res in results[first_kept:])
     assert not any(res.keep[r["person"]].any() for res in results)
     assert len({int(i) for i in results[-1].object_ids[r["chair"]]}) == 1  # one object id for the chair
+
+
+def test_an_undecided_chair_is_used_from_the_first_frame_and_the_person_never() -> None:
+    results, r = _run(DynamicConfig(), 30)
+    assert all(res.keep[r["chair"]].all() for res in results)
+    assert not any(res.keep[r["person"]].any() for res in results)
 
 
 @pytest.mark.parametrize("method", ["edge_test", "correlation"])
@@ -190,6 +196,6 @@ def test_boxes_of_fixed_furniture_classes_are_background_unless_configured_movab
     rgbd, feats, r = _scene()
     default = DynamicFilter(DynamicConfig()).before_tracking(rgbd, feats, table)
     assert default.keep[r["chair"]].all() and (default.kp_classes[r["chair"]] == KeypointClass.STATIC).all()
-    paper = DynamicFilter(DynamicConfig(fixed_class_ids=())).before_tracking(rgbd, feats, table)
+    paper = DynamicFilter(DynamicConfig(fixed_class_ids=(), keep_undecided=False)).before_tracking(rgbd, feats, table)
     assert not paper.keep[r["chair"]].any()  # a new movable object: filtered a priori
     assert paper.keep[r["elsewhere"]].all() and default.keep[r["elsewhere"]].all()

@@ -36,7 +36,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.dynamic.detector import Detection
-from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectState
+from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
 from changing_slam_ros.core.movers.edge_test import edge_test_segment, match_nearby
 from changing_slam_ros.core.movers.mover_tracking import MoverConfig, MoverTracker
@@ -72,6 +72,10 @@ class DynamicConfig:
       about ten times the CPU).
     - `segmentation_gap_frames`: the segmentation compares the frame with the one this many frames earlier
       (a person moves ~3 cm per frame at 30 fps; 0.1 s makes the motion clear of depth noise).
+    - `segmentation_long_gap_frames` / `segmentation_long_every`: "edge_test" also compares every
+      `segmentation_long_every`-th frame with the one `segmentation_long_gap_frames` earlier (0.4 s at 30 Hz:
+      slower movers clear the depth noise), and a keypoint matched to one flagged within that many frames
+      stays flagged (the labels of the long test carried to the frames between its runs). 0 = off.
     - `segmentation_max_hamming`: ORB descriptor distance accepted for a match between the two frames.
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
       are left out); for "edge_test", the search radius around the predicted position.
@@ -88,6 +92,13 @@ class DynamicConfig:
       the counter a "dining table" covering ~44 % of the image (7-Scenes redkitchen, 24 of 40 sampled
       frames), and filtering it as a new movable object cost the static run 4.5 -> 11 cm ATE. Set `[]`
       for the paper's behaviour.
+    - `keep_undecided`: keypoints of detected movable objects that no cue has seen move yet (EKF verdict
+      UNKNOWN, not flagged by the segmentation) are used. The segmentation, run on every frame, drops such
+      an object as soon as it moves, and the EKF's DYNAMIC verdict from then on. Beyond the paper, which
+      filters them a priori until the EKF finds them static (False): a still object filling the first view
+      then leaves too few or too distant keypoints to initialise or to track well, and an object whose box
+      is cut by the image border gets no EKF update and stays filtered for as long as it is in view.
+      Needs `ekf_doc` (without it no object ever gets a verdict, and movable objects stay filtered).
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
     - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
@@ -101,6 +112,8 @@ class DynamicConfig:
     segmentation: bool = True
     segmentation_method: str = "edge_test"
     segmentation_gap_frames: int = 3
+    segmentation_long_gap_frames: int = 12
+    segmentation_long_every: int = 3
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
     segmentation_min_matches: int = 30
@@ -110,6 +123,7 @@ class DynamicConfig:
     detection_hold_grow_px: float = 8.0
     hold_class_ids: tuple[int, ...] = (0,)
     fixed_class_ids: tuple[int, ...] = (59, 60, 61, 69, 71, 72)
+    keep_undecided: bool = True
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
     movers: MoverConfig = field(default_factory=MoverConfig)
@@ -121,6 +135,8 @@ class DynamicConfig:
             raise ConfigError(
                 f"dynamic.segmentation_method: expected one of {SEGMENTATION_METHODS}, got {self.segmentation_method!r}"
             )
+        if self.segmentation_long_gap_frames < 0 or self.segmentation_long_every < 1:
+            raise ConfigError("dynamic.segmentation_long_gap_frames must be >= 0 and segmentation_long_every >= 1")
         if self.segmentation_min_matches < 5:
             raise ConfigError(f"dynamic.segmentation_min_matches: expected >= 5, got {self.segmentation_min_matches}")
 
@@ -163,6 +179,7 @@ class _Past:
     descriptors: npt.NDArray[np.uint8]
     depths_m: F64
     T_world_cam: F64 | None
+    flag_age: npt.NDArray[np.int64]  # (N,) frames since the segmentation flagged the keypoint (NEVER: not)
 
 
 class DynamicFilter:
@@ -172,7 +189,11 @@ class DynamicFilter:
         self.config = config or DynamicConfig()
         self._tracker: DynamicObjectTracker | None = None
         self._camera: CameraIntrinsics | None = None
-        self._history: deque[_Past] = deque(maxlen=self.config.segmentation_gap_frames)
+        self._history: deque[_Past] = deque(
+            maxlen=max(self.config.segmentation_gap_frames, self.config.segmentation_long_gap_frames)
+        )
+        self._n_frames = 0
+        self._pending_age: npt.NDArray[np.int64] | None = None
         self._poses: deque[F64] = deque(maxlen=2)  # last two tracked poses, for the prediction
         self._pending: _Past | None = None
         self._classified = False
@@ -231,7 +252,13 @@ class DynamicFilter:
                 object_ids = res.kp_object_ids.copy()
                 objects = res.objects
             keep &= ~moving
-        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None)
+            if cfg.detection_filtering and cfg.ekf_doc and cfg.keep_undecided:
+                undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
+                keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
+        age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
+        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age)
+        self._pending_age = None
+        self._n_frames += 1
         ms = (time.perf_counter() - t0) * 1e3
         self.n_keypoints += n
         self.n_kept += int(keep.sum())
@@ -292,15 +319,49 @@ class DynamicFilter:
         return last @ (invert(self._poses[0]) @ last)  # constant velocity
 
     def _segment(self, features: Features, camera: CameraIntrinsics) -> BoolArr:
-        """(N,) keypoints of the frame that the two-frame segmentation puts on an object target."""
+        """(N,) keypoints of the frame that the two-frame segmentation puts on an object target.
+
+        Against the frame `segmentation_gap_frames` back on every frame; with "edge_test", also against the
+        frame `segmentation_long_gap_frames` back on every `segmentation_long_every`-th frame, for movers
+        too slow to clear the depth noise in the short gap (a board carried at 0.3 m/s 1 m ahead of a wall
+        3 m away moves 3 cm in 0.1 s, about twice the noise of its edges to the wall). A keypoint matched in
+        the short gap to one flagged at most `segmentation_long_gap_frames` frames earlier stays flagged.
+        """
         cfg = self.config
-        moving = np.zeros(len(features), dtype=bool)
-        if len(self._history) < cfg.segmentation_gap_frames:
-            return moving
-        past = self._history[0]  # segmentation_gap_frames frames before this one
+        n = len(features)
+        moving = np.zeros(n, dtype=bool)
+        age = np.full(n, NEVER, dtype=np.int64)  # frames since a test flagged the keypoint (carried by matches)
         T_now = self._predicted_pose()
-        if past.T_world_cam is None or T_now is None or len(past.descriptors) == 0 or len(features) == 0:
-            return moving
+        gaps = [cfg.segmentation_gap_frames]
+        long_gap = cfg.segmentation_long_gap_frames
+        if cfg.segmentation_method == "edge_test" and long_gap > 0 and self._n_frames % cfg.segmentation_long_every == 0:
+            gaps.append(long_gap)
+        for gap in gaps:
+            if len(self._history) < gap or T_now is None or n == 0:
+                break
+            past = self._history[-gap]
+            q, t, flagged = self._segment_pair(features, past, T_now, camera)
+            moving[q[flagged]] = True
+            if gap == cfg.segmentation_gap_frames and long_gap > 0:  # carry the earlier frame's flags
+                carried = past.flag_age[t] + gap
+                fresh = carried <= long_gap
+                age[q[fresh]] = np.minimum(age[q[fresh]], carried[fresh])
+        age[moving] = 0
+        self._pending_age = age
+        moving |= age <= long_gap
+        if cfg.segmentation_spread_px > 0.0 and moving.any():
+            moving = _spread(moving, features, cfg.segmentation_spread_px, cfg.segmentation_spread_depth_m)
+        return moving
+
+    def _segment_pair(
+        self, features: Features, past: _Past, T_now: F64, camera: CameraIntrinsics
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], BoolArr]:
+        """Matches (current indices q, earlier indices t) with depth in both frames and which of them lie on
+        an object target; empty when too few."""
+        cfg = self.config
+        none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
+        if past.T_world_cam is None or len(past.descriptors) == 0:
+            return none
         if cfg.segmentation_method == "edge_test":
             q, t = self._match_nearby(features, past, T_now, camera)
         else:
@@ -308,18 +369,14 @@ class DynamicFilter:
         ok = (features.depths_m[q] > 0) & (past.depths_m[t] > 0)
         q, t = q[ok], t[ok]
         if len(q) < cfg.segmentation_min_matches:
-            return moving
+            return none
         pixels = np.stack([past.keypoints_px[t], features.keypoints_px[q]])  # (2, M, 2)
         depths = np.stack([past.depths_m[t], features.depths_m[q]])  # (2, M)
         poses = np.stack([past.T_world_cam, T_now])  # (2, 4, 4)
         if cfg.segmentation_method == "edge_test":
-            moving[q[edge_test_segment(pixels, depths, poses, camera, cfg.correlation).moving]] = True
-        else:
-            window = CorrelationWindow.from_pixels(np.arange(len(q)), pixels, depths, poses, camera)
-            moving[q[segment(window, cfg.correlation).dynamic_mask]] = True
-        if cfg.segmentation_spread_px > 0.0 and moving.any():
-            moving = _spread(moving, features, cfg.segmentation_spread_px, cfg.segmentation_spread_depth_m)
-        return moving
+            return q, t, edge_test_segment(pixels, depths, poses, camera, cfg.correlation).moving
+        window = CorrelationWindow.from_pixels(np.arange(len(q)), pixels, depths, poses, camera)
+        return q, t, segment(window, cfg.correlation).dynamic_mask
 
     def _match_brute_force(self, features: Features, past: _Past) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
         """Cross-checked brute-force matches (current indices, earlier indices) within the distance and shift bounds."""
