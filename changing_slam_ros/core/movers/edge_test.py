@@ -114,8 +114,10 @@ def edge_test_segment(
     min_outlier_neighbours: int = 2,
 ) -> EdgeTestResult:
     """Segment M points matched in two frames: pixels (2, M, 2) and depths (2, M) (earlier frame first, all
-    depths > 0), camera-to-world poses (2, 4, 4). Points of a connected rigid group other than the static
-    one (largest `cfg.static_volume`) with at least `cfg.min_target_points` points are moving."""
+    depths > 0), camera-to-world poses (2, 4, 4). Moving: the points of a connected rigid group other than
+    the static one (largest `cfg.static_volume`) with at least `cfg.min_target_points` points, and the
+    outliers of the static group's fitted motion (same chi2 bound) with `min_outlier_neighbours` outlier
+    neighbours in the graph (0 = that second step off)."""
     m = pixels.shape[1]
     none = EdgeTestResult(np.zeros(m, bool), np.empty((0, 2), np.int64), np.empty(0, bool), 0)
     if m < 4:
