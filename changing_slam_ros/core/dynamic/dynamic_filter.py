@@ -1,27 +1,17 @@
 """The dynamic-scene stage of tracking: which keypoints of a frame may be used to estimate the camera pose.
 
-It combines, per frame, before the pose is estimated:
+Per frame, before the pose is estimated, it combines (1) the frame's detections (a detector or the
+simulator's oracle boxes, from the caller); (2) keypoint classification with repopulation (Changing-SLAM
+§4.1, `keypoint_classification`); (3) short-term association, one EKF per object and the dynamic-object
+classification (§4.3-4.5, `dynamic_objects`): persons and moving objects dropped, objects found static
+used, undecided ones used unless a cue sees them move (`keep_undecided`); (4) the class-agnostic two-frame
+segmentation of Dai et al. 2021 against earlier frames, by the closed-form edge test (`movers/edge_test`)
+or the paper's eq. 5 (`movers/point_correlation`): any object target is dropped, whatever its class.
 
-1. the frame's detections (a detector, or the simulator's oracle boxes; the caller supplies them);
-2. keypoint classification with feature repopulation (Changing-SLAM §4.1, `keypoint_classification`);
-3. short-term association, one EKF per object and the dynamic-object classification (§4.3-4.5,
-   `dynamic_objects.DynamicObjectTracker`): keypoints of persons and of moving or not-yet-static objects
-   are dropped, those of objects the EKF found static are used;
-4. the class-agnostic two-frame point-correlation segmentation (Dai et al. 2021) of this frame's keypoints
-   matched to a frame `segmentation_gap_frames` earlier: keypoints of any object target (a mover no
-   detector names) are dropped too. `segmentation_method` picks the closed-form edge test over a 2D
-   Delaunay graph with a local descriptor search (`edge_test`, the default, a few ms) or the paper's
-   eq. 5 over a 3D Delaunay graph with brute-force matching (`point_correlation.segment`).
-
-`before_tracking(rgbd, features, detections)` returns a `DynamicFrame` (keep mask, keypoint classes and
-object ids, N rows); `after_tracking(T_world_cam)` feeds the tracked pose to the object EKFs and to the
-segmentation's frame history. The switches of `DynamicConfig` are the rows of issue 5's ablation:
-plain (`enabled: false`) / + detection filtering / + repopulation / + EKF-DOC / + segmentation.
-
-The segmentation needs both frames' camera poses; the current one is not estimated yet, so a
-constant-velocity prediction from the last two tracked poses stands in. A pose error moves all of a
-frame's points rigidly, which changes the relative positions of adjacent points only by the rotation
-error times the (short) Delaunay edge length.
+`before_tracking` returns a `DynamicFrame`; `after_tracking(T_world_cam)` feeds the tracked pose to the
+EKFs and the segmentation's history. The current pose of the segmentation is a constant-velocity
+prediction: a pose error moves all points rigidly, which changes adjacent points' relative positions only
+by the rotation error times the (short) edge length.
 """
 
 from __future__ import annotations

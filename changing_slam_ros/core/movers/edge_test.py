@@ -9,10 +9,9 @@ both residuals are outliers (chi2 > `outlier_chi2` each); here that is tested di
 
 with p, q the back-projected keypoints of the current and the earlier frame (camera frames), R the
 rotation between the two cameras and S_ij the sum of the four points' covariances (pixel noise and the
-depth model of `SegmentationConfig`). Only R enters: a pose error moves all points rigidly, and its
-rotation part changes an edge of length L by the error times L only. The graph is the 2D Delaunay
-triangulation of the current keypoints (one triangle per adjacent triple, cheaper than the paper's 3D
-tetrahedralisation); the triangle support and the static component by volume are as in `segment`.
+depth model of `SegmentationConfig`). Only R enters: a pose error moves all points rigidly. The graph is
+the 2D Delaunay triangulation of the current keypoints (cheaper than the paper's 3D tetrahedralisation);
+triangle support and the static component by volume are as in `segment`.
 """
 
 from __future__ import annotations
