@@ -62,13 +62,17 @@ class DynamicConfig:
       about ten times the CPU).
     - `segmentation_gap_frames`: the segmentation compares the frame with the one this many frames earlier
       (a person moves ~3 cm per frame at 30 fps; 0.1 s makes the motion clear of depth noise).
+    - `segmentation_carry_frames`: a keypoint matched (in the segmentation's own short-gap matching) to one
+      flagged at most this many frames earlier stays flagged (0 = off).
     - `segmentation_long_gap_frames` / `segmentation_long_every`: "edge_test" also compares every
-      `segmentation_long_every`-th frame with the one `segmentation_long_gap_frames` earlier (0.4 s at 30 Hz:
-      slower movers clear the depth noise), and a keypoint matched to one flagged within that many frames
-      stays flagged (the labels of the long test carried to the frames between its runs). 0 = off.
+      `segmentation_long_every`-th frame with the one `segmentation_long_gap_frames` earlier (12: 0.4 s at
+      30 Hz, where slower movers clear the depth noise; its flags are carried to the frames between). 0 =
+      off, the default: it costs a third more and did not free the map of a mover in view from frame 0.
     - `segmentation_max_hamming`: ORB descriptor distance accepted for a match between the two frames.
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
       are left out); for "edge_test", the search radius around the predicted position.
+    - `segmentation_search_k`: "edge_test" compares each keypoint with this many earlier keypoints nearest
+      to its predicted position (the search's cost; a fast mover's match may lie beyond them).
     - `segmentation_min_matches`: fewer matches = no segmentation in that frame.
     - `segmentation_spread_px` / `segmentation_spread_depth_m`: a keypoint within this image distance and
       depth difference of a flagged one is flagged too (only matched keypoints can be flagged, about half
@@ -102,10 +106,12 @@ class DynamicConfig:
     segmentation: bool = True
     segmentation_method: str = "edge_test"
     segmentation_gap_frames: int = 3
-    segmentation_long_gap_frames: int = 12
+    segmentation_carry_frames: int = 12
+    segmentation_long_gap_frames: int = 0
     segmentation_long_every: int = 3
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
+    segmentation_search_k: int = 24
     segmentation_min_matches: int = 30
     segmentation_spread_px: float = 0.0
     segmentation_spread_depth_m: float = 0.3
@@ -125,8 +131,9 @@ class DynamicConfig:
             raise ConfigError(
                 f"dynamic.segmentation_method: expected one of {SEGMENTATION_METHODS}, got {self.segmentation_method!r}"
             )
-        if self.segmentation_long_gap_frames < 0 or self.segmentation_long_every < 1:
-            raise ConfigError("dynamic.segmentation_long_gap_frames must be >= 0 and segmentation_long_every >= 1")
+        if min(self.segmentation_long_gap_frames, self.segmentation_carry_frames) < 0 or self.segmentation_long_every < 1:
+            raise ConfigError("dynamic: segmentation_long_gap_frames and segmentation_carry_frames must be >= 0, "
+                              "segmentation_long_every >= 1")
         if self.segmentation_min_matches < 5:
             raise ConfigError(f"dynamic.segmentation_min_matches: expected >= 5, got {self.segmentation_min_matches}")
 
@@ -180,7 +187,7 @@ class DynamicFilter:
         self._tracker: DynamicObjectTracker | None = None
         self._camera: CameraIntrinsics | None = None
         self._history: deque[_Past] = deque(
-            maxlen=max(self.config.segmentation_gap_frames, self.config.segmentation_long_gap_frames)
+            maxlen=max(self.config.segmentation_gap_frames, self.config.segmentation_long_gap_frames, 1)
         )
         self._n_frames = 0
         self._pending_age: npt.NDArray[np.int64] | None = None
@@ -311,11 +318,13 @@ class DynamicFilter:
     def _segment(self, features: Features, camera: CameraIntrinsics) -> BoolArr:
         """(N,) keypoints of the frame that the two-frame segmentation puts on an object target.
 
-        Against the frame `segmentation_gap_frames` back on every frame; with "edge_test", also against the
-        frame `segmentation_long_gap_frames` back on every `segmentation_long_every`-th frame, for movers
-        too slow to clear the depth noise in the short gap (a board carried at 0.3 m/s 1 m ahead of a wall
-        3 m away moves 3 cm in 0.1 s, about twice the noise of its edges to the wall). A keypoint matched in
-        the short gap to one flagged at most `segmentation_long_gap_frames` frames earlier stays flagged.
+        Against the frame `segmentation_gap_frames` back on every frame; with "edge_test" and
+        `segmentation_long_gap_frames`, also against that frame on every `segmentation_long_every`-th frame,
+        for movers too slow to clear the depth noise in the short gap (a board carried at 0.3 m/s 1 m ahead
+        of a wall 3 m away moves 3 cm in 0.1 s, about twice the noise of its edges to the wall). A keypoint
+        matched in the short gap to one flagged at most `segmentation_carry_frames` frames earlier stays
+        flagged: a mover's keypoints that the test misses in one frame (a broken triangle, a wrong match)
+        were often caught in an earlier one.
         """
         cfg = self.config
         n = len(features)
@@ -332,13 +341,13 @@ class DynamicFilter:
             past = self._history[-gap]
             q, t, flagged = self._segment_pair(features, past, T_now, camera)
             moving[q[flagged]] = True
-            if gap == cfg.segmentation_gap_frames and long_gap > 0:  # carry the earlier frame's flags
+            if gap == cfg.segmentation_gap_frames and cfg.segmentation_carry_frames > 0:  # the earlier flags
                 carried = past.flag_age[t] + gap
-                fresh = carried <= long_gap
+                fresh = carried <= cfg.segmentation_carry_frames
                 age[q[fresh]] = np.minimum(age[q[fresh]], carried[fresh])
         age[moving] = 0
         self._pending_age = age
-        moving |= age <= long_gap
+        moving |= age <= cfg.segmentation_carry_frames
         if cfg.segmentation_spread_px > 0.0 and moving.any():
             moving = _spread(moving, features, cfg.segmentation_spread_px, cfg.segmentation_spread_depth_m)
         return moving
@@ -394,7 +403,8 @@ class DynamicFilter:
             pts = camera.backproject(features.keypoints_px, np.where(z > 0, z, np.nan)) @ T_past_now[:3, :3].T
             predicted = camera.project(pts + T_past_now[:3, 3])
         return match_nearby(features.keypoints_px, features.descriptors, past.keypoints_px, past.descriptors,
-                            predicted, cfg.segmentation_max_shift_px, cfg.segmentation_max_hamming)
+                            predicted, cfg.segmentation_max_shift_px, cfg.segmentation_max_hamming,
+                            cfg.segmentation_search_k)
 
 
 def _iou(a: Detection, b: Detection) -> float:

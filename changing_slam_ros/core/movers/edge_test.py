@@ -54,8 +54,9 @@ def match_nearby(
 
     Each current keypoint is compared with the `k` earlier keypoints nearest to `predicted_px` (N, 2), its
     expected position in the earlier image (NaN: compare around its own position), within `radius_px`; a
-    pair is kept when each is the other's best candidate and the Hamming distance is <= `max_hamming`.
-    The cost is N * k descriptor distances instead of the N * N of brute force.
+    pair is kept when the earlier keypoint is the current one's best candidate, no other current keypoint
+    chose it with a smaller distance, and the Hamming distance is <= `max_hamming`. The cost is N * k
+    descriptor distances instead of the N * N of brute force.
     """
     empty = np.zeros(0, np.int64)
     n, m = len(px_now), len(px_past)
@@ -65,22 +66,20 @@ def match_nearby(
     k = min(k, m)
     dist_px, nn = cKDTree(px_past).query(centre, k=k, distance_upper_bound=radius_px)
     dist_px, nn = dist_px.reshape(n, k), nn.reshape(n, k)
-    rows, cols = np.nonzero(np.isfinite(dist_px))
-    if len(rows) == 0:
-        return empty, empty
-    cand = nn[rows, cols]
-    d = hamming(desc_now[rows], desc_past[cand])
-    ok = d <= max_hamming
-    rows, cand, d = rows[ok], cand[ok], d[ok]
-    if len(rows) == 0:
-        return empty, empty
-    # Best per current keypoint, then best per earlier keypoint among those (mutual best).
-    order = np.lexsort((d, rows))
-    first = np.r_[True, rows[order][1:] != rows[order][:-1]]
-    rows, cand, d = rows[order][first], cand[order][first], d[order][first]
-    order = np.lexsort((d, cand))
-    first = np.r_[True, cand[order][1:] != cand[order][:-1]]
-    return rows[order][first].astype(np.int64), cand[order][first].astype(np.int64)
+    found = np.isfinite(dist_px)
+    # Hamming distances of all (n, k) candidates at once; a missing neighbour (index m) reads row 0 and is
+    # then set out of reach.
+    d = hamming(desc_now[:, None, :], desc_past[np.where(found, nn, 0)])
+    d[~found] = 1 << 20
+    col = d.argmin(axis=1)
+    rows = np.arange(n)
+    best_d, best = d[rows, col], nn[rows, col]
+    ok = best_d <= max_hamming
+    rows, best, best_d = rows[ok], best[ok], best_d[ok]
+    # Mutual best: among the current keypoints choosing the same earlier one, the closest descriptor wins.
+    order = np.lexsort((best_d, best))
+    first = np.r_[True, best[order][1:] != best[order][:-1]]
+    return rows[order][first].astype(np.int64), best[order][first].astype(np.int64)
 
 
 def _point_covariances(points_cam: F64, camera: CameraIntrinsics, cfg: SegmentationConfig) -> F64:
@@ -151,10 +150,12 @@ def edge_test_segment(
     edges = np.stack([i, j], axis=1)
     if len(candidates) == 0:
         return EdgeTestResult(np.zeros(m, bool), edges, consistent, 0)
-    world = p @ T_world_cam[1, :3, :3].T + T_world_cam[1, :3, 3]
-    apex = T_world_cam[:, :3, 3] if cfg.static_volume == "view_cone" else np.empty((0, 3))
-    volumes = np.array([hull_volume_m3(np.vstack([world[comp == c], apex])) for c in candidates])
-    static = int(candidates[np.lexsort((sizes[candidates], volumes))[-1]])
+    static = int(candidates[0])
+    if len(candidates) > 1:
+        world = p @ T_world_cam[1, :3, :3].T + T_world_cam[1, :3, 3]
+        apex = T_world_cam[:, :3, 3] if cfg.static_volume == "view_cone" else np.empty((0, 3))
+        volumes = np.array([hull_volume_m3(np.vstack([world[comp == c], apex])) for c in candidates])
+        static = int(candidates[np.lexsort((sizes[candidates], volumes))[-1]])
     targets = candidates[candidates != static]
     moving = np.isin(comp, targets)
     # Points that no rigid group holds (their edges all broke) are tested against the static scene's
