@@ -6,7 +6,8 @@ keypoint of every frame. A keypoint is *moving* when its mask pixel belongs to a
 faster than `--min-speed` m/s between neighbouring frames; keypoints on an object of a moving kind that
 stands still (a person pausing) count neither way. Cues, per keypoint:
 
-- `detector`: inside a person box (class DYNAMIC by §4.1);
+- `detector`: dropped for a box alone: inside a person box (class DYNAMIC by §4.1), or a box whose keypoints
+  §4.1 disables (UNUSED: occluded, depth spread too high);
 - `ekf`: inside a box of a movable object that the EKF / segmentation fraction called dynamic;
 - `segmentation`: on an object target of the two-frame segmentation;
 - `any`: dropped by the stage (what tracking never sees). Precision is that of `any`.
@@ -117,7 +118,7 @@ def main() -> int:
         ignore = np.isin(ids, list(kinds)) & ~moving
         static = ~moving & ~ignore
         dynamic_objects = {o.object_id for o in dyn.objects if o.motion == ObjectMotion.DYNAMIC}
-        cue_det = dyn.kp_classes == KeypointClass.DYNAMIC
+        cue_det = (dyn.kp_classes == KeypointClass.DYNAMIC) | (dyn.kp_classes == KeypointClass.UNUSED)
         cue_ekf = (dyn.kp_classes == KeypointClass.MOVABLE) & np.isin(dyn.object_ids, list(dynamic_objects))
         counts["moving"] += int(moving.sum())
         counts["static"] += int(static.sum())
