@@ -88,7 +88,7 @@ def test_repopulation_keeps_the_wall_behind_the_person_and_still_drops_the_perso
 
 
 def test_ekf_doc_uses_a_static_chair_after_a_few_frames_and_never_the_person() -> None:
-    results, r = _run(DynamicConfig(keep_undecided=False), 30)  # the paper: new objects filtered a priori
+    results, r = _run(DynamicConfig(min_kept_keypoints=0), 30)  # the paper: new objects filtered a priori
     assert not results[0].keep[r["chair"]].any()  # new object: filtered a priori
     first_kept = next(k for k, res in enumerate(results) if res.keep[r["chair"]].all())
     assert first_kept <= 10
@@ -98,9 +98,16 @@ def test_ekf_doc_uses_a_static_chair_after_a_few_frames_and_never_the_person() -
 
 
 def test_an_undecided_chair_is_used_from_the_first_frame_and_the_person_never() -> None:
-    results, r = _run(DynamicConfig(), 30)
+    results, r = _run(DynamicConfig(keep_undecided=True), 30)
     assert all(res.keep[r["chair"]].all() for res in results)
     assert not any(res.keep[r["person"]].any() for res in results)
+
+
+def test_undecided_objects_are_used_when_too_few_other_keypoints_are_left() -> None:
+    rgbd, feats, r = _scene()  # a grid of 1131 keypoints: between 300 and 1100 kept without the chair
+    for min_kept, chair_kept in ((300, False), (1100, True), (0, False)):
+        res = DynamicFilter(DynamicConfig(min_kept_keypoints=min_kept)).before_tracking(rgbd, feats, DETS)
+        assert res.keep[r["chair"]].all() == chair_kept and not res.keep[r["person"]].any()
 
 
 @pytest.mark.parametrize("method", ["edge_test", "correlation"])
@@ -198,7 +205,7 @@ def test_boxes_of_fixed_furniture_classes_are_background_unless_configured_movab
     rgbd, feats, r = _scene()
     default = DynamicFilter(DynamicConfig()).before_tracking(rgbd, feats, table)
     assert default.keep[r["chair"]].all() and (default.kp_classes[r["chair"]] == KeypointClass.STATIC).all()
-    paper = DynamicFilter(DynamicConfig(fixed_class_ids=(), keep_undecided=False)).before_tracking(rgbd, feats, table)
+    paper = DynamicFilter(DynamicConfig(fixed_class_ids=(), min_kept_keypoints=0)).before_tracking(rgbd, feats, table)
     assert not paper.keep[r["chair"]].any()  # a new movable object: filtered a priori
     assert paper.keep[r["elsewhere"]].all() and default.keep[r["elsewhere"]].all()
 

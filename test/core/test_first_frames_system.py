@@ -6,7 +6,7 @@
   ATE small. It does not yet (expected failure).
 - `box_fills_view`: the camera starts 0.65 m in front of a still suitcase (a COCO class, oracle boxes)
   that fills most of the image, holds still for a second, then backs away. Its keypoints are movable and
-  have no EKF verdict yet; they must serve initialisation (`DynamicConfig.keep_undecided`) rather than
+  have no EKF verdict yet; they must serve initialisation (`DynamicConfig.min_kept_keypoints`) rather than
   block it: the first frame gets a pose (filtered a priori, as in the paper, no frame of the 3 s does).
 """
 
@@ -110,6 +110,6 @@ def test_a_still_box_filling_the_first_view_does_not_block_initialisation(render
     assert system.records[0].T_world_cam_online is not None  # the first frame starts the map
     assert system.n_tracked() == len(system.records)
     assert ate_m < 0.01
-    paper, _ = _run(folder, dataclasses.replace(DynamicConfig(), keep_undecided=False), oracle=True)
+    paper, _ = _run(folder, dataclasses.replace(DynamicConfig(), min_kept_keypoints=0), oracle=True)
     first = next((k for k, r in enumerate(paper.records) if r.T_world_cam_online is not None), len(paper.records))
     assert first > 30  # filtered a priori, the suitcase's keypoints wait for an EKF verdict that never comes

@@ -4,7 +4,7 @@ Per frame, before the pose is estimated, it combines (1) the frame's detections 
 simulator's oracle boxes, from the caller); (2) keypoint classification with repopulation (Changing-SLAM
 §4.1, `keypoint_classification`); (3) short-term association, one EKF per object and the dynamic-object
 classification (§4.3-4.5, `dynamic_objects`): persons and moving objects dropped, objects found static
-used, undecided ones used unless a cue sees them move (`keep_undecided`); (4) the class-agnostic two-frame
+used, undecided ones when too few others are left (`min_kept_keypoints`); (4) the class-agnostic two-frame
 segmentation of Dai et al. 2021 against earlier frames, by the closed-form edge test (`movers/edge_test`)
 or the paper's eq. 5 (`movers/point_correlation`): any object target is dropped, whatever its class.
 
@@ -66,8 +66,8 @@ class DynamicConfig:
       flagged at most this many frames earlier stays flagged (0 = off).
     - `segmentation_long_gap_frames` / `segmentation_long_every`: "edge_test" also compares every
       `segmentation_long_every`-th frame with the one `segmentation_long_gap_frames` earlier (12: 0.4 s at
-      30 Hz, where slower movers clear the depth noise; its flags are carried to the frames between). 0 =
-      off, the default: it costs a third more and did not free the map of a mover in view from frame 0.
+      30 Hz, where people sitting and fidgeting clear the depth noise: sitting_xyz 0.94 cm without it,
+      0.47 with; its flags are carried to the frames between). 0 = off (a third less CPU).
     - `segmentation_max_hamming`: ORB descriptor distance accepted for a match between the two frames.
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
       are left out); for "edge_test", the search radius around the predicted position.
@@ -86,13 +86,13 @@ class DynamicConfig:
       the counter a "dining table" covering ~44 % of the image (7-Scenes redkitchen, 24 of 40 sampled
       frames), and filtering it as a new movable object cost the static run 4.5 -> 11 cm ATE. Set `[]`
       for the paper's behaviour.
-    - `keep_undecided`: keypoints of detected movable objects that no cue has seen move yet (EKF verdict
-      UNKNOWN, not flagged by the segmentation) are used. The segmentation, run on every frame, drops such
-      an object as soon as it moves, and the EKF's DYNAMIC verdict from then on. Beyond the paper, which
-      filters them a priori until the EKF finds them static (False): a still object filling the first view
-      then leaves too few or too distant keypoints to initialise or to track well, and an object whose box
-      is cut by the image border gets no EKF update and stays filtered for as long as it is in view.
-      Needs `ekf_doc` (without it no object ever gets a verdict, and movable objects stay filtered).
+    - `min_kept_keypoints` / `keep_undecided`: keypoints of detected movable objects that no cue has seen
+      move yet (EKF verdict UNKNOWN, not flagged by the segmentation) are used when fewer than
+      `min_kept_keypoints` keypoints with depth are kept otherwise (`tracking.min_init_points` is 300), or
+      always with `keep_undecided`. The paper filters them until the EKF finds them static: a still object
+      filling the first view then stops initialisation, and one whose box is cut by the image border gets
+      no EKF update and stays filtered while in view. Used always, they cost slow_mover 0.11 -> 0.16 cm.
+      Needs `ekf_doc`. `min_kept_keypoints: 0` and `keep_undecided: false` = the paper.
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
     - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
@@ -107,7 +107,7 @@ class DynamicConfig:
     segmentation_method: str = "edge_test"
     segmentation_gap_frames: int = 3
     segmentation_carry_frames: int = 12
-    segmentation_long_gap_frames: int = 0
+    segmentation_long_gap_frames: int = 12
     segmentation_long_every: int = 3
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
@@ -119,7 +119,8 @@ class DynamicConfig:
     detection_hold_grow_px: float = 8.0
     hold_class_ids: tuple[int, ...] = (0,)
     fixed_class_ids: tuple[int, ...] = (59, 60, 61, 69, 71, 72)
-    keep_undecided: bool = True
+    min_kept_keypoints: int = 300
+    keep_undecided: bool = False
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
     movers: MoverConfig = field(default_factory=MoverConfig)
@@ -249,7 +250,8 @@ class DynamicFilter:
                 object_ids = res.kp_object_ids.copy()
                 objects = res.objects
             keep &= ~moving
-            if cfg.detection_filtering and cfg.ekf_doc and cfg.keep_undecided:
+            short = int(np.count_nonzero(keep & (features.depths_m > 0))) < cfg.min_kept_keypoints
+            if cfg.detection_filtering and cfg.ekf_doc and (cfg.keep_undecided or short):
                 undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
