@@ -15,4 +15,4 @@ def test_the_graphs_tracking_segments_movers_by_default(config: str, provisional
     flt = side.system.dynamic_filter
     assert flt is not None
     assert flt.config.segmentation and flt.config.segmentation_method == "edge_test"
-    assert flt.config.min_kept_keypoints == 300 and flt.config.segmentation_long_gap_frames == 12
+    assert flt.config.min_kept_keypoints == 300

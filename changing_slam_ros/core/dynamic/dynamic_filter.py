@@ -63,11 +63,13 @@ class DynamicConfig:
     - `segmentation_gap_frames`: the segmentation compares the frame with the one this many frames earlier
       (a person moves ~3 cm per frame at 30 fps; 0.1 s makes the motion clear of depth noise).
     - `segmentation_carry_frames`: a keypoint matched (in the segmentation's own short-gap matching) to one
-      flagged at most this many frames earlier stays flagged (0 = off).
+      flagged at most this many frames earlier stays flagged. 0 = off, the default: 12 took sitting_xyz
+      from 0.49 to 0.94 cm (flags on the seated people's surroundings outlive them).
     - `segmentation_long_gap_frames` / `segmentation_long_every`: "edge_test" also compares every
       `segmentation_long_every`-th frame with the one `segmentation_long_gap_frames` earlier (12: 0.4 s at
-      30 Hz, where people sitting and fidgeting clear the depth noise: sitting_xyz 0.94 cm without it,
-      0.47 with; its flags are carried to the frames between). 0 = off (a third less CPU).
+      30 Hz, where slower movers clear the depth noise; with `segmentation_carry_frames` its flags reach the
+      frames between). 0 = off, the default: a third more CPU, and with the carry sitting_xyz 0.65 cm
+      against 0.49 without either; it did not free the map of a board in view from frame 0.
     - `segmentation_max_hamming`: ORB descriptor distance accepted for a match between the two frames.
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
       are left out); for "edge_test", the search radius around the predicted position.
@@ -106,8 +108,8 @@ class DynamicConfig:
     segmentation: bool = True
     segmentation_method: str = "edge_test"
     segmentation_gap_frames: int = 3
-    segmentation_carry_frames: int = 12
-    segmentation_long_gap_frames: int = 12
+    segmentation_carry_frames: int = 0
+    segmentation_long_gap_frames: int = 0
     segmentation_long_every: int = 3
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
