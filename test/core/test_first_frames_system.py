@@ -23,7 +23,6 @@ from changing_slam_ros.core.system import SlamSystem
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file
-from changing_slam_ros.sim import actors as cat
 from changing_slam_ros.sim.actors import Actor, Part
 from changing_slam_ros.sim.camera_path import look_at
 from changing_slam_ros.sim.room import default_room
