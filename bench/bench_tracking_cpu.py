@@ -9,15 +9,18 @@ dynamic stage with the simulator's oracle boxes) and measures the thread CPU tim
 Time is exclusive: a stage called inside another (pose optimisation inside local-map tracking) is
 counted once, in the innermost stage. Stages:
 
-The rows and the method: `main`.
+The rows and the method: `main`. `--segmentation both` runs this tree with `dynamic.segmentation` on and off,
+alternating, and prints the ratio on / off per stage and the segmentation's own CPU per frame.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -66,7 +69,7 @@ def _instrument(system: Any, clock: StageClock) -> None:
     system._extractor_for = extractor_for
 
 
-def run_once(data: str, frames: int, cprofile: int = 0) -> dict[str, Any]:
+def run_once(data: str, frames: int, cprofile: int = 0, segmentation: bool | None = None) -> dict[str, Any]:
     """One run in this process (the package imported from sys.path); per-frame CPU ms per stage."""
     from changing_slam_ros.commands.run import _loop_closing, system_config_from_mapping
     from changing_slam_ros.config import find_config, load_yaml, section
@@ -81,7 +84,10 @@ def run_once(data: str, frames: int, cprofile: int = 0) -> dict[str, Any]:
     cfg = load_yaml(path)
     source = open_dataset(str(source_path), settings_from_mapping(cfg, str(path)))
     closing = _loop_closing(cfg, str(path))
-    flt = DynamicFilter(section(DynamicConfig, cfg.get("dynamic"), f"{path}: dynamic")) if dynamic else None
+    dyn_cfg = section(DynamicConfig, cfg.get("dynamic"), f"{path}: dynamic")
+    if segmentation is not None:
+        dyn_cfg = dataclasses.replace(dyn_cfg, segmentation=segmentation)
+    flt = DynamicFilter(dyn_cfg) if dynamic else None
     oracle = read_detections_file(find_detections_file(source_path)) if dynamic else None
     system = SlamSystem(system_config_from_mapping(cfg, str(path)), loop_closer=closing, keyframe_index=closing,
                         dynamic_filter=flt)
@@ -113,6 +119,10 @@ def run_once(data: str, frames: int, cprofile: int = 0) -> dict[str, Any]:
         "ms_per_frame": per_frame,
         "online_sha256": digest.hexdigest(),
     }
+    seg_ms = getattr(flt, "segmentation_cpu_ms", None) if flt is not None else None
+    if seg_ms:
+        out["segmentation_cpu_ms"] = {"median": statistics.median(seg_ms), "mean": statistics.fmean(seg_ms),
+                                      "p90": sorted(seg_ms)[int(0.9 * (len(seg_ms) - 1))]}
     gt = source.groundtruth
     if gt is not None and system.n_tracked() >= 3:
         from changing_slam_ros.eval.ate import ate
@@ -133,12 +143,13 @@ def tracking_ms(res: dict[str, Any]) -> float:
     return sum(res["ms_per_frame"].get(k, 0.0) for k in STAGES)
 
 
-def run_tree(tree: Path, data: str, frames: int) -> dict[str, Any]:
+def run_tree(tree: Path, data: str, frames: int, segmentation: bool | None = None) -> dict[str, Any]:
     """The benchmark on another source tree, in a child process with PYTHONPATH=tree."""
     with tempfile.NamedTemporaryFile(suffix=".json") as f:
         env = {**os.environ, "PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1"}
+        extra = [] if segmentation is None else ["--segmentation", "on" if segmentation else "off"]
         subprocess.run([sys.executable, __file__, "--tree", str(tree), "--data", data, "--frames", str(frames),
-                        "--json", f.name, "--quiet"], check=True, env=env)
+                        "--json", f.name, "--quiet", *extra], check=True, env=env)
         return json.loads(Path(f.name).read_text())
 
 
@@ -201,13 +212,27 @@ def main() -> int:
     parser.add_argument("--current", metavar="DIR", default=str(REPO),
                         help="source tree measured as 'current' (default: this checkout)")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--segmentation", choices=("config", "on", "off", "both"), default="config",
+                        help="dynamic.segmentation: from the config, forced on/off, or both (on vs off, ratio)")
     args = parser.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     sys.path.insert(0, str(Path(args.tree) if args.tree else REPO))
 
+    seg = None if args.segmentation == "config" else args.segmentation == "on"
     if args.json:  # child mode: one run, figures to a file
-        res = run_once(args.data, args.frames)
+        res = run_once(args.data, args.frames, segmentation=seg)
         Path(args.json).write_text(json.dumps(res))
+        return 0
+    if args.segmentation == "both":  # segmentation on vs off, alternating runs of this tree
+        on_runs, off_runs = [], []
+        for _ in range(args.repeats):
+            on_runs.append(run_tree(Path(args.current), args.data, args.frames, True))
+            off_runs.append(run_tree(Path(args.current), args.data, args.frames, False))
+        print(f"data {args.data}, {args.frames} frames, {args.repeats} run(s) each; 'current' = dynamic.segmentation "
+              "on, 'baseline' = off; thread CPU time, best of runs per stage")
+        report(best(on_runs), best(off_runs))
+        for r in on_runs:
+            print("segmentation CPU ms per frame (matching included):", r.get("segmentation_cpu_ms"))
         return 0
     cur_runs, base_runs = alternating_runs(args.baseline, Path(args.current), args.repeats,
                                            lambda tree: run_tree(tree, args.data, args.frames))

@@ -1,25 +1,17 @@
 """The dynamic-scene stage of tracking: which keypoints of a frame may be used to estimate the camera pose.
 
-It combines, per frame, before the pose is estimated:
+Per frame, before the pose is estimated, it combines (1) the frame's detections (a detector or the
+simulator's oracle boxes, from the caller); (2) keypoint classification with repopulation (Changing-SLAM
+§4.1, `keypoint_classification`); (3) short-term association, one EKF per object and the dynamic-object
+classification (§4.3-4.5, `dynamic_objects`): persons and moving objects dropped, objects found static
+used, undecided ones when too few others are left (`min_kept_keypoints`); (4) the class-agnostic two-frame
+segmentation of Dai et al. 2021 against earlier frames, by the closed-form edge test (`movers/edge_test`)
+or the paper's eq. 5 (`movers/point_correlation`): any object target is dropped, whatever its class.
 
-1. the frame's detections (a detector, or the simulator's oracle boxes; the caller supplies them);
-2. keypoint classification with feature repopulation (Changing-SLAM §4.1, `keypoint_classification`);
-3. short-term association, one EKF per object and the dynamic-object classification (§4.3-4.5,
-   `dynamic_objects.DynamicObjectTracker`): keypoints of persons and of moving or not-yet-static objects
-   are dropped, those of objects the EKF found static are used;
-4. optionally, the class-agnostic two-frame point-correlation segmentation (Dai et al. 2021,
-   `point_correlation.segment`) of this frame's keypoints matched to a frame `segmentation_gap_frames`
-   earlier: keypoints of any object target (a mover no detector names) are dropped too.
-
-`before_tracking(rgbd, features, detections)` returns a `DynamicFrame` (keep mask, keypoint classes and
-object ids, N rows); `after_tracking(T_world_cam)` feeds the tracked pose to the object EKFs and to the
-segmentation's frame history. The switches of `DynamicConfig` are the rows of issue 5's ablation:
-plain (`enabled: false`) / + detection filtering / + repopulation / + EKF-DOC / + segmentation.
-
-The segmentation needs both frames' camera poses; the current one is not estimated yet, so a
-constant-velocity prediction from the last two tracked poses stands in. A pose error moves all of a
-frame's points rigidly, which changes the relative positions of adjacent points only by the rotation
-error times the (short) Delaunay edge length.
+`before_tracking` returns a `DynamicFrame`; `after_tracking(T_world_cam)` feeds the tracked pose to the
+EKFs and the segmentation's history. The current pose of the segmentation is a constant-velocity
+prediction: a pose error moves all points rigidly, which changes adjacent points' relative positions only
+by the rotation error times the (short) edge length.
 """
 
 from __future__ import annotations
@@ -34,8 +26,9 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.dynamic.detector import Detection
-from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectState
+from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
+from changing_slam_ros.core.movers.edge_test import edge_test_segment, match_nearby
 from changing_slam_ros.core.movers.mover_tracking import MoverConfig, MoverTracker
 from changing_slam_ros.core.features.orb_features import Features
 from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationConfig, segment
@@ -46,6 +39,7 @@ from changing_slam_ros.errors import ConfigError
 F64 = npt.NDArray[np.float64]
 BoolArr = npt.NDArray[np.bool_]
 
+SEGMENTATION_METHODS = ("edge_test", "correlation")
 NEVER = 10**9  # `min_updates` of an EKF that never gives a verdict: movable objects stay filtered
 
 
@@ -60,12 +54,27 @@ class DynamicConfig:
     - `ekf_doc`: per-object EKF and dynamic-object classification; off = movable objects are never
       found static, so their keypoints are always dropped.
     - `segmentation`: two-frame point-correlation segmentation (Dai et al.); its object targets' keypoints
-      are dropped whatever their class.
+      are dropped whatever their class. On by default: it catches the movers the detector misses (a person
+      cut by the border, too close or in an unusual pose; objects of no COCO class).
+    - `segmentation_method`: "edge_test" (`movers/edge_test.py`: each Delaunay edge's rigidity tested in
+      closed form, matches searched around each keypoint's predicted position) or "correlation" (the
+      paper's eq. 5 solved by Gauss-Newton, `movers/point_correlation.py`, with brute-force matching;
+      about ten times the CPU).
     - `segmentation_gap_frames`: the segmentation compares the frame with the one this many frames earlier
       (a person moves ~3 cm per frame at 30 fps; 0.1 s makes the motion clear of depth noise).
+    - `segmentation_carry_frames`: a keypoint matched (in the segmentation's own short-gap matching) to one
+      flagged at most this many frames earlier stays flagged. 0 = off, the default: 12 took sitting_xyz
+      from 0.49 to 0.94 cm (flags on the seated people's surroundings outlive them).
+    - `segmentation_long_gap_frames` / `segmentation_long_every`: "edge_test" also compares every
+      `segmentation_long_every`-th frame with the one `segmentation_long_gap_frames` earlier (12: 0.4 s at
+      30 Hz, where slower movers clear the depth noise; with `segmentation_carry_frames` its flags reach the
+      frames between). 0 = off, the default: a third more CPU, and with the carry sitting_xyz 0.65 cm
+      against 0.49 without either; it did not free the map of a board in view from frame 0.
     - `segmentation_max_hamming`: ORB descriptor distance accepted for a match between the two frames.
     - `segmentation_max_shift_px`: largest image displacement of a match (wrong matches across the image
-      are left out).
+      are left out); for "edge_test", the search radius around the predicted position.
+    - `segmentation_search_k`: "edge_test" compares each keypoint with this many earlier keypoints nearest
+      to its predicted position (the search's cost; a fast mover's match may lie beyond them).
     - `segmentation_min_matches`: fewer matches = no segmentation in that frame.
     - `segmentation_spread_px` / `segmentation_spread_depth_m`: a keypoint within this image distance and
       depth difference of a flagged one is flagged too (only matched keypoints can be flagged, about half
@@ -79,6 +88,13 @@ class DynamicConfig:
       the counter a "dining table" covering ~44 % of the image (7-Scenes redkitchen, 24 of 40 sampled
       frames), and filtering it as a new movable object cost the static run 4.5 -> 11 cm ATE. Set `[]`
       for the paper's behaviour.
+    - `min_kept_keypoints` / `keep_undecided`: keypoints of detected movable objects that no cue has seen
+      move yet (EKF verdict UNKNOWN, not flagged by the segmentation) are used when fewer than
+      `min_kept_keypoints` keypoints with depth are kept otherwise (`tracking.min_init_points` is 300), or
+      always with `keep_undecided`. The paper filters them until the EKF finds them static: a still object
+      filling the first view then stops initialisation, and one whose box is cut by the image border gets
+      no EKF update and stays filtered while in view. Used always, they cost slow_mover 0.11 -> 0.16 cm.
+      Needs `ekf_doc`. `min_kept_keypoints: 0` and `keep_undecided: false` = the paper.
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
     - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
@@ -89,10 +105,15 @@ class DynamicConfig:
     detection_filtering: bool = True
     repopulation: bool = True
     ekf_doc: bool = True
-    segmentation: bool = False
+    segmentation: bool = True
+    segmentation_method: str = "edge_test"
     segmentation_gap_frames: int = 3
+    segmentation_carry_frames: int = 0
+    segmentation_long_gap_frames: int = 0
+    segmentation_long_every: int = 3
     segmentation_max_hamming: int = 50
     segmentation_max_shift_px: float = 80.0
+    segmentation_search_k: int = 24
     segmentation_min_matches: int = 30
     segmentation_spread_px: float = 0.0
     segmentation_spread_depth_m: float = 0.3
@@ -100,6 +121,8 @@ class DynamicConfig:
     detection_hold_grow_px: float = 8.0
     hold_class_ids: tuple[int, ...] = (0,)
     fixed_class_ids: tuple[int, ...] = (59, 60, 61, 69, 71, 72)
+    min_kept_keypoints: int = 300
+    keep_undecided: bool = False
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
     movers: MoverConfig = field(default_factory=MoverConfig)
@@ -107,6 +130,13 @@ class DynamicConfig:
     def __post_init__(self) -> None:
         if self.segmentation_gap_frames < 1:
             raise ConfigError(f"dynamic.segmentation_gap_frames: expected >= 1, got {self.segmentation_gap_frames}")
+        if self.segmentation_method not in SEGMENTATION_METHODS:
+            raise ConfigError(
+                f"dynamic.segmentation_method: expected one of {SEGMENTATION_METHODS}, got {self.segmentation_method!r}"
+            )
+        if min(self.segmentation_long_gap_frames, self.segmentation_carry_frames) < 0 or self.segmentation_long_every < 1:
+            raise ConfigError("dynamic: segmentation_long_gap_frames and segmentation_carry_frames must be >= 0, "
+                              "segmentation_long_every >= 1")
         if self.segmentation_min_matches < 5:
             raise ConfigError(f"dynamic.segmentation_min_matches: expected >= 5, got {self.segmentation_min_matches}")
 
@@ -149,6 +179,7 @@ class _Past:
     descriptors: npt.NDArray[np.uint8]
     depths_m: F64
     T_world_cam: F64 | None
+    flag_age: npt.NDArray[np.int64]  # (N,) frames since the segmentation flagged the keypoint (NEVER: not)
 
 
 class DynamicFilter:
@@ -158,7 +189,11 @@ class DynamicFilter:
         self.config = config or DynamicConfig()
         self._tracker: DynamicObjectTracker | None = None
         self._camera: CameraIntrinsics | None = None
-        self._history: deque[_Past] = deque(maxlen=self.config.segmentation_gap_frames)
+        self._history: deque[_Past] = deque(
+            maxlen=max(self.config.segmentation_gap_frames, self.config.segmentation_long_gap_frames, 1)
+        )
+        self._n_frames = 0
+        self._pending_age: npt.NDArray[np.int64] | None = None
         self._poses: deque[F64] = deque(maxlen=2)  # last two tracked poses, for the prediction
         self._pending: _Past | None = None
         self._classified = False
@@ -166,6 +201,7 @@ class DynamicFilter:
         self.n_keypoints = 0
         self.n_kept = 0
         self.frames_ms: list[float] = []
+        self.segmentation_cpu_ms: list[float] = []  # thread CPU of each frame's segmentation (matching included)
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
         self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
 
@@ -199,7 +235,9 @@ class DynamicFilter:
         self._classified = False
         if cfg.enabled:
             if cfg.segmentation:
+                c0 = time.thread_time()
                 moving = self._segment(features, rgbd.camera)
+                self.segmentation_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if self._movers is not None:
                 moving |= self._movers.before_tracking(rgbd.stamp_ns, features, rgbd.camera)
             if cfg.detection_filtering:
@@ -214,7 +252,14 @@ class DynamicFilter:
                 object_ids = res.kp_object_ids.copy()
                 objects = res.objects
             keep &= ~moving
-        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None)
+            short = int(np.count_nonzero(keep & (features.depths_m > 0))) < cfg.min_kept_keypoints
+            if cfg.detection_filtering and cfg.ekf_doc and (cfg.keep_undecided or short):
+                undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
+                keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
+        age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
+        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age)
+        self._pending_age = None
+        self._n_frames += 1
         ms = (time.perf_counter() - t0) * 1e3
         self.n_keypoints += n
         self.n_kept += int(keep.sum())
@@ -275,36 +320,95 @@ class DynamicFilter:
         return last @ (invert(self._poses[0]) @ last)  # constant velocity
 
     def _segment(self, features: Features, camera: CameraIntrinsics) -> BoolArr:
-        """(N,) keypoints of the frame that the two-frame segmentation puts on an object target."""
+        """(N,) keypoints of the frame that the two-frame segmentation puts on an object target.
+
+        Against the frame `segmentation_gap_frames` back on every frame; with "edge_test" and
+        `segmentation_long_gap_frames`, also against that frame on every `segmentation_long_every`-th frame,
+        for movers too slow to clear the depth noise in the short gap (a board carried at 0.3 m/s 1 m ahead
+        of a wall 3 m away moves 3 cm in 0.1 s, about twice the noise of its edges to the wall). A keypoint
+        matched in the short gap to one flagged at most `segmentation_carry_frames` frames earlier stays
+        flagged: a mover's keypoints that the test misses in one frame (a broken triangle, a wrong match)
+        were often caught in an earlier one.
+        """
         cfg = self.config
-        moving = np.zeros(len(features), dtype=bool)
-        if len(self._history) < cfg.segmentation_gap_frames:
-            return moving
-        past = self._history[0]  # segmentation_gap_frames frames before this one
+        n = len(features)
+        moving = np.zeros(n, dtype=bool)
+        age = np.full(n, NEVER, dtype=np.int64)  # frames since a test flagged the keypoint (carried by matches)
         T_now = self._predicted_pose()
-        if past.T_world_cam is None or T_now is None or len(past.descriptors) == 0 or len(features) == 0:
-            return moving
-        matches = self._matcher.match(features.descriptors, past.descriptors)
-        if not matches:
-            return moving
-        q = np.array([m.queryIdx for m in matches], dtype=np.int64)
-        t = np.array([m.trainIdx for m in matches], dtype=np.int64)
-        dist = np.array([m.distance for m in matches])
-        shift = np.linalg.norm(features.keypoints_px[q] - past.keypoints_px[t], axis=1)
-        ok = (dist <= cfg.segmentation_max_hamming) & (shift <= cfg.segmentation_max_shift_px)
-        ok &= (features.depths_m[q] > 0) & (past.depths_m[t] > 0)
-        q, t = q[ok], t[ok]
-        if len(q) < cfg.segmentation_min_matches:
-            return moving
-        pixels = np.stack([past.keypoints_px[t], features.keypoints_px[q]])  # (2, M, 2)
-        depths = np.stack([past.depths_m[t], features.depths_m[q]])  # (2, M)
-        poses = np.stack([past.T_world_cam, T_now])  # (2, 4, 4)
-        window = CorrelationWindow.from_pixels(np.arange(len(q)), pixels, depths, poses, camera)
-        result = segment(window, cfg.correlation)
-        moving[q[result.dynamic_mask]] = True
+        gaps = [cfg.segmentation_gap_frames]
+        long_gap = cfg.segmentation_long_gap_frames
+        if cfg.segmentation_method == "edge_test" and long_gap > 0 and self._n_frames % cfg.segmentation_long_every == 0:
+            gaps.append(long_gap)
+        for gap in gaps:
+            if len(self._history) < gap or T_now is None or n == 0:
+                break
+            past = self._history[-gap]
+            q, t, flagged = self._segment_pair(features, past, T_now, camera)
+            moving[q[flagged]] = True
+            if gap == cfg.segmentation_gap_frames and cfg.segmentation_carry_frames > 0:  # the earlier flags
+                carried = past.flag_age[t] + gap
+                fresh = carried <= cfg.segmentation_carry_frames
+                age[q[fresh]] = np.minimum(age[q[fresh]], carried[fresh])
+        age[moving] = 0
+        self._pending_age = age
+        moving |= age <= cfg.segmentation_carry_frames
         if cfg.segmentation_spread_px > 0.0 and moving.any():
             moving = _spread(moving, features, cfg.segmentation_spread_px, cfg.segmentation_spread_depth_m)
         return moving
+
+    def _segment_pair(
+        self, features: Features, past: _Past, T_now: F64, camera: CameraIntrinsics
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], BoolArr]:
+        """Matches (current indices q, earlier indices t) with depth in both frames and which of them lie on
+        an object target; empty when too few."""
+        cfg = self.config
+        none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
+        if past.T_world_cam is None or len(past.descriptors) == 0:
+            return none
+        if cfg.segmentation_method == "edge_test":
+            q, t = self._match_nearby(features, past, T_now, camera)
+        else:
+            q, t = self._match_brute_force(features, past)
+        ok = (features.depths_m[q] > 0) & (past.depths_m[t] > 0)
+        q, t = q[ok], t[ok]
+        if len(q) < cfg.segmentation_min_matches:
+            return none
+        pixels = np.stack([past.keypoints_px[t], features.keypoints_px[q]])  # (2, M, 2)
+        depths = np.stack([past.depths_m[t], features.depths_m[q]])  # (2, M)
+        poses = np.stack([past.T_world_cam, T_now])  # (2, 4, 4)
+        if cfg.segmentation_method == "edge_test":
+            return q, t, edge_test_segment(pixels, depths, poses, camera, cfg.correlation).moving
+        window = CorrelationWindow.from_pixels(np.arange(len(q)), pixels, depths, poses, camera)
+        return q, t, segment(window, cfg.correlation).dynamic_mask
+
+    def _match_brute_force(self, features: Features, past: _Past) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Cross-checked brute-force matches (current indices, earlier indices) within the distance and shift bounds."""
+        cfg = self.config
+        matches = self._matcher.match(features.descriptors, past.descriptors)
+        q = np.array([m.queryIdx for m in matches], dtype=np.int64)
+        t = np.array([m.trainIdx for m in matches], dtype=np.int64)
+        if not matches:
+            return q, t
+        dist = np.array([m.distance for m in matches])
+        shift = np.linalg.norm(features.keypoints_px[q] - past.keypoints_px[t], axis=1)
+        ok = (dist <= cfg.segmentation_max_hamming) & (shift <= cfg.segmentation_max_shift_px)
+        return q[ok], t[ok]
+
+    def _match_nearby(
+        self, features: Features, past: _Past, T_now: F64, camera: CameraIntrinsics
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Mutual best matches searched around where each current keypoint with depth would be in the
+        earlier image if it were static (predicted pose); a mover's match lies within the search radius."""
+        assert past.T_world_cam is not None
+        cfg = self.config
+        T_past_now = invert(past.T_world_cam) @ T_now
+        z = features.depths_m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pts = camera.backproject(features.keypoints_px, np.where(z > 0, z, np.nan)) @ T_past_now[:3, :3].T
+            predicted = camera.project(pts + T_past_now[:3, 3])
+        return match_nearby(features.keypoints_px, features.descriptors, past.keypoints_px, past.descriptors,
+                            predicted, cfg.segmentation_max_shift_px, cfg.segmentation_max_hamming,
+                            cfg.segmentation_search_k)
 
 
 def _iou(a: Detection, b: Detection) -> float:
@@ -317,16 +421,20 @@ def _iou(a: Detection, b: Detection) -> float:
     return inter / union if union > 0 else 0.0
 
 
-def _spread(moving: BoolArr, features: Features, radius_px: float, depth_tol_m: float) -> BoolArr:
-    """(N,) `moving` plus keypoints within `radius_px` and `depth_tol_m` of a flagged keypoint with depth."""
+def _spread(moving: BoolArr, features: Features, radius_px: float, depth_tol_m: float, k: int = 8) -> BoolArr:
+    """(N,) `moving` plus keypoints with depth that have one of their `k` nearest flagged keypoints within
+    `radius_px` and `depth_tol_m`."""
     from scipy.spatial import cKDTree  # type: ignore[import-untyped]
 
     src = np.flatnonzero(moving & (features.depths_m > 0))
-    if len(src) == 0:
+    dst = np.flatnonzero(~moving & (features.depths_m > 0))
+    if len(src) == 0 or len(dst) == 0:
         return moving
+    k = min(k, len(src))
+    dist, nn = cKDTree(features.keypoints_px[src]).query(features.keypoints_px[dst], k=k, distance_upper_bound=radius_px)
+    dist, nn = dist.reshape(len(dst), k), nn.reshape(len(dst), k)
+    near = np.isfinite(dist)
+    dz = np.abs(features.depths_m[src[np.where(near, nn, 0)]] - features.depths_m[dst][:, None])
     out = moving.copy()
-    tree = cKDTree(features.keypoints_px[src])
-    for i, near in enumerate(tree.query_ball_point(features.keypoints_px, radius_px)):
-        if not out[i] and near and features.depths_m[i] > 0:
-            out[i] = bool(np.any(np.abs(features.depths_m[src[near]] - features.depths_m[i]) <= depth_tol_m))
+    out[dst[np.any(near & (dz <= depth_tol_m), axis=1)]] = True
     return out

@@ -88,7 +88,7 @@ def test_repopulation_keeps_the_wall_behind_the_person_and_still_drops_the_perso
 
 
 def test_ekf_doc_uses_a_static_chair_after_a_few_frames_and_never_the_person() -> None:
-    results, r = _run(DynamicConfig(), 30)
+    results, r = _run(DynamicConfig(min_kept_keypoints=0), 30)  # the paper: new objects filtered a priori
     assert not results[0].keep[r["chair"]].any()  # new object: filtered a priori
     first_kept = next(k for k, res in enumerate(results) if res.keep[r["chair"]].all())
     assert first_kept <= 10
@@ -97,13 +97,33 @@ def test_ekf_doc_uses_a_static_chair_after_a_few_frames_and_never_the_person() -
     assert len({int(i) for i in results[-1].object_ids[r["chair"]]}) == 1  # one object id for the chair
 
 
-def test_segmentation_flags_a_group_that_moves_between_frames() -> None:
-    """Static points in a room and a 40-point box moving 8 cm per frame; the camera moves too."""
+def test_an_undecided_chair_is_used_from_the_first_frame_and_the_person_never() -> None:
+    results, r = _run(DynamicConfig(keep_undecided=True), 30)
+    assert all(res.keep[r["chair"]].all() for res in results)
+    assert not any(res.keep[r["person"]].any() for res in results)
+
+
+def test_undecided_objects_are_used_when_too_few_other_keypoints_are_left() -> None:
+    rgbd, feats, r = _scene()  # a grid of 1131 keypoints: between 300 and 1100 kept without the chair
+    for min_kept, chair_kept in ((300, False), (1100, True), (0, False)):
+        res = DynamicFilter(DynamicConfig(min_kept_keypoints=min_kept)).before_tracking(rgbd, feats, DETS)
+        assert res.keep[r["chair"]].all() == chair_kept and not res.keep[r["person"]].any()
+
+
+@pytest.mark.parametrize("method", ["edge_test", "correlation"])
+def test_segmentation_flags_a_group_that_moves_between_frames(method: str) -> None:
+    """Static points in a room and a 40-point box moving 8 cm per frame; the camera moves too. The box hides
+    the wall behind it (no static point projects inside its outline in any frame)."""
     rng = np.random.default_rng(3)
-    static = np.column_stack([rng.uniform(-2, 2, 400), rng.uniform(-1.5, 1.5, 400), rng.uniform(3.0, 5.0, 400)])
+    static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
+    # Directions of the box over its path (x from 0.15 to 0.69 m at 1.8 m, y 0.05 to 0.35 m) are occluded.
+    ray = static[:, :2] / static[:, 2:3] * 1.8
+    hidden = (ray[:, 0] > 0.05) & (ray[:, 0] < 0.79) & (ray[:, 1] > -0.05) & (ray[:, 1] < 0.45)
+    static = static[~hidden][:400]
     box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (40, 3))
     desc = rng.integers(0, 256, (440, 32), dtype=np.uint8)
-    cfg = DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1)
+    cfg = DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
+                        segmentation_method=method)
     flt = DynamicFilter(cfg)
     rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
     moving_hits = []
@@ -154,7 +174,9 @@ def test_a_person_box_the_detector_misses_is_held_for_the_configured_frames() ->
 def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_similar_depth() -> None:
     """As above, plus 20 box points whose descriptors never match (a deforming person): only spread flags them."""
     rng = np.random.default_rng(4)
-    static = np.column_stack([rng.uniform(-2, 2, 400), rng.uniform(-1.5, 1.5, 400), rng.uniform(3.0, 5.0, 400)])
+    static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
+    ray = static[:, :2] / static[:, 2:3] * 1.8  # the box hides the wall behind its path, as above
+    static = static[~((ray[:, 0] > 0.05) & (ray[:, 0] < 0.79) & (ray[:, 1] > -0.05) & (ray[:, 1] < 0.45))][:400]
     box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (60, 3))
     desc = rng.integers(0, 256, (460, 32), dtype=np.uint8)
     flagged = {}
@@ -183,6 +205,82 @@ def test_boxes_of_fixed_furniture_classes_are_background_unless_configured_movab
     rgbd, feats, r = _scene()
     default = DynamicFilter(DynamicConfig()).before_tracking(rgbd, feats, table)
     assert default.keep[r["chair"]].all() and (default.kp_classes[r["chair"]] == KeypointClass.STATIC).all()
-    paper = DynamicFilter(DynamicConfig(fixed_class_ids=())).before_tracking(rgbd, feats, table)
+    paper = DynamicFilter(DynamicConfig(fixed_class_ids=(), min_kept_keypoints=0)).before_tracking(rgbd, feats, table)
     assert not paper.keep[r["chair"]].any()  # a new movable object: filtered a priori
     assert paper.keep[r["elsewhere"]].all() and default.keep[r["elsewhere"]].all()
+
+
+def test_a_person_the_detector_misses_is_still_dropped_by_the_segmentation() -> None:
+    """A 60-point person 1.6 m away walks 6 cm per frame across a room of 400 static points while the camera
+    moves. The detector reports the person's box in the first four frames and misses it from then on (the
+    default config: detection filtering, repopulation, EKF-DOC and segmentation). Its keypoints are dropped
+    by the person box first and by the segmentation once the detector misses it: at least 70 % of them in
+    every frame (points that moved beyond their 24 nearest candidates go unmatched); no static point is
+    flagged. With the flags carried through the segmentation's matches, all but one from frame 11 on."""
+    rng = np.random.default_rng(5)
+    static = np.column_stack([rng.uniform(-2.5, 2.5, 900), rng.uniform(-1.8, 1.8, 900), rng.uniform(3.0, 5.0, 900)])
+    body = np.column_stack([rng.uniform(-0.2, 0.2, 60), rng.uniform(-0.6, 0.6, 60), rng.uniform(1.5, 1.7, 60)])
+    desc = rng.integers(0, 256, (960, 32), dtype=np.uint8)
+    flt = DynamicFilter(DynamicConfig())
+    depth = np.full((240, 320), 4.0, np.float32)
+    dropped = []
+    for k in range(16):
+        T_world_cam = np.eye(4)
+        T_world_cam[:3, 3] = [0.01 * k, 0.005 * k, 0.0]
+        person = body + np.array([-0.5 + 0.06 * k, 0.0, 0.0])
+        cam_person = transform_points(invert(T_world_cam), person)
+        px_person = CAM.project(cam_person)
+        lo, hi = px_person.min(axis=0) - 4.0, px_person.max(axis=0) + 4.0
+        cam_static = transform_points(invert(T_world_cam), static)
+        px_static = CAM.project(cam_static)
+        # The wall behind the person is hidden; keep the first 400 static points that stay visible.
+        visible = ~np.all((px_static >= lo) & (px_static <= hi), axis=1)
+        visible &= np.all((px_static >= 0) & (px_static < [320, 240]), axis=1)
+        idx = np.flatnonzero(visible)[:400]
+        assert len(idx) == 400
+        px = np.vstack([px_static[idx], px_person])
+        z = np.concatenate([cam_static[idx, 2], cam_person[:, 2]])
+        d = np.vstack([desc[idx], desc[900:]])
+        box = (Detection((*lo, *hi), PERSON_CLASS_ID, 0.9),) if k < 4 else ()
+        res = flt.before_tracking(RgbdFrame(k * FRAME_NS, np.zeros((240, 320, 3), np.uint8), depth, CAM),
+                                  _features(px, z, d), box)
+        flt.after_tracking(T_world_cam)
+        dropped.append((~res.keep[400:]).mean())
+        if k >= 6:  # the detector has missed the person for two frames: the segmentation has a velocity
+            assert res.moving[400:].mean() >= 0.7, k
+            assert res.moving[:400].mean() <= 0.02, k
+    assert min(dropped[:4]) == 1.0  # the person box
+    assert min(dropped[6:]) >= 0.7
+
+
+def test_carried_flags_keep_a_missed_persons_keypoints_flagged() -> None:
+    """The scene above without detections: carrying the flags (`segmentation_carry_frames`) lifts the
+    per-frame recall once the person has been flagged for a few frames."""
+    rng = np.random.default_rng(5)
+    static = np.column_stack([rng.uniform(-2.5, 2.5, 900), rng.uniform(-1.8, 1.8, 900), rng.uniform(3.0, 5.0, 900)])
+    body = np.column_stack([rng.uniform(-0.2, 0.2, 60), rng.uniform(-0.6, 0.6, 60), rng.uniform(1.5, 1.7, 60)])
+    desc = rng.integers(0, 256, (960, 32), dtype=np.uint8)
+    recall = {}
+    for carry in (0, 12):
+        flt = DynamicFilter(DynamicConfig(detection_filtering=False, segmentation_carry_frames=carry))
+        out = []
+        for k in range(16):
+            T_world_cam = np.eye(4)
+            T_world_cam[:3, 3] = [0.01 * k, 0.005 * k, 0.0]
+            cam_person = transform_points(invert(T_world_cam), body + np.array([-0.5 + 0.06 * k, 0.0, 0.0]))
+            px_person = CAM.project(cam_person)
+            lo, hi = px_person.min(axis=0) - 4.0, px_person.max(axis=0) + 4.0
+            cam_static = transform_points(invert(T_world_cam), static)
+            px_static = CAM.project(cam_static)
+            visible = ~np.all((px_static >= lo) & (px_static <= hi), axis=1)
+            visible &= np.all((px_static >= 0) & (px_static < [320, 240]), axis=1)
+            idx = np.flatnonzero(visible)[:400]
+            feats = _features(np.vstack([px_static[idx], px_person]), np.concatenate([cam_static[idx, 2], cam_person[:, 2]]),
+                              np.vstack([desc[idx], desc[900:]]))
+            res = flt.before_tracking(RgbdFrame(k * FRAME_NS, np.zeros((240, 320, 3), np.uint8),
+                                                np.full((240, 320), 4.0, np.float32), CAM), feats, None)
+            flt.after_tracking(T_world_cam)
+            out.append((res.moving[400:].mean(), res.moving[:400].mean()))
+        recall[carry] = out
+    assert min(r for r, _ in recall[12][11:]) >= 0.95 and max(f for _, f in recall[12]) <= 0.02
+    assert np.mean([r for r, _ in recall[12][11:]]) > np.mean([r for r, _ in recall[0][11:]])
