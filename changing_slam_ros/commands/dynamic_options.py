@@ -6,7 +6,7 @@
     --detections-file FILE             oracle detections JSON given explicitly
     --dynamic / --no-dynamic           dynamic handling on (default, or `dynamic.enabled`) / off (plain engine)
     --[no-]detection-filtering --[no-]repopulation --[no-]ekf-doc --[no-]segmentation
-                                       issue 5's ablation switches (default: the `dynamic:` config section)
+                                       the ablation switches (default: the `dynamic:` config section)
 
 Config sections read: `dynamic:` (`core.dynamic_filter.DynamicConfig`) and `detector:`
 (`core.dynamic.detector.DetectorConfig`).
@@ -34,7 +34,7 @@ SWITCHES = ("detection_filtering", "repopulation", "ekf_doc", "segmentation")
 
 
 def add_dynamic_arguments(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("dynamic scenes (issue 5)")
+    group = parser.add_argument_group("dynamic scenes (detector, EKFs, segmentation)")
     group.add_argument("--detections", choices=DETECTION_SOURCES, default="model",
                        help="object boxes: none, model (ONNX detector, default) or oracle (simulator detections.json)")
     group.add_argument("--detections-file", type=Path, default=None, metavar="FILE",

@@ -1,47 +1,16 @@
 """Deferred pose refinement: a frame's final pose estimated again once the detections around it are in.
 
-In real time the detector is slower than tracking, so a frame is tracked with the newest earlier detections carried
-forward (`core.late_detections`), and a person's keypoints outside a carried box reach its pose optimisation. A few
-frames later the detections of an image *after* the frame arrive. Every recently tracked frame whose stamp lies
-between the stamps of two consecutive detection sets (the newer one's own frame included) is then *bracketed*: its
-person boxes are interpolated between the two sets (`interpolated_boxes`) and its matched keypoints classified again
-with them (`person_matches`: `keypoint_classification.classify_keypoints`, §4.1 with repopulation, on the frame's
-depth image). Its pose is then optimised again (`optimised_pose`: `pose_optimizer.optimize_pose`, tracking's last
-step) on its matches less those on a person, and the result replaces the frame's pose relative to its reference
-keyframe: the final trajectory changes, the live one does not (tracking, the map and the published poses stay as
-they were; the refined pose comes too late for them).
-
-*Where* it is optimised matters more than which matches are left out (docs/architecture.md, "Session 10"): with
-`current_map` the frame is re-expressed in the map as it stands when it is optimised (its reference keyframe's
-pose then composed with the tracked relative pose, its matched points where they are then, culled ones left out)
-and every bracketed frame is optimised again, with or without matches on a person; with `settle_s` that happens
-`settle_s` after the frame was tracked, once local mapping has bundle-adjusted the keyframes and points around it
-a few more times (and for the last frames at the end of the run, `settle_all`). In the replay the frames' own person
-matches are a small part of the gap (each refined frame moves by ~1 mm); re-expressing them in the settled map is
-most of the gain.
-
-The ring (`DeferredRefinement`) keeps, per tracked frame, what that takes (`TrackedFrameMatches`): M matches
-(M ~ 150-400, 80 bytes each: raw and undistorted pixel, virtual right coordinate, pyramid weight, map point id and
-position when tracked; ~12-32 kB a frame), the online pose and pose relative to the reference keyframe, and until
-it is bracketed a reference to the frame's depth image (float32, shared with the frame, not copied: 0.3 MB at
-320x240, 1.2 MB at 640x480), then its person mask (M bools) instead. A frame not bracketed within `max_age_s`
-(0.6 s) is forgotten; a bracketed one stays until it settles. At 30 Hz with detections ~4 frames late every ~3
-frames that is ~10 frames with a depth image (3 MB at 320x240, 12 MB at 640x480) and ~30 without (`settle_s` 1 s:
-~0.4-1 MB of matches), at most `max_frames` (128) in all.
-
-Box interpolation: the two sets' boxes of `class_ids` are paired greedily by IoU (same class, IoU >=
-`match_min_iou`, as the carry code's extrapolation pairs them); a paired box is interpolated linearly in its
-corners by the frame's time between the two stamps and grown by `interpolated_grow_widths_per_s` of its size per
-side per second to the nearer set; a box of only one set is carried to the frame unmoved and grown by
-`carried_grow_widths_per_s` per second of the time between them (a person entering or leaving, or a missed
-detection). A frame with no set before it within `max_bracket_gap_s` is not bracketed and keeps its pose, unless it
-is the new set's own frame (its boxes are then exact). A frame tracked while its own detections were in already
-(lossless: every frame) is never refined.
-
-A refined pose is kept when at least `min_inliers` matches stay inliers and it is within `max_correction_m` /
-`max_correction_deg` of the pose it started from (a refinement that jumps further is a failed optimisation, not a
-correction). Without `current_map` (the map as tracked) only frames with matches on a person are optimised again,
-at once when bracketed.
+In real time a frame is tracked with earlier detections carried forward (`core.late_detections`), so keypoints on
+a person outside a carried box reach its pose optimisation. When the detections of an image *after* the frame
+arrive, every recently tracked frame between two consecutive detection sets is *bracketed*: its person boxes are
+interpolated between the two sets (`interpolated_boxes`), its matched keypoints classified again with them
+(`person_matches`, §4.1 with repopulation), and its pose optimised again (`optimised_pose`) on its matches less
+those on a person, re-expressed in the map as it stands then (`current_map`; after `settle_s`, once local mapping
+has adjusted the keyframes around it, which is most of the gain). The result replaces the frame's pose relative to
+its reference keyframe: the final trajectory changes; the live one, the map and the published poses do not.
+`DeferredRefinement` keeps the ring of tracked frames (`TrackedFrameMatches`: matches, poses, and the depth image
+until bracketed; at most `max_frames`, forgotten after `max_age_s` unbracketed). A refined pose is kept when at
+least `min_inliers` stay inliers and it moves less than `max_correction_m` / `max_correction_deg`.
 """
 
 from __future__ import annotations
@@ -77,7 +46,7 @@ class RefinementConfig:
       kept before the first set). On: in the replay of the graph's 1x cadence (`bench/late_detections.py`,
       `+refine`) it lowered the final ATE in 19 of 20 runs on three 30 Hz walking bags and the sample (means
       wxyz30s 1.06 -> 1.02 cm, walking_halfsphere 1.35 -> 1.31, walking_rpy 0.62 -> 0.60, sample 0.93 -> 0.89)
-      for ~1.1 ms of CPU per 30 Hz frame (docs/architecture.md, "Session 10").
+      for ~1.1 ms of CPU per 30 Hz frame.
     - `max_age_s`, `max_frames`: the ring of tracked frames (seconds behind the newest frame, count).
     - `max_bracket_gap_s`: two detection sets further apart do not bracket the frames between them.
     - `class_ids`: the classes whose boxes are interpolated (person: the a-priori dynamic class; the carried

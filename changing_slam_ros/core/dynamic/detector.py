@@ -1,19 +1,14 @@
 """Object detector (Changing-SLAM's detection thread): an ONNX model run with onnxruntime.
 
-Two model layouts are understood and told apart from the model's outputs (`DetectorConfig.layout = "auto"`):
-
-- `ssd_tf`: TensorFlow Object Detection API exports such as the shipped default
-  `models/ssd_mobilenet_v2_coco.onnx`. Input uint8 (1, H, W, 3) RGB of any size; outputs
-  `detection_boxes` (1, K, 4) normalised (ymin, xmin, ymax, xmax), `detection_scores` (1, K),
-  `detection_classes` (1, K) as original COCO ids 1..90 with gaps, `num_detections` (1,).
-  Non-maximum suppression happens inside the graph.
-- `yolo`: the common YOLO (v8 and later) export, one output (1, 4 + C, N) (or its transpose (1, N, 4 + C))
-  holding a box (cx, cy, w, h) in input pixels and C class scores per candidate; YOLOv5-style outputs
-  with an objectness column (1, N, 5 + C) are recognised when 5 + C = 85. Input float32 (1, 3, S, S)
-  RGB in [0, 1] after letterboxing; non-maximum suppression is done here.
-
-Class ids are the 80-class 0-based COCO ids the paper uses (person 0, chair 56, tv 62, teddy bear 77);
--1 means background (keypoints, never emitted detections).
+Two model layouts, told apart from the model's outputs (`DetectorConfig.layout = "auto"`):
+- `ssd_tf`: TensorFlow Object Detection API exports such as the shipped `models/ssd_mobilenet_v2_coco.onnx`:
+  uint8 (1, H, W, 3) RGB in; `detection_boxes` (1, K, 4) normalised (ymin, xmin, ymax, xmax),
+  `detection_scores`, `detection_classes` (original COCO ids 1..90), `num_detections` out; NMS in the graph.
+- `yolo`: YOLO (v8 and later) exports, one output (1, 4 + C, N) or its transpose, boxes (cx, cy, w, h) in
+  input pixels and C class scores; YOLOv5-style (1, N, 5 + C) with objectness when 5 + C = 85. Float32
+  (1, 3, S, S) RGB in [0, 1] after letterboxing; NMS here.
+Class ids are the 80-class 0-based COCO ids the paper uses (person 0, chair 56, tv 62, teddy bear 77); -1 means
+background (keypoints, never emitted detections).
 """
 
 from __future__ import annotations

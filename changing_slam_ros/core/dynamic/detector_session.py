@@ -318,19 +318,19 @@ def cache_key(sha256: str, settings: SessionSettings, provider: str) -> str:
     return f"{sha256[:16]}-ort{ort.__version__}-{provider.replace('ExecutionProvider', '').lower()}-{variant}.onnx"
 
 
-def _is_ssd_head(session: Any) -> bool:
-    return [o.name for o in session.get_outputs()] == list(SSD_HEAD_OUTPUTS)
+def _is_ssd_head(ort_session: Any) -> bool:
+    return [o.name for o in ort_session.get_outputs()] == list(SSD_HEAD_OUTPUTS)
 
 
-def _prepared(session: Any, settings: SessionSettings, cache_path: Path | None, hit: bool) -> PreparedSession:
+def _prepared(ort_session: Any, settings: SessionSettings, cache_path: Path | None, hit: bool) -> PreparedSession:
     """A `PreparedSession`; a head whose scores have one column per kept class is the slimmed graph."""
-    head = _is_ssd_head(session)
+    head = _is_ssd_head(ort_session)
     columns = None
     if head and settings.ssd_class_columns:
-        shape = session.get_outputs()[1].shape
+        shape = ort_session.get_outputs()[1].shape
         if shape and shape[-1] == len(settings.ssd_class_columns):
             columns = tuple(settings.ssd_class_columns)
-    return PreparedSession(session, head, cache_path, hit, columns)
+    return PreparedSession(ort_session, head, cache_path, hit, columns)
 
 
 def prepare_session(model_path: Path, settings: SessionSettings) -> PreparedSession:
@@ -352,16 +352,16 @@ def prepare_session(model_path: Path, settings: SessionSettings) -> PreparedSess
 
     plain = settings.nms == "graph" and not settings.quantize_int8
     if plain and settings.cache_dir is None:
-        session = load(str(model_path))
-        return PreparedSession(session, False, None, False)
+        ort_session = load(str(model_path))
+        return PreparedSession(ort_session, False, None, False)
 
     cache_path = None
     if settings.cache_dir is not None:
         cache_path = settings.cache_dir / cache_key(file_sha256(model_path), settings, providers[0])
         if cache_path.is_file():
             try:
-                session = load(str(cache_path))
-                return _prepared(session, settings, cache_path, True)
+                ort_session = load(str(cache_path))
+                return _prepared(ort_session, settings, cache_path, True)
             except ConfigError:  # an unreadable cached graph (another onnxruntime build wrote it): make it again
                 cache_path.unlink(missing_ok=True)
 

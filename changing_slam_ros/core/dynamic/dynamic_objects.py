@@ -1,21 +1,14 @@
 """Dynamic object classification (Changing-SLAM §4.5) and the per-frame component that tracking calls.
 
-Per frame: keypoint classification with repopulation (§4.1), short-term association of the detections
-(§4.3), one EKF per object fed with its keypoints' centroid (§4.4), and a Boolean verdict per object from
-its estimated speed and a per-class "DOC threshold" (§4.5):
-
-- a class in `always_dynamic_class_ids` (person) is dynamic even when standing still;
-- a new object is filtered *a priori* (`ObjectMotion.UNKNOWN`) until its filter says it is static;
-- an object whose speed exceeds its DOC threshold is dynamic and its keypoints are filtered;
-- a static object's (movable) keypoints are used for tracking.
-
-Issue 5's combination of cues: the class-agnostic segmentation (Dai et al., `core/movers/point_correlation.py`)
-may pass a per-keypoint `moving_mask`; flagged keypoints are never used (an unknown mover is caught without
-a detection), and a detected object with at least `segmentation_object_fraction` of its keypoints flagged
-is dynamic in that frame even when its EKF has not (yet) seen it move.
-
-Tracking calls `classify()` before pose estimation (the verdicts then come from previous frames) and
-`update(T_world_cam)` with the estimated pose afterwards; `process()` does both for a known pose.
+Per frame: keypoint classification with repopulation (§4.1), short-term association (§4.3), one EKF per
+object on its keypoints' centroid (§4.4), and a verdict per object from its speed and a per-class DOC
+threshold (§4.5): a class in `always_dynamic_class_ids` (person) is dynamic even standing still; a new object
+is filtered *a priori* (`ObjectMotion.UNKNOWN`) until its EKF says it is static; one faster than its threshold
+is dynamic; a static object's keypoints are used for tracking. The class-agnostic segmentation may pass a
+per-keypoint `moving_mask`: flagged keypoints are never used, and a detected object with at least
+`segmentation_object_fraction` of its keypoints flagged is dynamic in that frame even before its EKF saw it
+move. Tracking calls `classify()` before pose estimation and `update(T_world_cam)` after; `process()` does
+both for a known pose.
 """
 
 from __future__ import annotations
@@ -74,8 +67,7 @@ class DynamicObjectsConfig:
       camera's apparent speed at the object's depth. Measured on the PUC-like renders, three chairs entering
       the image were called DYNAMIC at their third measurement (0.74-0.88 m/s) and stayed so through the
       views where they were whole (no measurement there: §4.1's centre test), so the object layer, which
-      skips dynamic objects, never saw them whole (docs/changing_scenes.md, "Session 6: the objects known
-      only from cut views"). Classes in `always_dynamic_class_ids` (their verdict needs no EKF) are measured
+      skips dynamic objects, never saw them whole. Classes in `always_dynamic_class_ids` (their verdict needs no EKF) are measured
       as before.
     """
 
@@ -86,10 +78,9 @@ class DynamicObjectsConfig:
     static_sigma_ratio: float = 1.0
     min_object_keypoints: int = 3
     segmentation_object_fraction: float = 0.5
-    # On (session 7): the PUC-like renders' chairs are mapped from their whole views. The "spurious tv of wall
-    # points" that had them switched off in session 6 is the sample's rocket poster, which the SSD calls tv (score
-    # 0.3-0.53) in the frames where the poster is cut by the image top: a real detection of a static thing, mapped
-    # where the poster hangs (docs/changing_scenes.md, "Session 7: the EKF options and the poster").
+    # On: the PUC-like renders' chairs are mapped from their whole views. A "tv" on the sample's wall is its rocket
+    # poster, which the SSD calls tv (score 0.3-0.53) where the image top cuts it: a real detection of a static
+    # thing, mapped where the poster hangs, not an effect of this option.
     cut_box_border_px: float = 1.0
     dynamic_min_sigmas: float = 1.0
     classification: KeypointClassificationConfig = field(default_factory=KeypointClassificationConfig)

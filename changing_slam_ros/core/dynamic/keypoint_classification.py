@@ -1,21 +1,14 @@
 """Keypoint classification and feature repopulation (Changing-SLAM §4.1).
 
-Keypoints inside a person box are *a priori* dynamic, inside another object's box movable, elsewhere
-static; all keypoints of one object share one class (paper Fig. 2). Feature repopulation keeps the
-background seen *through* a box: per box the depth statistics (median, mean, min, max, std) are computed,
-leaving out the areas where other detected boxes overlap it (IoU matrix of the frame's boxes), and a
-keypoint deeper than the box's minimum depth plus a class-dependent margin is background, hence static.
-
-When an unlabelled object occludes the detected one the statistics cannot separate object from background,
-and the paper then leaves the object's keypoints out (`KeypointClass.UNUSED`). The paper flags this when
-"the standard deviation of the depths is too high, or the median depth is higher than the depth of the
-centre of the bounding box". Read literally, the second test fires on any object in front of a far
-background, so it is applied with a tolerance: the box centre must be closer than the median by more than
-`centre_occlusion_margin_m` (the object is expected to fill most of its box, so the median is its depth; a
-centre much nearer than that is something in front of it). An optional converse check requires the centre
-to lie in the object's depth band (min + margin), otherwise the nearest layer of the box is something other
-than the object at its centre (e.g. a table in front of a sitting person), which would turn the object
-itself into "background" (`check_centre_in_object_band`, off by default).
+Keypoints inside a person box are *a priori* dynamic, inside another object's box movable, elsewhere static;
+all keypoints of one object share one class (paper Fig. 2). Feature repopulation keeps the background seen
+*through* a box: from the box's depth statistics (areas where other boxes overlap it left out), a keypoint
+deeper than the box's minimum depth plus a class-dependent margin is background, hence static. When something
+occludes the detected object the statistics cannot separate object from background, and the paper leaves the
+object's keypoints out (`KeypointClass.UNUSED`) when "the standard deviation of the depths is too high, or the
+median depth is higher than the depth of the centre of the bounding box". Read literally the second test fires
+on any object before a far background, so it applies with a tolerance (`centre_occlusion_margin_m`); the
+optional converse check (`check_centre_in_object_band`, off) is described on `KeypointClassificationConfig`.
 """
 
 from __future__ import annotations
@@ -55,7 +48,7 @@ class KeypointClassificationConfig:
     - `max_depth_std_m`: depth spread above which the object's keypoints are not used.
     - `centre_occlusion_margin_m`: the box centre closer than the median depth by more than this =
       occluded centre (paper: median depth higher than the centre depth).
-    - `check_centre_in_object_band`: also require the centre depth within min + margin (see module doc);
+    - `check_centre_in_object_band`: also require the centre depth within min + margin (else the nearest layer of the box is something other than the object, e.g. a table in front of a sitting person, which would make the object itself "background");
       off by default: it also fires on open objects (a table seen through its legs) and made no
       difference to the leak of dynamic keypoints on the simulated scenarios.
     - `centre_patch_fraction`: side of the centre patch whose median is the centre depth, as a fraction of

@@ -1,40 +1,15 @@
 """Detections of an earlier image used for a later one (real time: the detector is slower than tracking).
 
-In real time tracking does not wait for a frame's own detections (`detections_wait_s` 0): a frame is tracked
-with the detections already in for its stamp, and otherwise with the newest earlier ones, carried forward.
-The objects may have moved since, so each carried box is grown on every side by `grow_widths_per_s` of its
-own width (and height) per second of age. The §4.1 depth statistics keep the background behind a grown box
-static (repopulation), and the object EKFs see the same object by IoU, but a grown box still takes keypoints
-from tracking: with the graph's 1x cadence replayed offline (`bench/late_detections.py`), half a width per
-second gave a lower ATE than one width (a person walking 1 m/s, 0.5 m wide, crosses two widths a second) in
-7 of 8 cadences on two bags, 1.52x / 1.31x the offline ATE against 1.73x / 1.49x (docs/architecture.md,
-"Session 8: late detections"). Older than `max_age_s`: not used.
-Only `class_ids` are carried (default: person, the a-priori dynamic class): a static object's box carried
-while the camera turns lands beside the object and only takes static keypoints away (measured on the sample
-bag at 1x: carrying every class lost tracking for ~28 frames of the pan in two of four runs).
-
-A grown box still lags: it stays centred where the person was. With the detections of an image before
-(`previous`), each carried box is first moved on at the velocity of its own edges between the two sets
-(`extrapolate`: the same-class box of `previous` it overlaps most, IoU >= `match_min_iou`, the two images at
-most `max_gap_s` apart; each edge's speed clamped to `max_speed_widths_per_s` of the box's width or height per
-second). The image motion of a box is the person's walk and the camera's own motion together, and both carry
-on over the ~0.1-0.2 s a detection is late; growing then covers what the extrapolation gets wrong. Off by
-default: in the same replay it helped most at the longest delay (4 frames between detections, 5 late: 2.01x ->
-1.52x the offline ATE) but not on average, and on the sample bag with a detection every frame 2 frames late it
-doubled the error (box velocities from images 67 ms apart are mostly detector jitter).
-
-Better than guessing the motion is measuring it (`flow`): with the grey (and depth) images of the detections'
-stamp and of the frame, each carried box is moved by the image motion of its foreground between the two
-(`core.box_flow`, Median Flow) and then grown by the smaller `flow_grow_widths_per_s` (the moved box is located;
-growing covers the person's limbs and the measurement's error). A box whose motion cannot be measured (no
-texture, no points left after the forward-backward check, no image of the detections' stamp) is carried as
-without `flow`. `flow_hull` joins the moved box with where it was first (the person's path). `RecentImages` keeps
-the images a tracker needs for it. On by default (session 9, the lead's call on the helper's figures): in the
-replay it lowered the mean ATE on all four 30 Hz walking bags (with `flow_grow_widths_per_s` 0.25: wxyz30s 1.22 -> 1.05 cm, walking_halfsphere 3.15 -> 1.35,
-walking_static 0.58 -> 0.48, walking_rpy 0.80 -> 0.62) but not on the 15 Hz sample bag (0.86 -> 0.93 on five
-cadences, within that bag's run-to-run spread: 6 wins, 7 losses over 13 runs), and `flow_hull` helped on none
-consistently (docs/architecture.md, "Session 9: late boxes moved by the
-image motion").
+A frame tracked before its own detections are in takes the newest earlier ones, carried forward
+(`carried_forward`). Only `class_ids` are carried (default: person; a static object's box carried while the
+camera turns lands beside the object and only takes static keypoints away). Each carried box is first moved
+(`flow`, on by default: the image motion of its foreground between the detections' image and the frame,
+`core.box_flow`, Median Flow; `RecentImages` keeps the images it needs) or extrapolated from the same-class box
+of the set before (`extrapolate`, off by default: box velocities from images 67 ms apart are mostly detector
+jitter), then grown on every side by `grow_widths_per_s` (or the smaller `flow_grow_widths_per_s` for a moved
+box) of its size per second of age, which covers the limbs and what the motion estimate gets wrong. The §4.1
+depth statistics keep the background behind a grown box static. Older than `max_age_s`: not used. The
+defaults were chosen by replaying the graph's 1x cadence offline (`bench/late_detections.py`).
 """
 
 from __future__ import annotations

@@ -1,28 +1,15 @@
 """Moving map points over a window of keyframes: the point-correlation segmentation inside local mapping.
 
-Dai et al. 2021, Section 3.4: "Since there might be slow-moving objects, the point-correlation-based
-segmentation method introduced in Section 3.2 is also used here to determine static points." Tracking runs the
-two-frame mode on frames 0.1 s apart (`mover_tracking`); an object pushed at a few cm/s moves a few millimetres
-in that time, under the noise of the two-frame test. Over the last K keyframes (a second or more apart) it
-has moved centimetres, which the multi-frame mode (`SegmentationConfig.multi_frame`) separates.
-
-Per new keyframe, before local BA (`LocalMapper.process` step 3a):
-
-1. window: the newest `window_keyframes` keyframes of the map (by id, the new one included);
-2. measurements: every usable map point observed in at least two of them, measured in each such keyframe
-   by its keypoint back-projected with the keyframe's depth (`CorrelationWindow.from_pixels`), the keyframe
-   poses as tracking / earlier BA left them;
-3. segment (eq. 5 over the window, inconsistent edges removed, the largest-volume component is static);
-4. targets whose points did not move (`min_target_motion_sigma`) are left alone;
-5. the points of the other object targets are culled (`SlamMap.erase_point`).
-
-Why cull rather than deactivate (the `active` flag the object layer uses): an inactive point is one the map
-expects to be valid again (an object out of the scene that may come back, Changing-SLAM §4.6). A point on a
-slowly pushed object is wrong at every later time: its stored position is where the object was. ORB-SLAM
-handles points that break the static-world assumption by culling them (recent-point culling, the outlier
-observations erased after local BA); culling also frees the keyframes' keypoints, so fusion can give them
-static points, and keeps the point out of local BA at once. The object itself is followed, if at all, by the
-tracking-side mover tracker; the segmentation here only protects the static map.
+Dai et al. 2021, §3.4: the segmentation of §3.2 also runs in local mapping, for slow movers. An object pushed
+at a few cm/s moves millimetres between frames 0.1 s apart (under the two-frame test's noise) but centimetres
+over the last keyframes, which the multi-frame mode (`SegmentationConfig.multi_frame`) separates. Per new
+keyframe, before local BA (`LocalMapper.process` step 3a): (1) the newest `window_keyframes` keyframes;
+(2) every usable map point seen in at least two of them, measured by its keypoint back-projected with the
+keyframe's depth; (3) eq. 5 over the window; (4) targets whose points did not move
+(`min_target_motion_sigma`) are left alone; (5) the other targets' points are culled (`SlamMap.erase_point`).
+Culled rather than deactivated: an inactive point is one the map expects to be valid again (Changing-SLAM
+§4.6), while a point on a pushed object is wrong at every later time; culling also frees its keypoints for
+static points. The object itself is followed, if at all, by the tracking-side mover tracker.
 """
 
 from __future__ import annotations

@@ -1,23 +1,14 @@
 """Class-agnostic movers in the running system (Dai et al. 2021): feature tracks, windowed segmentation,
 object targets tracked by object-level BA and merged by the overlap check.
 
-Per frame, around camera tracking (`DynamicFilter` calls it):
-
-1. `before_tracking(stamp_ns, features, camera)`: the frame's keypoints are matched by ORB descriptor to
-   the feature tracks alive in the previous frame (Lowe ratio, one keypoint per track), unmatched keypoints
-   with depth start new tracks. A keypoint is *moving* when its track is a point of a moving object
-   tracked in the last frames or was put on an object target by the last segmentation; camera tracking
-   does not use it (the paper: "camera tracking uses static points only").
-2. `after_tracking(T_world_cam)`: with the tracked camera pose, the frame's measurements (back-projected
-   keypoints with their track ids) are stored; every live object is tracked by motion-only object BA
-   (eq. 7) and refined by full object BA (eq. 11) at keyposes; every `window_step_frames` frames the
-   point-correlation segmentation (eq. 5) runs over a window of `window_frames` frames that many frames
-   apart (the paper's local-mapping mode, slow and fast movers alike at 30 Hz), each object target becomes a
-   `MovingObject`, and eq. 12 merges it into the objects that overlap it.
-
-`tracks()` gives every object followed long enough as a `MovingObjectTrack` (what the run exports and the
-ROS side publishes). The camera pose is the one tracking estimated (online), as the paper's object BA
-holds the camera poses fixed.
+Per frame, around camera tracking (`DynamicFilter` calls it): `before_tracking` matches the frame's keypoints
+to the live feature tracks (ORB, Lowe ratio) and flags as moving the keypoints on a moving object or a target
+of the last segmentation (camera tracking uses static points only). `after_tracking(T_world_cam)` stores the
+frame's measurements, tracks every live object by motion-only object BA (eq. 7), refines it by full object BA
+(eq. 11) at keyposes, and every `window_step_frames` frames segments a window of `window_frames` frames
+(eq. 5); each target becomes a `MovingObject` that eq. 12 merges into the objects it overlaps. `tracks()`
+gives every object followed long enough as a `MovingObjectTrack`. Camera poses are tracking's (online), held
+fixed by the object BA as in the paper.
 """
 
 from __future__ import annotations
@@ -53,7 +44,7 @@ BoolArr = npt.NDArray[np.bool_]
 def _window_segmentation() -> SegmentationConfig:
     # The paper's two-frame (tracking) mode with the graph bounded to 500 points (the rest labelled from it)
     # and two Gauss-Newton iterations: on unknown_mover (720 frames) the third changed no flag and no
-    # track and cost 8 ms of the 44 ms per window (`bench/bench_movers.py`, session 6).
+    # track and cost 8 ms of the 44 ms per window (`bench/bench_movers.py`).
     return replace(SegmentationConfig.two_frame(), max_points=500, iterations_per_round=2)
 
 

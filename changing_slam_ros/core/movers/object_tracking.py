@@ -50,7 +50,7 @@ class ObjectTrackingConfig:
       tracks every frame either way. Default 3: on unknown_mover a keypose is made at ~80 % of the frames
       (the tracked-ratio test) and eq. 11 was half the mover stage's CPU time; with 3 (and the bound
       below) the stage took 0.64x the CPU at P 0.991 / R 0.960 and 0.70 cm object ATE (1: P 0.974 /
-      R 0.967, 0.61 cm; 4: 1.84 cm), see docs/dynamic_integration.md, "Session 6".
+      R 0.967, 0.61 cm; 4: 1.84 cm).
     - `max_model_points`: beyond the paper, a bound on an object's model (0 = none). Merged targets add
       points every few frames (unknown_mover: 1400 points after 24 s, so association, merging and eq. 7
       grew with it); above the bound, the points seen in fewest keyposes of the window go (the newest

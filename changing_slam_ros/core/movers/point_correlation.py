@@ -1,34 +1,16 @@
-"""Point-correlation segmentation of map points into the static scene and moving object targets.
-
-Dai et al. 2021, Section 3.2 (after Dai et al. 2020, "RGB-D SLAM in dynamic environments using point
-correlations"):
-
-1. Build a graph of adjacent points with a 3D Delaunay tetrahedralisation of the points (eq. 2: an edge
-   l_ij joins points i and j).
-2. Remove inconsistent edges. The point positions P (world frame) are estimated from the *relative*
-   measurements of every edge in every frame (eqs. 3-5)::
-
-       z_ijk = y_ik - y_jk                                          (eq. 4)
-       min_P  sum_ijk || z_ijk - [g(T_k p_i) - g(T_k p_j)] ||_huber  (eq. 5)
-
-   with y = g(p_cam) = [u, v, d] the RGB-D observation of eq. 1 and T_k the (known) world-to-camera
-   pose of frame k. Measurements with a large error are flagged as outliers and left out of the next
-   optimisation round (as ORB-SLAM does); an edge whose every measurement is an outlier is inconsistent
-   and removed.
-3. Connected components of the remaining graph; the component of largest convex-hull volume is the static
-   scene, every other component with enough points is an object target.
-
-Two modes: two frames (tracking, fast movers) and a window of K > 2 frames (local mapping, slow movers);
-see `SegmentationConfig.two_frame` and `SegmentationConfig.multi_frame` for why they differ in one
-threshold. Where we go beyond the paper, `SegmentationConfig` says so and how to switch it off: a weak
-anchor of each point on its measured position (eq. 5 alone has flat directions), the triangle support
-of kept edges (one surviving edge would join an object to the static scene), and an optional
-viewing-cone volume for picking the static component.
-
-The graph is built in `delaunay_graph`, eq. 5 is solved in `correlation_optimiser` (vectorised over
-measurements; each Gauss-Newton step solves one block-sparse (3M x 3M) system by preconditioned conjugate
-gradients); `correlation_window` holds the configuration, the input window and the result; this module holds `segment`. Camera pose errors do not change the result: an error in
-one frame's pose moves all of that frame's points by the same rigid transform, like a common motion.
+"""Point-correlation segmentation of map points into the static scene and moving object targets (Dai et al.
+2021, §3.2, after Dai et al. 2020): (1) a graph of adjacent points by 3D Delaunay tetrahedralisation (eq. 2);
+(2) inconsistent edges removed: point positions are estimated from the *relative* measurements of every edge in
+every frame (eqs. 3-5, z_ijk = y_ik - y_jk with y = g(p_cam) = [u, v, d]; solved in `correlation_optimiser`),
+measurements with a large error are left out of the next round, and an edge whose every measurement is an
+outlier is removed; (3) connected components: the largest convex-hull volume is the static scene, every other
+component with enough points an object target. Camera pose errors do not change the result: a pose error moves
+all of that frame's points by one rigid transform, like a common motion. Two modes, two frames (tracking) and
+K > 2 frames (local mapping): `SegmentationConfig.two_frame` / `multi_frame`. Beyond the paper, each switchable
+in `SegmentationConfig`: a weak anchor of each point on its measured position, triangle support of kept edges,
+an optional viewing-cone volume. The graph is built in `delaunay_graph`; `correlation_window` holds the
+configuration, input window and result; this module holds `segment`. `edge_test` is the closed-form
+two-frame alternative the dynamic filter uses by default.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""System test of issue 5: the SLAM engine with the dynamic filter on a simulated walking sequence.
+"""System test of the dynamic-scene half: the SLAM engine with the dynamic filter on a simulated walking sequence.
 
 The test renders walking_xyz itself (seed 0, 320x240, 15 fps, the first 8 s: two people cross the view
 and fill up to a fifth of the image) and runs the engine with the simulator's oracle detections and

@@ -1,10 +1,10 @@
-"""System test of issue 5 with real detections: the shipped SSD-MobileNetV2 finds the simulated people and
+"""System test with real detections: the shipped SSD-MobileNetV2 finds the simulated people and
 the engine with the dynamic filter keeps the ATE bound on a short simulated walking sequence.
 
 walking_xyz (seed 0) at 640x480, 15 fps, the first 6 s (90 frames): two people cross the view. Every frame
 goes through the detector (1 onnxruntime thread), then the engine with the paper's pipeline (classification
 with repopulation, short-term association, EKF-DOC). Passed at 1c56f34 in 8 min on the loaded shared
-machine; the bounds are issue 5's (ATE <= 2 cm, every frame tracked, one map) and a person-recall floor of
+machine; the bounds are the walking scenarios' (ATE <= 2 cm, every frame tracked, one map) and a person-recall floor of
 60 % (79.9 % measured over the first 300 frames of the same scenario at 30 fps, bench/person_recall_sim.py).
 """
 
@@ -62,4 +62,4 @@ def test_ssd_finds_the_simulated_people_and_the_engine_keeps_the_ate_bound(walki
     assert len(system.atlas.maps) == 1
     assert source.groundtruth is not None
     rmse = ate(source.groundtruth, system.final_trajectory()).stats.rmse
-    assert rmse <= 0.02  # issue 5's bound for the walking scenarios
+    assert rmse <= 0.02  # the walking scenarios' bound

@@ -1,4 +1,4 @@
-"""System test of the class-agnostic movers (issue 5, Dai et al.) on the simulator's unknown_mover.
+"""System test of the class-agnostic movers (Dai et al.) on the simulator's unknown_mover.
 
 The test renders the first 200 frames of unknown_mover (seed 0, 640x480, 30 fps: the box rests on the
 table for 3 s, then is picked up and carried in front of the camera) and runs the engine with

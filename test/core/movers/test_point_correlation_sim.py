@@ -237,7 +237,7 @@ def test_carried_box_is_segmented_then_tracked_within_3_cm(unknown_mover) -> Non
     err = [np.linalg.norm(obj.poses[s][:3, 3] - (truth[s] @ offset)[:3, 3]) for s in truth]
     travel = np.linalg.norm(truth[max(truth)][:3, 3] - truth[created.stamp_ns][:3, 3])
     assert len(truth) >= 55 and travel > 0.2
-    assert float(np.sqrt(np.mean(np.square(err)))) < 0.03  # issue 5's bound (Dai et al.: 3.3 cm)
+    assert float(np.sqrt(np.mean(np.square(err)))) < 0.03  # Dai et al. report 3.3 cm
 
 
 def test_keyframe_window_on_orb_feature_tracks_finds_the_box_without_false_positives(unknown_mover) -> None:  # type: ignore[no-untyped-def]
