@@ -48,8 +48,9 @@ class KeypointClassificationConfig:
     - `max_depth_std_m`: depth spread above which the object's keypoints are not used.
     - `centre_occlusion_margin_m`: the box centre closer than the median depth by more than this =
       occluded centre (paper: median depth higher than the centre depth).
-    - `check_centre_in_object_band`: also require the centre depth within min + margin (else the nearest layer of the box is something other than the object, e.g. a table in front of a sitting person, which would make the object itself "background");
-      off by default: it also fires on open objects (a table seen through its legs) and made no
+    - `check_centre_in_object_band`: also require the centre depth within min + margin (else the nearest
+      layer of the box is something other than the object, e.g. a table in front of a sitting person, which
+      would make the object itself "background"); off by default: it also fires on open objects (a table seen through its legs) and made no
       difference to the leak of dynamic keypoints on the simulated scenarios.
     - `centre_patch_fraction`: side of the centre patch whose median is the centre depth, as a fraction of
       the box side.
