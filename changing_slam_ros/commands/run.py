@@ -120,6 +120,15 @@ def main(args: argparse.Namespace) -> int:
     return code
 
 
+def _staged(path: Path, target: Path, work: Path) -> Path:
+    """`path`, or where it goes in the staging folder `work` when it lies inside `--out` (`target`): a file
+    written straight into `--out` would be lost when the staging folder takes its place."""
+    try:
+        return work / path.resolve().relative_to(target.resolve())
+    except ValueError:
+        return path
+
+
 def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: SystemConfig, loaded: Any,
          source: Any, out: Path) -> int:
     """Process every frame and write the results into `out` (the staging folder of `OutputDir`)."""
@@ -149,7 +158,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     wall_s = time.perf_counter() - t0
     cpu_s = time.process_time() - cpu0
     if keypoint_log is not None:
-        keypoint_log.write(args.keypoint_log)
+        keypoint_log.write(_staged(Path(args.keypoint_log), Path(args.out), out))
 
     final = system.final_trajectory()
     online = system.online_trajectory()

@@ -197,3 +197,19 @@ def test_a_signal_at_the_write_phase_or_the_commit_leaves_one_consistent_run(out
     assert (kept / "trajectory.txt").is_file() and not (kept / "metrics.json").exists() or point == "commit"
     if point == "commit":  # all written, not swapped in: the new run is complete under the incomplete name
         assert consistent(kept) == 9
+
+
+def test_a_keypoint_log_inside_out_survives_the_swap_into_place(tmp_path):
+    """`--keypoint-log OUT/keypoints.npz` is written into the staging folder, so it is there once the run is."""
+    import subprocess
+    import sys
+
+    from helpers import REPO
+
+    bag = REPO / "bags" / "tum_fr1_xyz_first10.mcap"
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "changing_slam_ros.cli", "run", str(bag), "--out", str(out), "--config",
+                           "tum_fr1", "--quiet", "--no-plot", "--max-frames", "4", "--keypoint-log",
+                           str(out / "keypoints.npz")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (out / "keypoints.npz").is_file() and (out / "metrics.json").is_file()
