@@ -76,6 +76,8 @@ def match_nearby(
     best_d, best = d[rows, col], nn[rows, col]
     ok = best_d <= max_hamming
     rows, best, best_d = rows[ok], best[ok], best_d[ok]
+    if rows.size == 0:  # no candidate within max_hamming (a textureless or fully changed view)
+        return empty, empty
     # Mutual best: among the current keypoints choosing the same earlier one, the closest descriptor wins.
     order = np.lexsort((best_d, best))
     first = np.r_[True, best[order][1:] != best[order][:-1]]
