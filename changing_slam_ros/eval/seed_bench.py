@@ -152,7 +152,11 @@ def run_slam(sequence: Path, out_dir: Path, full: bool, extra: tuple[str, ...] =
         args += list(extra) if full else ["--no-dynamic"]
         if full and keypoint_log:
             args += ["--keypoint-log", str(Path(out_dir) / "keypoints.npz")]
-        _call(args, Path(out_dir).with_suffix(".log"))
+        try:
+            _call(args, Path(out_dir).with_suffix(".log"))
+        except EvalError:
+            if not metrics_path.exists():  # a run that tracked nothing exits 1 but writes its metrics: a figure
+                raise
     m = json.loads(metrics_path.read_text())
     ate = m.get("ate_rmse_m")
     return RunResult(None if ate is None or (isinstance(ate, float) and math.isnan(ate)) else float(ate),
