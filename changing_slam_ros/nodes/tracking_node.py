@@ -126,6 +126,8 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.map_update_waits_timed_out = 0  # held acks sent after map_update_timeout_s without update / verdict
         self._kf_sent_s: dict[int, float] = {}
         self._relays_seen: set[int] = set()
+        self._peers_since_s: float | None = None  # wait_for_map_updates: when frames began to wait for the peers
+        self._peers_matched = False
         self.epochs = LoadEpochs.of("updates", "loops")  # local_mapping's ~/load_map (see nodes/map_load.py)
         self._before_load: list[Any] = []  # online trajectories of the maps replaced by a LoadMap
         self.loads = 0
@@ -296,6 +298,8 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         due = [] if first is None else [first]
         if self._awaiting is not None:
             due.append(self._awaiting["deadline"])
+        if self._peers_since_s is not None and not self._peers_matched:
+            due.append(time.monotonic() + 0.05)  # poll the DDS matches (no event reports them)
         if not due:
             self._drain_timer.cancel()
             return
@@ -305,7 +309,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
 
     def _drain_pending(self) -> None:
         self._check_wait()
-        if self._holding_for_camera_info():
+        if self._holding_for_camera_info() or self._holding_for_peers():
             return
         if self._awaiting is None:
             for stale in self.queue.take_stale(time.monotonic()):
@@ -330,6 +334,38 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             return False  # no camera_info for too long: the queued frames go on to _process, which skips them
         self._warn_once("held_for_camera", f"tracking: no camera_info yet; holding frames for it (at most {limit})")
         return True
+
+    def _holding_for_peers(self) -> bool:
+        """wait_for_map_updates: frames wait until local_mapping and loop_closing are matched both ways (their
+        keyframe subscriptions, their update and verdict publishers). A keyframe published before its
+        subscription matched is lost (volatile QoS), and its held acknowledgement would wait out
+        `map_update_timeout_s`. After `peers_wait_s` without them, frames go on with a warning."""
+        if self._peers_matched or self.split is None or not self.params["wait_for_map_updates"] or not len(self.queue):
+            return False
+        now = time.monotonic()
+        if self._peers_since_s is None:
+            self._peers_since_s = now
+        missing = self._missing_peers()
+        if not missing:
+            self._peers_matched = True
+            return False
+        if now - self._peers_since_s > self.params["peers_wait_s"]:
+            self._peers_matched = True
+            self.get_logger().warning(f"tracking: {', '.join(missing)} not matched after "
+                                      f"{self.params['peers_wait_s']} s; tracking without them")  # fmt: skip
+            return False
+        self._warn_once("held_for_peers", f"tracking: holding frames until {', '.join(missing)} are matched")
+        return True
+
+    def _missing_peers(self) -> list[str]:
+        missing = []
+        if self.keyframe_pub.get_subscription_count() < self.params["keyframe_subscribers"]:
+            missing.append(f"{self.params['keyframe_subscribers']} subscriptions of ~/keyframes")
+        if self.update_sub.get_publisher_count() < 1:
+            missing.append("a publisher of /local_mapping/map_updates")
+        if self.loop_sub.get_publisher_count() < 1:
+            missing.append("a publisher of /loop_closing/loop_corrections")
+        return missing
 
     def _frame_camera(self, width: int, height: int) -> CameraIntrinsics | None:
         cam = self.config_camera if self.config_camera is not None else self.camera

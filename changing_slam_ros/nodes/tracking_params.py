@@ -42,6 +42,9 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("wait_for_map_updates", False, "split backend: acknowledge a keyframe frame only after its map update "
                                     "and loop verdict arrived (lossless graph)"),
     ("map_update_timeout_s", 30.0, "wait_for_map_updates: give up waiting after this long (warns)"),
+    ("keyframe_subscribers", 2, "wait_for_map_updates: frames wait until ~/keyframes has this many subscriptions "
+                                "(local_mapping, loop_closing) and both send-back topics a publisher"),
+    ("peers_wait_s", 60.0, "wait_for_map_updates: after this long without those matches, track anyway (warns)"),
     ("provisional_points", True, "split backend, real time: a new keyframe's depth keypoints become "
                                  "provisional points here at once, so tracking never waits for "
                                  "local_mapping's points (off with wait_for_map_updates: lossless)"),
