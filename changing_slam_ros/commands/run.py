@@ -42,6 +42,7 @@ from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.errors import ConfigError, EvalError, OutputError
 from changing_slam_ros.io.atomic import atomic_write_text
+from changing_slam_ros.io.camera_check import CameraMismatch, check_cameras
 from changing_slam_ros.io.map_file import LoadedMap, load_map, save_map
 from changing_slam_ros.io.output_dir import OutputDir
 from changing_slam_ros.commands.changes import write_change_outputs
@@ -106,8 +107,11 @@ def main(args: argparse.Namespace) -> int:
     loaded = load_map(args.map_in) if args.map_in else None  # a bad map fails before any frame is read
     source = open_dataset(args.source, settings)
     out_dir = OutputDir.prepare(args.out, "--out")  # checked (and staged) before the first frame
+    mismatches = camera_mismatches(source, loaded, args.map_in)
+    for mismatch in mismatches:  # said before the first frame, recorded in metrics.json at the end
+        print(f"run: warning: {mismatch.message()}", file=sys.stderr)
     try:
-        code = _run(args, data, where, config, loaded, source, out_dir.work)
+        code = _run(args, data, where, config, loaded, source, out_dir.work, mismatches)
         out_dir.commit()
     except BaseException as err:
         kept = out_dir.abandon()
@@ -129,8 +133,20 @@ def _staged(path: Path, target: Path, work: Path) -> Path:
         return path
 
 
+def camera_mismatches(source: Any, loaded: LoadedMap | None, map_in: str | None) -> list[CameraMismatch]:
+    """Where the run's camera disagrees with the intrinsics the data ships (the reader's `camera_mismatch`) or
+    with the camera a `--map-in` map was made with (its current map's first keyframe)."""
+    out = [m for m in (getattr(source, "camera_mismatch", None),) if m is not None]
+    if loaded is not None and loaded.atlas.current.keyframes:
+        first = loaded.atlas.current.keyframes[min(loaded.atlas.current.keyframes)]
+        found = check_cameras(f"the loaded map {map_in}", first.camera, "this run", source.camera,
+                              "this run's camera", scale=False)  # fmt: skip
+        out += [found] if found is not None else []
+    return out
+
+
 def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: SystemConfig, loaded: Any,
-         source: Any, out: Path) -> int:
+         source: Any, out: Path, mismatches: list[CameraMismatch]) -> int:
     """Process every frame and write the results into `out` (the staging folder of `OutputDir`)."""
     closing = None if args.no_loop else _loop_closing(data, where)
     dynamic = dynamic_setup(args, data, where)
@@ -200,10 +216,12 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     movers = dynamic.filter.movers if dynamic.filter is not None else None
     if movers is not None:  # class-agnostic moving objects (Dai et al.) and their trajectories
         metrics["moving_objects"] = write_moving_objects(out, movers.tracks())
-    metrics["warnings"] = run_warnings(metrics)
+    metrics["camera_mismatch"] = [m.as_dict() for m in mismatches]
+    late = run_warnings(metrics)
+    metrics["warnings"] = [m.message() for m in mismatches] + late
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     atomic_write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
-    for warning in metrics["warnings"]:
+    for warning in late:
         print(f"run: warning: {warning}", file=sys.stderr)
     line = (
         f"{metrics['frames_tracked']}/{metrics['frames']} frames tracked, {metrics['keyframes']} keyframes, "

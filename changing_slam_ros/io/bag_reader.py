@@ -8,7 +8,9 @@ reads CameraInfo and builds the ground truth (a PoseStamped topic, else the TF c
 makes a second pass and decodes each pair as it completes, so memory stays at a few images.
 
 Frames carry the colour image's header stamp and the intrinsics of the latest CameraInfo received
-before them (or the config's camera: `dataset.bag_intrinsics_from`).
+before them (or the config's camera: `dataset.bag_intrinsics_from`). `camera_mismatch` says when the first
+CameraInfo and the config's camera disagree (a CameraInfo equal to the ROS driver default is no calibration
+and is not compared).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.errors import BagError, SlamError
 from changing_slam_ros.io.bag_messages import BagConnection, BagMessages, RawMessage
+from changing_slam_ros.io.camera_check import ROS_DEFAULT_CAMERA, CameraMismatch, check_cameras, compare_cameras
 from changing_slam_ros.io.camera_info import intrinsics_from_camera_info
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig, TopicSet
 from changing_slam_ros.io.groundtruth import GroundTruth, GroundTruthAccess
@@ -72,15 +75,19 @@ def _present(topics: dict[str, BagConnection], name: str, suffixes: tuple[str, .
 class BagRgbdReader(GroundTruthAccess):
     """RgbdSource over one bag file or folder."""
 
-    def __init__(self, path: str | Path, config: DatasetConfig, camera: CameraConfig | None = None) -> None:
+    def __init__(self, path: str | Path, config: DatasetConfig, camera: CameraConfig | None = None,
+                 config_name: str = "the config") -> None:  # fmt: skip
         self.path = Path(path)
         self.config = config
         self._config_camera = camera
+        self.config_name = config_name
+        self.camera_mismatch: CameraMismatch | None = None
         with BagMessages(self.path) as bag:
             self.kind = bag.kind
             self.topics = resolve_topics(bag, config)
             self._gt_source = self._index(bag)
         self.camera = self._initial_camera()
+        self.camera_mismatch = self._check_camera()
         gt_text = f"ground truth from {self._gt_source}" if self._gt is not None else "no ground truth"
         self.description = (
             f"{bag.kind.value} {self.path} ({len(self._pairs)} frames: {self.topics.rgb} + "
@@ -166,7 +173,7 @@ class BagRgbdReader(GroundTruthAccess):
         depth_stamps: list[int] = []
         self._first_info: CameraIntrinsics | None = None
         self._info_error: BagError | None = None
-        read_info = cfg.bag_intrinsics_from == "camera_info"
+        info_read = False
         gt_stamps: list[int] = []
         gt_poses: list[np.ndarray] = []
         tf = TfBuffer(str(self.path))
@@ -178,11 +185,12 @@ class BagRgbdReader(GroundTruthAccess):
             elif msg.topic == self.topics.depth:
                 depth_stamps.append(_stamp(msg))
             elif msg.topic == self.topics.camera_info:
-                if read_info and self._first_info is None and self._info_error is None:
+                if not info_read:  # the first one: used with bag_intrinsics_from camera_info, else compared
+                    info_read = True
                     try:
                         self._first_info = intrinsics_from_camera_info(bag.deserialize(msg), msg.topic)
                     except BagError as err:  # e.g. an uncalibrated driver: K all zero
-                        self._info_error = err
+                        self._info_error = err if cfg.bag_intrinsics_from == "camera_info" else None
             elif msg.topic == gt_pose:
                 p = bag.deserialize(msg)
                 pos, q = p.pose.position, p.pose.orientation
@@ -219,6 +227,21 @@ class BagRgbdReader(GroundTruthAccess):
                 raise
             return f"TF {cfg.gt_world_frame} -> {cfg.gt_camera_frame}"
         return ""
+
+    def _check_camera(self) -> CameraMismatch | None:
+        """The first CameraInfo against the config's camera, whichever of the two the frames use."""
+        info = self._first_info
+        if info is None or self._config_camera is None or not compare_cameras(ROS_DEFAULT_CAMERA, info, False):
+            return None
+        try:
+            configured = self._config_camera.intrinsics()
+        except SlamError:
+            return None
+        from_info = self._track_camera_info
+        used = "the CameraInfo (dataset.bag_intrinsics_from: camera_info)" if from_info else \
+            f"the camera of {self.config_name} (dataset.bag_intrinsics_from: config)"
+        return check_cameras(f"the CameraInfo on {self.topics.camera_info} of {self.path}", info, self.config_name,
+                             configured, used)  # fmt: skip
 
     def _initial_camera(self) -> CameraIntrinsics:
         cfg = self.config

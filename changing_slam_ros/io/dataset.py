@@ -5,7 +5,8 @@
 - a `.bag` / `.mcap` / `.db3` file: ROS 1 bag, bare mcap, single sqlite3 file -> `BagRgbdReader`
 
 Every reader satisfies `RgbdSource`: `camera`, `len()`, iteration of `RgbdFrame` in time order,
-`groundtruth` (a `Trajectory` or None) and a one-line `description`.
+`groundtruth` (a `Trajectory` or None), a one-line `description` and `camera_mismatch` (the intrinsics the
+data ships disagree with the config's camera; `io.camera_check`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import DatasetError
+from changing_slam_ros.io.camera_check import CameraMismatch
 from changing_slam_ros.io.groundtruth import GroundTruth
 from changing_slam_ros.io.dataset_config import (
     CameraConfig,
@@ -44,6 +46,7 @@ class RgbdSource(Protocol):
 
     camera: CameraIntrinsics
     description: str
+    camera_mismatch: CameraMismatch | None
 
     @property
     def groundtruth(self) -> Trajectory | None: ...
@@ -72,7 +75,7 @@ def open_dataset(
         if (p / "rgb.txt").is_file() or (p / "associations.txt").is_file():
             from changing_slam_ros.io.tum_folder import TumFolder
 
-            return TumFolder(p, settings.dataset, settings.camera)
+            return TumFolder(p, settings.dataset, settings.camera, settings.source)
         raise DatasetError(
             f"{p}: neither a ROS 2 bag folder (metadata.yaml) nor a TUM-layout folder (rgb.txt / associations.txt)"
         )
@@ -84,4 +87,4 @@ def open_dataset(
 def _bag(p: Path, settings: DatasetSettings) -> RgbdSource:
     from changing_slam_ros.io.bag_reader import BagRgbdReader
 
-    return BagRgbdReader(p, settings.dataset, settings.camera)
+    return BagRgbdReader(p, settings.dataset, settings.camera, settings.source)

@@ -3,7 +3,8 @@
 Layout: `rgb.txt` and `depth.txt` (`timestamp filename` per line, `#` comments), optional
 `associations.txt` (`t_rgb rgb/x.png t_depth depth/y.png`, used as given when present), optional
 `groundtruth.txt` (`timestamp tx ty tz qx qy qz qw`, camera-to-world) and optional `camera_info.yaml`
-(ROS camera-calibration YAML, preferred over the config's camera).
+(ROS camera-calibration YAML, preferred over the config's camera). 7-Scenes' `camera-intrinsics.txt` is read to
+check the config's camera against it; `camera_mismatch` says when either disagrees with the config.
 
 Colour and depth are paired exactly as TUM's `associate.py` does: every pair with
 |t_rgb - (t_depth + offset)| < max_difference is a candidate, candidates are taken in order of
@@ -24,6 +25,7 @@ import numpy.typing as npt
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.errors import DatasetError, SlamError, utf8_error
+from changing_slam_ros.io.camera_check import CameraMismatch, check_cameras, read_intrinsics_txt
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
 from changing_slam_ros.io.groundtruth import GroundTruth, GroundTruthAccess
@@ -165,9 +167,12 @@ class FramePair:
 class TumFolder(GroundTruthAccess):
     """RgbdSource over a TUM-layout folder; images are loaded lazily, one frame at a time."""
 
-    def __init__(self, root: str | Path, config: DatasetConfig, camera: CameraConfig | None = None) -> None:
+    def __init__(self, root: str | Path, config: DatasetConfig, camera: CameraConfig | None = None,
+                 config_name: str = "the config") -> None:  # fmt: skip
         self.root = Path(root)
         self.config = config
+        self.config_name = config_name
+        self.camera_mismatch: CameraMismatch | None = None
         if not self.root.is_dir():
             raise DatasetError(f"{self.root}: not a folder (expected a TUM-layout dataset)")
         self.pairs = self._read_pairs()
@@ -259,9 +264,17 @@ class TumFolder(GroundTruthAccess):
 
     def _read_camera(self, camera: CameraConfig | None) -> CameraIntrinsics:
         yaml_path = self.root / "camera_info.yaml"
+        configured = _usable(camera)
         if yaml_path.is_file():
             self._camera_source = str(yaml_path)
-            return read_camera_info_yaml(yaml_path)
+            shipped = read_camera_info_yaml(yaml_path)
+            self.camera_mismatch = check_cameras(str(yaml_path), shipped, self.config_name, configured, yaml_path.name)
+            return shipped
+        txt_path = self.root / "camera-intrinsics.txt"
+        if txt_path.is_file() and configured is not None:
+            shipped = read_intrinsics_txt(txt_path, configured.width, configured.height)
+            self.camera_mismatch = check_cameras(str(txt_path), shipped, self.config_name, configured,
+                                                 f"the camera of {self.config_name}")  # fmt: skip
         if camera is None:
             raise DatasetError(
                 f"{self.root}: no camera_info.yaml beside the data and no camera: section in the config; "
@@ -285,6 +298,14 @@ class TumFolder(GroundTruthAccess):
             raise DatasetError(f"{path}: depth image is {raw.dtype} {shape}, expected a 16-bit single-channel PNG")
         depth = raw.astype(np.float32) / np.float32(self.config.depth_scale)
         return depth
+
+
+def _usable(camera: CameraConfig | None) -> CameraIntrinsics | None:
+    """The config's camera as intrinsics, None when absent or incomplete (nothing to compare then)."""
+    try:
+        return None if camera is None else camera.intrinsics()
+    except SlamError:
+        return None
 
 
 def _imread(path: Path, flags: int, what: str) -> np.ndarray:

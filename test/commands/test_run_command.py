@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import FR1_XYZ_10, require
+from helpers import FR1_XYZ_10, REDKITCHEN, require
 
 from changing_slam_ros.cli import main as cli_main
 from changing_slam_ros.io.map_file import MAP_FORMAT_VERSION, load_map, read_map_arrays
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_run_writes_every_output_and_meets_the_fr1_ate_bound(tmp_path) -> None:
@@ -81,3 +84,37 @@ def test_run_rejects_unknown_config_keys(tmp_path, capsys) -> None:
     rc = cli_main(["run", str(require(FR1_XYZ_10)), "--out", str(tmp_path / "o"), "--config", str(cfg), "--quiet"])
     assert rc == 1
     assert "tracking" in capsys.readouterr().err
+
+
+def test_a_config_that_disagrees_with_the_datas_intrinsics_is_said_and_recorded(tmp_path, capsys) -> None:
+    """tum_fr1 on 7-Scenes: the console names both cameras before the first frame; metrics.json records it."""
+    out = tmp_path / "o"
+    rc = cli_main(["run", str(require(REDKITCHEN)), "--out", str(out), "--config", "tum_fr1", "--quiet", "--no-plot",
+                   "--max-frames", "2"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 0
+    warnings = [ln for ln in err.splitlines() if ln.startswith("run: warning: camera of ")]
+    assert len(warnings) == 1 and "tum_fr1.yaml disagrees with" in warnings[0]
+    assert "camera-intrinsics.txt: fx 517.3 vs 585, fy 516.5 vs 585" in warnings[0]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["warnings"] == [warnings[0].removeprefix("run: warning: ")]
+    (m,) = metrics["camera_mismatch"]
+    assert m["data"]["fx"] == 585.0 and m["other"]["fx"] == 517.3 and m["used"].startswith("the camera of")
+
+
+def test_a_loaded_map_made_with_another_camera_is_said_and_recorded(tmp_path, capsys) -> None:
+    data = str(require(FR1_XYZ_10))
+    assert cli_main(["run", data, "--out", str(tmp_path / "first"), "--config", "tum_fr1", "--quiet", "--no-plot",
+                     "--max-frames", "3", "--no-loop"]) == 0  # fmt: skip
+    other = tmp_path / "other_camera.yaml"
+    other.write_text((REPO / "config" / "tum_fr1.yaml").read_text().replace("fx: 517.3", "fx: 540.0"))
+    capsys.readouterr()
+    cli_main(["run", data, "--out", str(tmp_path / "second"), "--config", str(other), "--quiet", "--no-plot",
+              "--max-frames", "3", "--no-loop", "--map-in", str(tmp_path / "first" / "map.npz")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    line = next(ln for ln in err.splitlines() if "disagrees with the loaded map" in ln)
+    assert line.startswith("run: warning: camera of this run disagrees with the loaded map ")
+    assert line.endswith("map.npz: fx 540 vs 517.3; using this run's camera")
+    metrics = json.loads((tmp_path / "second" / "metrics.json").read_text())
+    assert metrics["camera_mismatch"][0]["other"]["fx"] == 540.0 and line.removeprefix("run: warning: ") in metrics["warnings"]
