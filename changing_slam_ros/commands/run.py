@@ -2,7 +2,7 @@
 
     changing-slam run SOURCE --out DIR [--config NAME|FILE] [--max-frames N] [--no-loop] [--no-plot] [--quiet]
         [--map-in PREVIOUS/map.npz] [--detections none|model|oracle] [--detections-file FILE] [--no-dynamic]
-        [ablation switches]
+        [--strict] [ablation switches]
 (dynamic-scene options: see `commands/dynamic_options.py`).
 
 SOURCE is anything `io.dataset.open_dataset` reads (TUM-layout folder, 7-Scenes, ROS 1/2 bag, mcap). DIR
@@ -42,6 +42,7 @@ from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.errors import ConfigError, EvalError, OutputError
 from changing_slam_ros.io.atomic import atomic_write_text
+from changing_slam_ros.io.bag_reader import SkippedMessage
 from changing_slam_ros.io.camera_check import CameraMismatch, check_cameras
 from changing_slam_ros.io.map_file import LoadedMap, load_map, save_map
 from changing_slam_ros.io.output_dir import OutputDir
@@ -67,6 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--localization", action="store_true", help="with --map-in: localisation only, the "
                         "loaded map is never changed (no keyframes, points or objects added or moved, no loops; "
                         "beliefs not updated); object_sightings.json lists the map's objects seen at their place")
+    parser.add_argument("--strict", action="store_true", help="stop at the first malformed message of a bag "
+                        "(default: skip its frame with a warning naming topic and stamp, counted in metrics.json "
+                        "skipped_messages)")
     parser.add_argument("--keypoint-log", type=Path, default=None, metavar="FILE",
                         help="write every frame's keypoints and the dynamic stage's verdict on each to FILE (.npz; "
                              "see commands/keypoint_log.py), for scoring against ground-truth masks")
@@ -105,13 +109,14 @@ def main(args: argparse.Namespace) -> int:
     if args.localization and not args.map_in:
         raise ConfigError("--localization needs --map-in: the map to localise in")
     loaded = load_map(args.map_in) if args.map_in else None  # a bad map fails before any frame is read
-    source = open_dataset(args.source, settings)
+    skips = SkipLog()
+    source = open_dataset(args.source, settings, strict=args.strict, on_skip=skips.add)
     out_dir = OutputDir.prepare(args.out, "--out")  # checked (and staged) before the first frame
     mismatches = camera_mismatches(source, loaded, args.map_in)
     for mismatch in mismatches:  # said before the first frame, recorded in metrics.json at the end
         print(f"run: warning: {mismatch.message()}", file=sys.stderr)
     try:
-        code = _run(args, data, where, config, loaded, source, out_dir.work, mismatches)
+        code = _run(args, data, where, config, loaded, source, out_dir.work, mismatches, skips)
         out_dir.commit()
     except BaseException as err:
         kept = out_dir.abandon()
@@ -146,7 +151,7 @@ def camera_mismatches(source: Any, loaded: LoadedMap | None, map_in: str | None)
 
 
 def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: SystemConfig, loaded: Any,
-         source: Any, out: Path, mismatches: list[CameraMismatch]) -> int:
+         source: Any, out: Path, mismatches: list[CameraMismatch], skips: SkipLog) -> int:
     """Process every frame and write the results into `out` (the staging folder of `OutputDir`)."""
     closing = None if args.no_loop else _loop_closing(data, where)
     dynamic = dynamic_setup(args, data, where)
@@ -217,6 +222,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     if movers is not None:  # class-agnostic moving objects (Dai et al.) and their trajectories
         metrics["moving_objects"] = write_moving_objects(out, movers.tracks())
     metrics["camera_mismatch"] = [m.as_dict() for m in mismatches]
+    metrics["skipped_messages"] = skips.summary()
     late = run_warnings(metrics)
     metrics["warnings"] = [m.message() for m in mismatches] + late
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
@@ -240,11 +246,38 @@ def run_warnings(metrics: dict[str, Any]) -> list[str]:
     if metrics["frames"] and metrics["frames_tracked"] == 0:
         out.append(f"0 of {metrics['frames']} frames tracked: check the config's camera and dataset.depth_scale "
                    "against the data")  # fmt: skip
+    skipped = metrics.get("skipped_messages", {})
+    if skipped.get("count"):
+        topics = ", ".join(f"{n} on {t}" for t, n in skipped["by_topic"].items())
+        out.append(f"{skipped['count']} malformed message(s) skipped ({topics}); --strict stops at the first")
     ms = metrics.get("multi_session")
     if ms is not None and not ms["relocalised"]:
         out.append(f"never relocalised in the loaded map {ms['map_in']}; a new map was started (a map of another "
                    "scene, or made with another camera?)")  # fmt: skip
     return out
+
+
+class SkipLog:
+    """The malformed messages the reader skipped: the first `PRINTED` said on the console as they come, all
+    counted per topic for metrics.json `skipped_messages`."""
+
+    PRINTED = 10
+
+    def __init__(self) -> None:
+        self.skipped: list[SkippedMessage] = []
+
+    def add(self, skipped: SkippedMessage) -> None:
+        self.skipped.append(skipped)
+        if len(self.skipped) <= self.PRINTED:
+            more = "; further ones only counted" if len(self.skipped) == self.PRINTED else ""
+            print(f"run: warning: {skipped.message()}{more}", file=sys.stderr)
+
+    def summary(self) -> dict[str, Any]:
+        by_topic: dict[str, int] = {}
+        for s in self.skipped:
+            by_topic[s.topic] = by_topic.get(s.topic, 0) + 1
+        first = [{"topic": s.topic, "stamp_ns": s.stamp_ns, "reason": s.reason} for s in self.skipped[:self.PRINTED]]
+        return {"count": len(self.skipped), "by_topic": by_topic, "first": first}
 
 
 @dataclass

@@ -15,7 +15,7 @@ and is not compared).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,7 +32,7 @@ from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig, Top
 from changing_slam_ros.io.groundtruth import GroundTruth, GroundTruthAccess
 from changing_slam_ros.io.image_codec import decode_any_depth, decode_any_rgb
 from changing_slam_ros.io.tf_chain import TfBuffer, transform_matrix
-from changing_slam_ros.io.tum_folder import associate
+from changing_slam_ros.io.tum_folder import associate, format_stamp
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
@@ -72,11 +72,46 @@ def _present(topics: dict[str, BagConnection], name: str, suffixes: tuple[str, .
     return ""
 
 
+@dataclass(frozen=True)
+class SkippedMessage:
+    """A message the reader could not use: its topic, stamp (header, else log time) and why."""
+
+    topic: str
+    stamp_ns: int
+    reason: str
+
+    def message(self) -> str:
+        return f"skipped a malformed message on {self.topic} at stamp {format_stamp(self.stamp_ns)} s: {self.reason}"
+
+
+class MalformedMessage(BagError):
+    """One message that cannot be decoded (raised when the reader is `strict`); `skipped` says which."""
+
+    def __init__(self, path: Path, skipped: SkippedMessage) -> None:
+        super().__init__(f"{path}: {skipped.topic} at stamp {format_stamp(skipped.stamp_ns)} s: {skipped.reason}")
+        self.skipped = skipped
+
+    @classmethod
+    def of(cls, path: Path, msg: RawMessage, err: BagError) -> MalformedMessage:
+        reason = str(err)
+        for prefix in (f"{path}: ", f"{msg.topic}: "):  # the message names both already
+            reason = reason.removeprefix(prefix)
+        return cls(path, SkippedMessage(msg.topic, _stamp(msg), reason))
+
+
 class BagRgbdReader(GroundTruthAccess):
-    """RgbdSource over one bag file or folder."""
+    """RgbdSource over one bag file or folder.
+
+    A colour, depth or CameraInfo message that cannot be decoded ends the iteration with a `MalformedMessage`
+    when `strict`; otherwise its frame is skipped (a CameraInfo: the frames keep the previous one), the
+    message recorded in `skipped` and passed to `on_skip`."""
 
     def __init__(self, path: str | Path, config: DatasetConfig, camera: CameraConfig | None = None,
-                 config_name: str = "the config") -> None:  # fmt: skip
+                 config_name: str = "the config", strict: bool = True,
+                 on_skip: Callable[[SkippedMessage], None] | None = None) -> None:  # fmt: skip
+        self.strict = strict
+        self.on_skip = on_skip
+        self.skipped: list[SkippedMessage] = []
         self.path = Path(path)
         self.config = config
         self._config_camera = camera
@@ -99,6 +134,7 @@ class BagRgbdReader(GroundTruthAccess):
         return len(self._pairs)
 
     def __iter__(self) -> Iterator[RgbdFrame]:
+        self.skipped = []
         want_rgb = {p.rgb_ordinal: k for k, p in enumerate(self._pairs)}
         want_depth = {p.depth_ordinal: k for k, p in enumerate(self._pairs)}
         rgb_msgs: dict[int, tuple[RawMessage, CameraIntrinsics]] = {}
@@ -113,7 +149,11 @@ class BagRgbdReader(GroundTruthAccess):
                 if msg.topic == self.topics.camera_info:
                     if self._track_camera_info:
                         if msg.cdr not in info_cache:
-                            info_cache[msg.cdr] = intrinsics_from_camera_info(bag.deserialize(msg), msg.topic)
+                            try:
+                                info_cache[msg.cdr] = intrinsics_from_camera_info(bag.deserialize(msg), msg.topic)
+                            except BagError as err:  # the frames keep the latest good CameraInfo
+                                self._skip(MalformedMessage.of(self.path, msg, err))
+                                continue
                         camera = info_cache[msg.cdr]
                     continue
                 if msg.topic == self.topics.rgb:
@@ -126,24 +166,43 @@ class BagRgbdReader(GroundTruthAccess):
                     n_depth += 1
                 while next_k in rgb_msgs and next_k in depth_msgs:
                     (rgb_msg, cam), depth_msg = rgb_msgs.pop(next_k), depth_msgs.pop(next_k)
-                    yield self._frame(bag, next_k, rgb_msg, depth_msg, cam)
+                    try:
+                        frame = self._frame(bag, next_k, rgb_msg, depth_msg, cam)
+                    except MalformedMessage as err:
+                        self._skip(err)
+                        frame = None
                     next_k += 1
+                    if frame is not None:
+                        yield frame
         if next_k != len(self._pairs):
             raise BagError(
                 f"{self.path}: bag changed while reading (frame {next_k} of {len(self._pairs)} never completed)"
             )
 
     # -- internals -----------------------------------------------------------------------------
+    def _skip(self, err: MalformedMessage) -> None:
+        """Record (and report through `on_skip`) a malformed message; raise it instead when `strict`."""
+        if self.strict:
+            raise err
+        self.skipped.append(err.skipped)
+        if self.on_skip is not None:
+            self.on_skip(err.skipped)
+
     def _frame(
         self, bag: BagMessages, k: int, rgb_msg: RawMessage, depth_msg: RawMessage, camera: CameraIntrinsics
     ) -> RgbdFrame:
-        rgb = decode_any_rgb(bag.deserialize(rgb_msg), rgb_msg.topic)
-        depth = decode_any_depth(bag.deserialize(depth_msg), depth_msg.topic)
+        try:
+            rgb = decode_any_rgb(bag.deserialize(rgb_msg), rgb_msg.topic)
+        except BagError as err:
+            raise MalformedMessage.of(self.path, rgb_msg, err) from err
+        try:
+            depth = decode_any_depth(bag.deserialize(depth_msg), depth_msg.topic)
+        except BagError as err:
+            raise MalformedMessage.of(self.path, depth_msg, err) from err
         if rgb.shape[:2] != depth.shape:
-            raise BagError(
-                f"{self.path}: colour {rgb_msg.topic} is {rgb.shape[1]}x{rgb.shape[0]} but depth "
-                f"{depth_msg.topic} is {depth.shape[1]}x{depth.shape[0]}; they must be registered, same size"
-            )
+            raise MalformedMessage.of(self.path, depth_msg, BagError(
+                f"depth is {depth.shape[1]}x{depth.shape[0]} but colour {rgb_msg.topic} is "
+                f"{rgb.shape[1]}x{rgb.shape[0]}; they must be registered, same size"))  # fmt: skip
         if (rgb.shape[1], rgb.shape[0]) != (camera.width, camera.height):
             raise BagError(
                 f"{self.path}: colour {rgb_msg.topic} is {rgb.shape[1]}x{rgb.shape[0]} but the camera "

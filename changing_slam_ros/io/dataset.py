@@ -11,9 +11,9 @@ data ships disagree with the config's camera; `io.camera_check`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
@@ -36,6 +36,9 @@ __all__ = [
     "load_dataset_settings",
     "open_dataset",
 ]
+
+if TYPE_CHECKING:
+    from changing_slam_ros.io.bag_reader import SkippedMessage
 
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
@@ -62,16 +65,20 @@ class RgbdSource(Protocol):
 
 
 def open_dataset(
-    path: str | Path, config: DatasetSettings | str | Path | None = None
+    path: str | Path, config: DatasetSettings | str | Path | None = None, strict: bool = True,
+    on_skip: Callable[[SkippedMessage], None] | None = None,
 ) -> RgbdSource:
-    """Open a TUM-layout folder or a bag; `config` is loaded settings, a config file/name, or None."""
+    """Open a TUM-layout folder or a bag; `config` is loaded settings, a config file/name, or None.
+
+    A bag's malformed messages end the iteration when `strict`, else their frames are skipped and each is passed
+    to `on_skip` (`BagRgbdReader`); a TUM folder's unreadable image always ends it."""
     settings = config if isinstance(config, DatasetSettings) else load_dataset_settings(config)
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"{p}: no such file or folder (expected a TUM-layout folder or a bag)")
     if p.is_dir():
         if (p / "metadata.yaml").is_file():
-            return _bag(p, settings)
+            return _bag(p, settings, strict, on_skip)
         if (p / "rgb.txt").is_file() or (p / "associations.txt").is_file():
             from changing_slam_ros.io.tum_folder import TumFolder
 
@@ -80,11 +87,12 @@ def open_dataset(
             f"{p}: neither a ROS 2 bag folder (metadata.yaml) nor a TUM-layout folder (rgb.txt / associations.txt)"
         )
     if p.suffix in BAG_SUFFIXES:
-        return _bag(p, settings)
+        return _bag(p, settings, strict, on_skip)
     raise DatasetError(f"{p}: unsupported input; expected a folder, a .bag, a .mcap or a .db3 file")
 
 
-def _bag(p: Path, settings: DatasetSettings) -> RgbdSource:
+def _bag(p: Path, settings: DatasetSettings, strict: bool,
+         on_skip: Callable[[SkippedMessage], None] | None) -> RgbdSource:  # fmt: skip
     from changing_slam_ros.io.bag_reader import BagRgbdReader
 
-    return BagRgbdReader(p, settings.dataset, settings.camera, settings.source)
+    return BagRgbdReader(p, settings.dataset, settings.camera, settings.source, strict, on_skip)
