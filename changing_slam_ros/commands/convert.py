@@ -2,11 +2,13 @@
 
     changing-slam convert SRC OUT.mcap [--config NAME|FILE] [--compress] [--jpeg-quality Q]
                                        [--depth-encoding 32FC1|16UC1]
+    changing-slam convert --recover BROKEN.mcap OUT.mcap
 
 SRC is anything `open_dataset` reads (TUM-layout folder, ROS 1 .bag, ROS 2 bag folder, .mcap).
 The output holds colour, depth and CameraInfo per frame and the ground truth as PoseStamped
 (see `io.mcap_writer`); it is written to a temporary file and renamed, so a failure leaves an
-existing OUT untouched.
+existing OUT untouched. `--recover` copies every message still readable from a truncated or damaged mcap
+(`io.mcap_recover`), all topics as recorded, into a complete OUT.mcap that `run`, `graph` and `bag_player` read.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compress", action="store_true",
                         help="JPEG colour and 16-bit PNG depth (millimetres) as CompressedImage on .../compressed")  # fmt: skip
     parser.add_argument("--jpeg-quality", type=int, default=95, metavar="Q", help="JPEG quality with --compress (default 95)")
+    parser.add_argument("--recover", action="store_true",
+                        help="SRC is a truncated or damaged .mcap: copy every message still readable (all topics, as "
+                             "recorded) into OUT.mcap; the other options do not apply")  # fmt: skip
     parser.add_argument("--depth-encoding", choices=("32FC1", "16UC1"), default="32FC1",
                         help="raw depth encoding: 32FC1 metres (lossless, default) or 16UC1 millimetres")  # fmt: skip
 
@@ -45,6 +50,8 @@ def main(args: argparse.Namespace) -> int:
     if not 1 <= args.jpeg_quality <= 100:
         raise BagError(f"--jpeg-quality {args.jpeg_quality}: expected 1..100")
     check_output_file(out, "OUT.mcap")
+    if args.recover:
+        return _recover(Path(args.src), out)
     src = open_dataset(args.src, args.config)
     print(f"reading {src.description}")
     gt = getattr(src, "groundtruth_stamped", None)
@@ -60,4 +67,15 @@ def main(args: argparse.Namespace) -> int:
     mode = "compressed (JPEG + PNG)" if args.compress else f"raw (rgb8 + {args.depth_encoding})"
     print(f"wrote {out}: {writer.frames_written} frames, {writer.poses_written} ground-truth poses, "
           f"{mode}, {size_mb:.1f} MB")  # fmt: skip
+    return 0
+
+
+def _recover(src: Path, out: Path) -> int:
+    from changing_slam_ros.io.mcap_recover import recover_mcap
+
+    if src.is_dir():
+        raise BagError(f"{src}: --recover takes an .mcap file (a ROS 2 bag folder's is inside it)")
+    got = recover_mcap(src, out)
+    ending = f"; the rest is unreadable (stopped {got.stopped})" if got.stopped else "; the file read to its end"
+    print(f"wrote {out}: {got.messages} messages on {got.channels} topics recovered from {src}{ending}")
     return 0

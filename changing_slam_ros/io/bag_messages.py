@@ -73,8 +73,9 @@ class RawMessage:
 _REPAIR_HINT = {
     BagKind.ROS1: " (a truncated or unindexed recording can be repaired with 'rosbag reindex')",
     BagKind.ROS2_SQLITE3: "",
-    BagKind.ROS2_MCAP: " (a truncated recording can be repaired with 'mcap recover')",
-    BagKind.MCAP: " (a truncated recording can be repaired with 'mcap recover')",
+    BagKind.ROS2_MCAP: " (what a truncated recording still holds: 'changing-slam convert --recover FILE.mcap "
+                       "OUT.mcap' with the .mcap file inside the folder)",
+    BagKind.MCAP: " (what a truncated recording still holds: 'changing-slam convert --recover FILE.mcap OUT.mcap')",
 }
 
 
