@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from changing_slam_ros.errors import ConfigError, utf8_error
+from changing_slam_ros.errors import ConfigError, utf8_error, yaml_error
 
 T = TypeVar("T")
 
@@ -57,7 +57,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ConfigError(f"{p}: not valid YAML ({err})") from err
+        raise ConfigError(yaml_error(p, err)) from err
     if data is None:
         return {}
     if not isinstance(data, dict):

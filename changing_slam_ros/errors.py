@@ -51,3 +51,11 @@ def utf8_error(path: str | os.PathLike[str], err: UnicodeDecodeError, what: str)
     line = raw[: err.start].count(b"\n") + 1
     byte = f" (byte 0x{raw[err.start]:02x})" if err.start < len(raw) else ""
     return f"{path}:{line}: not UTF-8 {what}{byte}"
+
+
+def yaml_error(path: str | os.PathLike[str], err: Exception) -> str:
+    """`path:line: not valid YAML (problem)` from a PyYAML error, on one line (PyYAML's own text spans several)."""
+    mark = getattr(err, "problem_mark", None)
+    where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+    problem = getattr(err, "problem", None) or str(err).strip().splitlines()[0]
+    return f"{where}: not valid YAML ({problem})"

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
-from changing_slam_ros.errors import BagError, DatasetError
+from changing_slam_ros.errors import BagError, DatasetError, utf8_error, yaml_error
 from changing_slam_ros.io.atomic import atomic_write_text
 
 SUPPORTED_MODELS = ("plumb_bob", "rational_polynomial")
@@ -89,11 +89,13 @@ def read_camera_info_yaml(path: str | os.PathLike[str]) -> CameraIntrinsics:
     """Read a ROS camera-calibration YAML (as written by camera_calibration / camera_info_manager)."""
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
     except OSError as err:
         raise DatasetError(f"{p}: cannot read camera calibration ({err.strerror})") from err
+    except UnicodeDecodeError as err:
+        raise DatasetError(utf8_error(p, err, "camera calibration")) from err
     except yaml.YAMLError as err:
-        raise DatasetError(f"{p}: not valid YAML ({err})") from err
+        raise DatasetError(yaml_error(p, err)) from err
     if not isinstance(data, dict):
         raise DatasetError(f"{p}: expected a camera calibration mapping, got {type(data).__name__}")
     for key in ("image_width", "image_height", "camera_matrix"):

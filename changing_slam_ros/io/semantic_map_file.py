@@ -25,7 +25,7 @@ import yaml
 from changing_slam_ros.core.objects.map_object import MapObject
 from changing_slam_ros.core.objects.object_point_weights import Plane
 from changing_slam_ros.core.objects.semantic_map import SemanticMap, SemanticObject
-from changing_slam_ros.errors import MapFileError
+from changing_slam_ros.errors import MapFileError, yaml_error
 from changing_slam_ros.io.atomic import atomic_write_text
 
 FORMAT = "changing_slam_ros semantic map"
@@ -90,8 +90,7 @@ def read_semantic_map(path: str | Path) -> SemanticMap:
     try:
         doc = yaml.safe_load(text) if _is_yaml(p) else json.loads(text)
     except (json.JSONDecodeError, yaml.YAMLError) as err:
-        kind = "YAML" if _is_yaml(p) else "JSON"
-        raise MapFileError(f"{p}: not valid {kind} ({err})") from err
+        raise MapFileError(yaml_error(p, err) if _is_yaml(p) else f"{p}: not valid JSON ({err})") from err
     return semantic_map_from_dict(doc, str(p))
 
 
