@@ -60,7 +60,8 @@ def test_section_rejects_bad_values_naming_file_and_key(data: dict, match: str) 
 def test_load_yaml_names_the_file_on_bad_yaml(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("camera: [1, 2\n")
-    with pytest.raises(ConfigError, match=r"bad.yaml:2: not valid YAML \(expected .,. or .\]., but got .<stream end>.\)$"):
+    with pytest.raises(ConfigError, match=r"bad.yaml:2: not valid YAML \(expected .,. or .\]., but got .<stream "
+                                          r"end>.\)$"):  # fmt: skip
         load_yaml(bad)
     with pytest.raises(ConfigError, match="missing.yaml: cannot read config"):
         load_yaml(tmp_path / "missing.yaml")

@@ -27,6 +27,7 @@ class Case:
     expect: Callable[[Path], list[str]]  # substrings of the one error line
     needs_fr1: bool = False  # the case folder starts as a copy of the fr1 TUM folder (files then overwrite)
     drop: tuple[str, ...] = ()  # files of that copy removed first (associations.txt, so rgb.txt is read)
+    prepare: Callable[[Path], object] | None = None  # writes what `files` cannot hold (a bag, a cut file)
 
 
 def config_case(name: str, text: str | bytes, *expect: str) -> list[Case]:
@@ -46,11 +47,30 @@ def eval_case(name: str, gt: str | bytes, est: str | bytes, *expect: str) -> Cas
                 lambda d: ["eval", "ate", str(d / "gt.txt"), str(d / "est.txt")], lambda d: list(expect))  # fmt: skip
 
 
-def tum_case(name: str, files: dict[str, str | bytes], *expect: str) -> Case:
+def tum_case(name: str, files: dict[str, str | bytes], *expect: str,
+             prepare: Callable[[Path], object] | None = None) -> Case:  # fmt: skip
     drop = ("associations.txt",) if set(files) & {"rgb.txt", "depth.txt"} else ()
     return Case(f"tum-{name}", files, lambda d: ["run", str(d), "--out", str(d.parent / f"{d.name}-out"),
                                                  "--config", "tum_fr1", "--quiet"],
-                lambda d: list(expect), needs_fr1=True, drop=drop)  # fmt: skip
+                lambda d: list(expect), needs_fr1=True, drop=drop, prepare=prepare)  # fmt: skip
+
+
+def _cut_first_colour_png(folder: Path) -> None:
+    png = sorted((folder / "rgb").glob("*.png"))[0]
+    png.write_bytes(png.read_bytes()[:2000])
+
+
+def _cut_bag(size: int) -> Callable[[Path], object]:
+    return lambda d: (d / "cut.mcap").write_bytes(BAG.read_bytes()[:size])
+
+
+def _bad_image_bag(folder: Path) -> None:
+    from helpers import write_bag_with_one_bad_image
+
+    write_bag_with_one_bad_image(folder / "one_bad.mcap")
+
+
+CAMERA_INFO_YAML = "image_width: 640\nimage_height: 480\ncamera_matrix: {rows: 3, cols: 3, data: [%s]}\n"
 
 
 def out_case(name: str, files: dict[str, str | bytes], out: str, command: str, *expect: str) -> Case:
@@ -101,6 +121,27 @@ CASES: list[Case] = [
     tum_case("rgb-bad-stamp", {"rgb.txt": "# x\nabc rgb/1.png\n"}, "rgb.txt:2", "abc"),
     tum_case("associations-non-utf8", {"associations.txt": b"1305031102.175304 rgb/a.png 1305031102.1\xe9 d.png\n"},
              "associations.txt:1: not UTF-8"),
+    tum_case("colour-png-truncated", {}, "colour image is truncated", prepare=_cut_first_colour_png),
+    # intrinsics shipped with the data (7-Scenes camera-intrinsics.txt, camera_info.yaml)
+    tum_case("intrinsics-txt-two-rows", {"camera-intrinsics.txt": "585 0 320\n0 585 240\n"},
+             "camera-intrinsics.txt: expected a 3x3 camera matrix"),
+    tum_case("intrinsics-txt-word", {"camera-intrinsics.txt": "585 0 320\n0 f 240\n0 0 1\n"},
+             "camera-intrinsics.txt:2: camera matrix values must be numbers"),
+    tum_case("intrinsics-txt-non-utf8", {"camera-intrinsics.txt": b"5\xe885 0 320\n0 585 240\n0 0 1\n"},
+             "camera-intrinsics.txt:1: not UTF-8"),
+    tum_case("intrinsics-txt-fx-0", {"camera-intrinsics.txt": "0 0 320\n0 585 240\n0 0 1\n"},
+             "camera-intrinsics.txt", "fx=0.0"),
+    tum_case("camera-info-yaml-non-utf8", {"camera_info.yaml": b"image_width: 640\n\xff\n"},
+             "camera_info.yaml:2: not UTF-8"),
+    tum_case("camera-info-yaml-broken", {"camera_info.yaml": "image_width: [640\n"},
+             "camera_info.yaml:2: not valid YAML"),
+    tum_case("camera-info-yaml-no-matrix", {"camera_info.yaml": "image_width: 640\nimage_height: 480\n"},
+             "camera_info.yaml", "missing key 'camera_matrix'"),
+    tum_case("camera-info-yaml-fx-0", {"camera_info.yaml": CAMERA_INFO_YAML % "0, 0, 320, 0, 585, 240, 0, 0, 1"},
+             "camera_info.yaml", "fx=0.0"),
+    tum_case("camera-info-yaml-model", {"camera_info.yaml": CAMERA_INFO_YAML % "585, 0, 320, 0, 585, 240, 0, 0, 1"
+             + "distortion_model: equidistant\ndistortion_coefficients: {rows: 1, cols: 4, data: [0.1, 0, 0, 0]}\n"},
+             "camera_info.yaml", "distortion model 'equidistant' unsupported"),
     # eval: binary, missing, empty, malformed
     eval_case("est-binary", TRAJ, bytes(range(256)) * 4, "est.txt:2: not UTF-8"),
     eval_case("gt-binary", b"\x89PNG\r\n\x1a\n" + bytes(100), TRAJ, "gt.txt:1: not UTF-8"),
@@ -132,7 +173,23 @@ CASES: list[Case] = [
     Case("run-source-not-mcap", {"x.mcap": "hello\n"}, lambda d: ["run", str(d / "x.mcap"), "--out", str(d / "o")],
          lambda d: ["x.mcap"]),  # fmt: skip
     Case("run-source-truncated", {}, lambda d: ["run", str(d / "cut.mcap"), "--out", str(d / "o")],
-         lambda d: ["cut.mcap"]),  # fmt: skip
+         lambda d: ["cut.mcap", "'changing-slam convert --recover FILE.mcap OUT.mcap'"],
+         prepare=_cut_bag(BAG.stat().st_size // 3)),  # fmt: skip
+    Case("run-bag-malformed-image-strict", {}, lambda d: ["run", str(d / "one_bad.mcap"), "--out", str(d / "o"),
+                                                          "--config", "tum_fr1", "--quiet", "--strict"],
+         lambda d: ["one_bad.mcap: /camera/rgb/image_color at stamp ", "image data has 10 bytes"],
+         prepare=_bad_image_bag),  # fmt: skip
+    # convert --recover
+    Case("convert-recover-not-mcap", {"x.mcap": "hello\n"},
+         lambda d: ["convert", "--recover", str(d / "x.mcap"), str(d / "o.mcap")],
+         lambda d: ["x.mcap: not an mcap file"]),  # fmt: skip
+    Case("convert-recover-header-only", {}, lambda d: ["convert", "--recover", str(d / "cut.mcap"), str(d / "o.mcap")],
+         lambda d: ["cut.mcap: no message could be read", "nothing to recover"], prepare=_cut_bag(40)),
+    Case("convert-recover-folder", {"bagdir/metadata.yaml": "storage_identifier: mcap\n"},
+         lambda d: ["convert", "--recover", str(d / "bagdir"), str(d / "o.mcap")],
+         lambda d: ["bagdir: --recover takes an .mcap file"]),  # fmt: skip
+    Case("convert-recover-missing", {}, lambda d: ["convert", "--recover", str(d / "gone.mcap"), str(d / "o.mcap")],
+         lambda d: ["gone.mcap: cannot read"]),  # fmt: skip
     Case("graph-source-missing", {}, lambda d: ["graph", str(d / "nope.mcap"), "--out", str(d / "o")],
          lambda d: ["nope.mcap"]),  # fmt: skip
     Case("convert-config-typo", {"bad.yaml": "dataset:\n  depth_scal: 5\n"},
@@ -184,15 +241,15 @@ def test_bad_input_ends_with_one_line_naming_what_is_wrong(case: Case, tmp_path:
             (folder / name).unlink()
     folder.mkdir(exist_ok=True)
     _write(folder, case.files)
-    if case.name == "run-source-truncated":
-        (folder / "cut.mcap").write_bytes(BAG.read_bytes()[: BAG.stat().st_size // 3])
+    if case.prepare is not None:
+        case.prepare(folder)
     rc = cli_main(case.argv(folder))
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert "Traceback" not in err, err
     assert rc == 1, (rc, err)
     errors = [ln for ln in lines if ": error: " in ln]
-    assert len(errors) == 1, lines
+    assert len(errors) == 1 and lines[-1] == errors[0], lines  # one line, nothing after it
     for text in case.expect(folder):
         assert text in errors[0], (text, errors[0])
 
@@ -247,3 +304,60 @@ def test_a_run_that_tracks_no_frame_says_so_records_it_and_exits_1(tmp_path, cap
     assert rc == 1 and "run: warning: 0 of 9 frames tracked" in err and "Traceback" not in err
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
     assert metrics["frames_tracked"] == 0 and metrics["warnings"][0].startswith("0 of 9 frames tracked")
+
+
+@dataclass(frozen=True)
+class WarnCase:
+    """Input a run goes on with: it says so in one `run: warning:` line and records it in metrics.json."""
+
+    name: str
+    argv: Callable[[Path], list[str]]  # given the case folder; `--out` is `OUT` inside it
+    expect: tuple[str, ...]  # substrings of the one warning line
+    metrics_key: str  # the metrics.json entry that records it
+    needs_fr1: bool = False
+    prepare: Callable[[Path], object] | None = None
+
+
+SIM_BAG = REPO / "bags" / "sim_walking_changing.mcap"
+FR1_ARGS = ["--config", "tum_fr1", "--max-frames", "2"]
+SEVEN_SCENES_K = "585, 0, 320, 0, 585, 240, 0, 0, 1"
+WARN_CASES = [
+    WarnCase("tum-intrinsics-txt-disagrees", lambda d: ["run", str(d / "data"), *FR1_ARGS],
+             ("camera of ", "tum_fr1.yaml disagrees with ", "camera-intrinsics.txt: fx 517.3 vs 585, fy 516.5 vs 585",
+              "using the camera of "), "camera_mismatch", needs_fr1=True,
+             prepare=lambda d: (d / "data" / "camera-intrinsics.txt").write_text("585 0 320\n0 585 240\n0 0 1\n")),
+    WarnCase("tum-camera-info-yaml-disagrees", lambda d: ["run", str(d / "data"), *FR1_ARGS],
+             ("camera_info.yaml: fx 517.3 vs 585", "using camera_info.yaml"), "camera_mismatch", needs_fr1=True,
+             prepare=lambda d: (d / "data" / "camera_info.yaml").write_text(CAMERA_INFO_YAML % SEVEN_SCENES_K)),
+    WarnCase("bag-camera-info-disagrees",
+             lambda d: ["run", str(SIM_BAG), "--config", "7scenes", "--max-frames", "2", "--no-dynamic"],
+             ("7scenes.yaml disagrees with the CameraInfo on /camera/rgb/camera_info of ", "fx 292.5 vs 262.5",
+              "640x480 values scaled to 320x240", "using the CameraInfo"), "camera_mismatch"),
+    WarnCase("bag-malformed-image", lambda d: ["run", str(d / "one_bad.mcap"), "--config", "tum_fr1", "--no-loop"],
+             ("skipped a malformed message on /camera/rgb/image_color at stamp ", "image data has 10 bytes"),
+             "skipped_messages", prepare=_bad_image_bag),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("case", WARN_CASES, ids=[c.name for c in WARN_CASES])
+def test_input_a_run_goes_on_with_is_said_once_and_recorded(case: WarnCase, tmp_path: Path, capsys) -> None:
+    import json
+
+    folder = tmp_path / "case"
+    folder.mkdir()
+    if case.needs_fr1:
+        src = Path(FR1_XYZ_10)
+        if not src.is_dir():
+            pytest.skip(f"{src} missing")
+        shutil.copytree(src, folder / "data")
+    if case.prepare is not None:
+        case.prepare(folder)
+    rc = cli_main([*case.argv(folder), "--out", str(folder / "OUT"), "--quiet", "--no-plot"])
+    err = capsys.readouterr().err
+    assert rc == 0 and "Traceback" not in err, err
+    said = [ln for ln in err.splitlines() if ln.startswith("run: warning: ") and all(t in ln for t in case.expect)]
+    assert len(said) == 1, err
+    metrics = json.loads((folder / "OUT" / "metrics.json").read_text())
+    assert metrics[case.metrics_key], metrics[case.metrics_key]
+    if case.metrics_key == "camera_mismatch":
+        assert said[0].removeprefix("run: warning: ") in metrics["warnings"]
