@@ -29,8 +29,10 @@ from pathlib import Path
 from typing import Any
 
 from changing_slam_ros.commands.graph_outputs import (
+    camera_mismatches,
     detection_median_ms,
     evaluate,
+    graph_warnings,
     lossless_gaps,
     read_json,
     write_outputs_mcap,
@@ -228,11 +230,15 @@ class Graph:
         self.load_calls: list[dict[str, Any]] = []  # one per --load-map: path, at_s, process, log
         self.map_loads: list[dict[str, Any]] = []  # their outcomes (graph_summary.json)
         self.map_in = ""
+        loaded = None
         if args.map_in:
             from changing_slam_ros.io.map_file import load_map
 
-            load_map(args.map_in)  # a bad map fails here, before any process starts
+            loaded = load_map(args.map_in)  # a bad map fails here, before any process starts
             self.map_in = str(Path(args.map_in).resolve())
+        self.mismatches = camera_mismatches(self.bag, self.config or "", self.map_in, loaded)
+        for mismatch in self.mismatches:
+            print(f"graph: warning: {mismatch.message()}", file=sys.stderr, flush=True)
         # Everything is written into a fresh folder beside --out, which replaces it when the run is complete
         # (`io.output_dir`); an interrupted run leaves --out as it was and its partial results aside.
         self.out_dir = OutputDir.prepare(Path(args.out).resolve(), "--out")
@@ -515,6 +521,8 @@ class Graph:
             if (self.out / "map.npz").is_file() else None  # fmt: skip
         movers = read_json(self.out / "moving_objects.json")
         summary["moving_objects"] = len(movers["objects"]) if movers else None
+        summary["camera_mismatch"] = [m.as_dict() for m in self.mismatches]
+        summary["warnings"] = graph_warnings(summary, self.mismatches)
         atomic_write_text(self.out / "graph_summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
 
@@ -560,8 +568,10 @@ def main(args: argparse.Namespace) -> int:
     )
     if s.get("lossless_incomplete"):
         print("graph: warning: lossless run incomplete: " + "; ".join(s["lossless_incomplete"]), file=sys.stderr)
+    for warning in s["warnings"][len(graph.mismatches):]:  # the camera ones were said before the start
+        print(f"graph: warning: {warning}", file=sys.stderr)
     cpu = s.get("cpu_ms_per_bag_frame") or {}
     if cpu:
         print("CPU ms per bag frame during playback: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items()))
     print(f"results in {graph.out_dir.target}")
-    return 0
+    return 1 if s["colour_frames_in_bag"] and not s["frames_tracked"] else 0  # nothing useful produced

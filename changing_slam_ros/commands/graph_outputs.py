@@ -1,5 +1,6 @@
 """What `changing-slam graph` makes of a finished run: the nodes' stats files read back, outputs.mcap (the
-trajectories, ground truth and moving objects as PoseStamped topics) and the ATE against the bag's ground truth."""
+trajectories, ground truth and moving objects as PoseStamped topics), the ATE against the bag's ground truth, and
+the warnings of a run that may not be what it seems (cameras that disagree, no frame tracked)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from typing import Any
 
 from changing_slam_ros.commands.graph_process import NodeProcess
 from changing_slam_ros.errors import SlamError
+from changing_slam_ros.io.camera_check import CameraMismatch, first_keyframe_camera, map_camera_mismatch
 
 
 def read_json(path: Path) -> dict[str, Any] | None:
@@ -145,3 +147,29 @@ def lossless_gaps(player_log: str, stats: dict[str, Any], mapping: dict[str, Any
     if not stats:
         gaps.append("tracking wrote no tracking_stats.json")
     return gaps
+
+
+def camera_mismatches(bag: str, config: str, map_in: str, loaded: Any) -> list[CameraMismatch]:
+    """The bag's first CameraInfo against the config's camera, and the camera the nodes will use against the one
+    the `--map-in` map was made with (`loaded`: its `LoadedMap`, or None); nothing when the bag cannot be read
+    here (the nodes then say why)."""
+    from changing_slam_ros.io.dataset import open_dataset
+
+    try:
+        source = open_dataset(bag, config or None)
+    except SlamError:
+        return []
+    found = [source.camera_mismatch]
+    if loaded is not None:
+        found.append(map_camera_mismatch(map_in, first_keyframe_camera(loaded.atlas.current.keyframes),
+                                         source.camera))  # fmt: skip
+    return [m for m in found if m is not None]
+
+
+def graph_warnings(summary: dict[str, Any], mismatches: list[CameraMismatch]) -> list[str]:
+    """graph_summary.json `warnings`: cameras that disagree, and no frame tracked (then `graph` exits 1)."""
+    out = [m.message() for m in mismatches]
+    if summary.get("colour_frames_in_bag") and not summary.get("frames_tracked"):
+        out.append(f"0 of {summary['colour_frames_in_bag']} colour frames tracked: check the config's camera and "
+                   "dataset against the bag, and logs/tracking.log")  # fmt: skip
+    return out

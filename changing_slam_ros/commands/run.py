@@ -43,7 +43,7 @@ from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.errors import ConfigError, EvalError, OutputError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.bag_reader import SkippedMessage
-from changing_slam_ros.io.camera_check import CameraMismatch, check_cameras
+from changing_slam_ros.io.camera_check import CameraMismatch, first_keyframe_camera, map_camera_mismatch
 from changing_slam_ros.io.map_file import LoadedMap, load_map, save_map
 from changing_slam_ros.io.output_dir import OutputDir
 from changing_slam_ros.commands.changes import write_change_outputs
@@ -141,13 +141,11 @@ def _staged(path: Path, target: Path, work: Path) -> Path:
 def camera_mismatches(source: Any, loaded: LoadedMap | None, map_in: str | None) -> list[CameraMismatch]:
     """Where the run's camera disagrees with the intrinsics the data ships (the reader's `camera_mismatch`) or
     with the camera a `--map-in` map was made with (its current map's first keyframe)."""
-    out = [m for m in (getattr(source, "camera_mismatch", None),) if m is not None]
-    if loaded is not None and loaded.atlas.current.keyframes:
-        first = loaded.atlas.current.keyframes[min(loaded.atlas.current.keyframes)]
-        found = check_cameras(f"the loaded map {map_in}", first.camera, "this run", source.camera,
-                              "this run's camera", scale=False)  # fmt: skip
-        out += [found] if found is not None else []
-    return out
+    found = [getattr(source, "camera_mismatch", None)]
+    if loaded is not None:
+        found.append(map_camera_mismatch(str(map_in), first_keyframe_camera(loaded.atlas.current.keyframes),
+                                         source.camera))  # fmt: skip
+    return [m for m in found if m is not None]
 
 
 def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: SystemConfig, loaded: Any,

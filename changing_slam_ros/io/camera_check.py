@@ -100,6 +100,20 @@ def check_cameras(data_source: str, data: CameraIntrinsics, other_source: str, o
     return CameraMismatch(data_source, data, other_source, other, used, tuple(differences))
 
 
+def first_keyframe_camera(keyframes: dict[int, Any]) -> CameraIntrinsics | None:
+    """The camera of a loaded map's first keyframe (`SlamMap.keyframes`), None when it has none."""
+    return keyframes[min(keyframes)].camera if keyframes else None
+
+
+def map_camera_mismatch(map_name: str, map_camera: CameraIntrinsics | None,
+                        camera: CameraIntrinsics) -> CameraMismatch | None:  # fmt: skip
+    """This run's `camera` against the one a loaded map was made with (sizes are not scaled: a map's features and
+    depths belong to its image size)."""
+    if map_camera is None:
+        return None
+    return check_cameras(f"the loaded map {map_name}", map_camera, "this run", camera, "this run's camera", False)
+
+
 def read_intrinsics_txt(path: Path, width: int, height: int) -> CameraIntrinsics:
     """7-Scenes' `camera-intrinsics.txt`: a 3x3 camera matrix, three numbers a row; the file gives no image
     size, so `width` x `height` (the config's) is assumed. DatasetError naming the file and line."""
