@@ -193,6 +193,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
         "config": where,
         "frames": len(system.records),
         "frames_tracked": system.n_tracked(),
+        "poses_refused_by_motion_gate": system.tracker.n_gated,
         "keyframes": system.atlas.n_keyframes,
         "maps": len(system.atlas.maps),
         "map_points": int(sum(int(m.points.usable().sum()) for m in system.atlas.maps)),

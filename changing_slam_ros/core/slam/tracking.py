@@ -29,6 +29,7 @@ from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose, orthonormalised
 from changing_slam_ros.core.geometry.se3 import invert, scale_motion
 from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.slam.motion_gate import MotionGate, MotionGateConfig, check_speed
 from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
@@ -77,6 +78,8 @@ class TrackingConfig:
     - `deferred_refinement`: real time with late detections, a tracked frame's pose in the final trajectory is
       optimised again once the detection sets before and after it are in (`core.deferred_refinement`; on, inert
       offline and lossless where every frame has its own detections).
+    - `motion_gate`: a pose that implies an impossible camera speed, or lies far off the track's prediction, is
+      refused (`core.slam.motion_gate`): tracked again from the prediction, else the frame gets no pose.
     """
 
     min_init_points: int = 300
@@ -102,6 +105,7 @@ class TrackingConfig:
     motion_pose_rounds: int = 4
     object_keyframe_min_frames: int = 10
     deferred_refinement: RefinementConfig = field(default_factory=RefinementConfig)
+    motion_gate: MotionGateConfig = field(default_factory=MotionGateConfig)
 
     def __post_init__(self) -> None:
         if self.pose_iterations_per_round < 1:
@@ -166,6 +170,11 @@ class Tracker:
         self.next_kf_id = 0
         self.mapping_idle = True  # False while local mapping has keyframes to map (real-time graph: set per frame)
         self.last_good_pose: F64 = np.eye(4)
+        self.last_good_stamp_ns: int | None = None  # of `last_good_pose`; None before the first one in this map
+        self.n_gated = 0  # poses refused by the motion gate (tracked and relocalised)
+        self._T_wc_pred: F64 = np.eye(4)  # the motion model's prediction for the frame being tracked
+        self.gate = MotionGate(self.cfg.motion_gate)
+        self.n_refused = 0  # frames in a row refused by the gate since the last accepted one
         self.awaiting_loaded_map = False  # a loaded map: relocalise against it before starting a new one
         self._grace_start_ns: int | None = None
         self.loaded_map_relocalised_index = -1  # the frame that relocalised in the loaded map, -1 = not (yet)
@@ -207,10 +216,15 @@ class Tracker:
             ok = self._track_frame_to_frame(frame, gap)
             if ok:
                 ok = self._track_local_map(frame, self.cfg.min_local_inliers)
+            if ok and not self._plausible(frame):
+                ok = self._track_from_prediction(frame)
+                if not ok and self.n_refused < self.cfg.motion_gate.max_refused_frames:
+                    return self._refuse(frame)
             if ok:
                 return self._accept(frame)
             self.state = TrackingState.LOST
             self.n_lost = 0
+            self.gate.reset()  # the track resumes at a relocalisation
         # LOST: relocalise, or start a new map after too many failures.
         if self._relocalise(frame):
             self.state = TrackingState.OK
@@ -260,6 +274,9 @@ class Tracker:
         self.velocity = None
         self.last_frame = frame
         self.last_good_pose = frame.T_world_cam
+        self.last_good_stamp_ns = frame.stamp_ns
+        self.gate.reset()
+        self.gate.accept(frame.T_world_cam, frame.stamp_ns)
         return TrackResult(TrackingState.OK, frame.T_world_cam, 0, kf, new_map=new_map)
 
     # 2. Frame-to-frame ----------------------------------------------------------------------------
@@ -267,6 +284,7 @@ class Tracker:
         last = self.last_frame
         assert last is not None and last.T_world_cam is not None
         T_wc_pred = last.T_world_cam @ self._motion(frame) if (self.velocity is not None and not gap) else last.T_world_cam
+        self._T_wc_pred = T_wc_pred
         pts = self.map.points
         ids = last.point_ids[last.tracked_mask()]
         ids = ids[pts.usable()[ids]] if len(ids) else ids
@@ -407,17 +425,61 @@ class Tracker:
             frame.ref_kf_id = kf_id
             self.last_reloc_index = frame.index
             # Local map (wider window right after relocalisation), stricter threshold.
-            if self._track_local_map(frame, self.cfg.min_reloc_inliers):
+            if self._track_local_map(frame, self.cfg.min_reloc_inliers) and self._plausible_after_loss(frame):
                 return True
         frame.point_ids[:] = -1
         frame.T_world_cam = None
+        return False
+
+    def _plausible(self, frame: Frame, count: bool = True) -> bool:
+        """The motion gate on a tracked pose (frame-to-frame and local-map tracking)."""
+        if frame.T_world_cam is None:
+            return True
+        check = self.gate.check(frame.T_world_cam, frame.stamp_ns)
+        if check.ok:
+            return True
+        self.n_gated += int(count)
+        return False
+
+    def _track_from_prediction(self, frame: Frame) -> bool:
+        """A second try when the gate refused the pose: matched points moved with something in view (a mover
+        that filled the view pulled the pose along). Matches are searched again around the motion model's
+        prediction in the local-map window only, so that points which moved away from where the prediction puts
+        them find no partner, and the pose is optimised from the prediction; accepted when it passes the gate."""
+        frame.point_ids[:] = -1
+        frame.outliers[:] = False
+        frame.T_world_cam = self._T_wc_pred.copy()
+        if not self._track_local_map(frame, self.cfg.min_local_inliers):
+            return False
+        return self._plausible(frame, count=False)
+
+    def _refuse(self, frame: Frame) -> TrackResult:
+        """A frame whose pose the gate refused gets none; tracking stays OK and the next frame is tracked from
+        the last accepted one with the motion model stretched over the longer step."""
+        self.n_refused += 1
+        frame.T_world_cam = None
+        frame.point_ids[:] = -1
+        return TrackResult(TrackingState.LOST, None, 0, None)
+
+    def _plausible_after_loss(self, frame: Frame) -> bool:
+        """The motion gate from the last accepted pose, within `motion_gate.window_s` of it (relocalisation;
+        not in a loaded map that tracking has not yet relocalised in: that pose is in another frame)."""
+        if self.last_good_stamp_ns is None or self.awaiting_loaded_map or frame.T_world_cam is None:
+            return True
+        dt = (frame.stamp_ns - self.last_good_stamp_ns) * 1e-9
+        if dt > self.cfg.motion_gate.window_s:
+            return True
+        if check_speed(self.cfg.motion_gate, self.last_good_pose, frame.T_world_cam, dt).ok:
+            return True
+        self.n_gated += 1
         return False
 
     # 5. Accept the frame, keyframe decision -------------------------------------------------------
     def _accept(self, frame: Frame) -> TrackResult:
         assert frame.T_world_cam is not None
         last = self.last_frame
-        if last is not None and last.T_world_cam is not None and frame.index - last.index == 1:
+        skipped, self.n_refused = self.n_refused, 0
+        if last is not None and last.T_world_cam is not None and 1 <= frame.index - last.index <= 1 + skipped:
             self.velocity = orthonormalised(invert(last.T_world_cam) @ frame.T_world_cam)
             self.velocity_dt_s = (frame.stamp_ns - last.stamp_ns) * 1e-9
         else:
@@ -427,6 +489,8 @@ class Tracker:
         kf = self._make_keyframe(frame) if not self.localization and self._need_keyframe(frame, n_inliers) else None
         self.last_frame = frame
         self.last_good_pose = frame.T_world_cam
+        self.last_good_stamp_ns = frame.stamp_ns
+        self.gate.accept(frame.T_world_cam, frame.stamp_ns)
         return TrackResult(TrackingState.OK, frame.T_world_cam, n_inliers, kf)
 
     def request_keyframe(self) -> None:

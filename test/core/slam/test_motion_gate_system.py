@@ -1,0 +1,44 @@
+"""The motion gate on a randomised dynamic scene: tuning seed 7 of `random_dynamic` (a robot drives towards a
+cart of no COCO class pushed across its view at 1 m, among three other movers; exact depth). Near frame 104
+the cart fills most of the image and tracking, without the gate, follows it: the camera appears to move
+12 cm per frame (3.6 m/s, against the robot's 0.3 m/s) and the trajectory ends ~20 cm off. The gate refuses
+those poses and tracking carries on from the static background."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+SEED, FRAMES, W, H = 7, 150, 320, 240
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from changing_slam_ros.sim.scenarios import build_scenario
+    from changing_slam_ros.sim.sequence import RenderOptions, simulate
+
+    out = tmp_path_factory.mktemp("random_dynamic_7")
+    simulate(build_scenario("random_dynamic", SEED), out, RenderOptions(width=W, height=H, frames=FRAMES), SEED)
+    return out
+
+
+def _run(scene: Path, out: Path, *extra: str) -> dict:
+    from changing_slam_ros.cli import main as cli_main
+
+    assert cli_main(["run", str(scene), "--out", str(out), "--no-plot", *extra]) == 0
+    return json.loads((out / "metrics.json").read_text())
+
+
+def test_the_gate_keeps_tracking_off_the_cart_that_fills_the_view(scene: Path, tmp_path: Path) -> None:
+    gated = _run(scene, tmp_path / "gated")
+    off = tmp_path / "off.yaml"
+    off.write_text("tracking:\n  motion_gate:\n    enabled: false\n")
+    ungated = _run(scene, tmp_path / "ungated", "--config", str(off))
+    # Measured: 1.07 cm with the gate (one frame without a pose), 19.8 cm without.
+    assert gated["evaluation"]["ate"]["rmse"] < 0.025
+    assert gated["frames_tracked"] >= FRAMES - 5
+    assert ungated["evaluation"]["ate"]["rmse"] > 4 * gated["evaluation"]["ate"]["rmse"]
