@@ -47,6 +47,7 @@ from changing_slam_ros.nodes.conversions import (
 from changing_slam_ros.nodes.keep_newest import keep_newest as _keep_newest
 from changing_slam_ros.nodes.frame_queue import FrameQueue, PendingFrame
 from changing_slam_ros.nodes.map_load import LoadEpochs
+from changing_slam_ros.nodes.node_help import NodeHelp, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
@@ -564,8 +565,11 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             self.get_logger().warning(text)
 
 
+NODE_HELP = NodeHelp("tracking", first_line(__doc__), TRACKING_PARAMETERS)
+
+
 def main(args: Sequence[str] | None = None) -> int:
-    return run_node(lambda argv: TrackingNode(), args)
+    return run_node(lambda argv: TrackingNode(), args, node_help=NODE_HELP)
 
 
 if __name__ == "__main__":
