@@ -52,6 +52,7 @@ from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
+from changing_slam_ros.nodes.tracking_initial_pose import InitialPoseInput
 from changing_slam_ros.nodes.tracking_mode import ModeControl
 from changing_slam_ros.nodes.tracking_tf import Rep105Outputs
 from changing_slam_ros.nodes.tracking_detections import DetectionInputs
@@ -190,6 +191,8 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.mode_control = ModeControl(self, p["mode"], lambda: None if self.backend is None else self.backend.system,
                                         None if objects is None else objects.config.association, p["map_frame"],
                                         output_qos)  # fmt: skip
+        self.initial_pose = InitialPoseInput(self, self.mode_control.system, self.frames_out.base_cam, p["map_frame"],
+                                             p["initial_pose_radius_m"], p["initial_pose_angle_deg"])  # fmt: skip
         if self.mode_control.mode is Mode.LOCALIZATION and self.backend is not None:
             ok, why = self.mode_control.apply(Mode.LOCALIZATION)
             if not ok:
