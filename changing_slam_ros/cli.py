@@ -23,6 +23,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "benchmark a scenario family over seeds: ATE, lost frames, CPU, moving keypoints"),
     "graph": ("graph", "run the ROS 2 node graph over a bag without ros2 launch"),
     "changes": ("changes", "what changed between two object maps: moved, removed, added, replaced"),
+    "points": ("points", "a saved map's points as a PLY point cloud (CloudCompare, Open3D)"),
 }
 
 
