@@ -23,7 +23,22 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "benchmark a scenario family over seeds: ATE, lost frames, CPU, moving keypoints"),
     "graph": ("graph", "run the ROS 2 node graph over a bag without ros2 launch"),
     "changes": ("changes", "what changed between two object maps: moved, removed, added, replaced"),
+    "points": ("points", "a saved map's points as a PLY point cloud (CloudCompare, Open3D)"),
 }
+
+
+class _VersionAction(argparse.Action):
+    """`--version`: the git commit is looked up only when asked for."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:  # fmt: skip
+        from changing_slam_ros.provenance import version_line
+
+        print(version_line())
+        parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="changing-slam",
         description="Visual SLAM for dynamic and changing environments (Changing-SLAM + Dai et al.).",
     )
+    parser.add_argument("--version", action=_VersionAction, help="print the package version (and git commit "
+                        "in a checkout) and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

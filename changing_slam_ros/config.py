@@ -25,6 +25,24 @@ PACKAGE_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 CONFIG_SECTIONS = ("camera", "dataset", "features", "tracking", "mapping", "loop", "dynamic", "objects", "detector")
 
 
+def section_classes() -> dict[str, type]:
+    """YAML top-level section -> the dataclass that area of the code parses it into (imported here, lazily)."""
+    from changing_slam_ros.core.dynamic.detector import DetectorConfig
+    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig
+    from changing_slam_ros.core.features.orb_features import FeatureConfig
+    from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+    from changing_slam_ros.core.slam.local_mapping import MappingConfig
+    from changing_slam_ros.core.slam.loop_closing import LoopConfig
+    from changing_slam_ros.core.slam.tracking import TrackingConfig
+    from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
+
+    classes = {"camera": CameraConfig, "dataset": DatasetConfig, "features": FeatureConfig,
+               "tracking": TrackingConfig, "mapping": MappingConfig, "loop": LoopConfig, "dynamic": DynamicConfig,
+               "detector": DetectorConfig, "objects": ObjectMapConfig}  # fmt: skip
+    assert set(classes) == set(CONFIG_SECTIONS)
+    return classes
+
+
 def find_config(name_or_path: str | Path) -> Path:
     """Resolve a config given as a path or as the name of a shipped one (`tum_fr1`, `7scenes`)."""
     p = Path(name_or_path)

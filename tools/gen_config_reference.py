@@ -24,18 +24,9 @@ PAGE = REPO / "docs" / "configuration.md"
 
 def sections() -> dict[str, type]:
     """YAML top-level section -> the dataclass it is parsed into."""
-    from changing_slam_ros.core.dynamic.detector import DetectorConfig
-    from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig
-    from changing_slam_ros.core.features.orb_features import FeatureConfig
-    from changing_slam_ros.core.objects.map_object import ObjectMapConfig
-    from changing_slam_ros.core.slam.local_mapping import MappingConfig
-    from changing_slam_ros.core.slam.loop_closing import LoopConfig
-    from changing_slam_ros.core.slam.tracking import TrackingConfig
-    from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
+    from changing_slam_ros.config import section_classes
 
-    return {"camera": CameraConfig, "dataset": DatasetConfig, "features": FeatureConfig, "tracking": TrackingConfig,
-            "mapping": MappingConfig, "loop": LoopConfig, "dynamic": DynamicConfig, "detector": DetectorConfig,
-            "objects": ObjectMapConfig}  # fmt: skip
+    return section_classes()
 
 
 NAMES = r"((?:`[a-z0-9_]+`(?:\s*(?:,|/|and)\s*)?)+):\s"

@@ -480,6 +480,14 @@ class Graph:
         return self._summary(play_s, up_s, codes)
 
     # -- results --------------------------------------------------------------------------------
+    def _provenance(self) -> dict[str, Any]:
+        """Package version, git commit and the nodes' configuration as resolved (graph_summary.json)."""
+        from changing_slam_ros.nodes.slam_backend import load_backend_config
+        from changing_slam_ros.provenance import run_provenance
+
+        cfg = load_backend_config(self.config or "")
+        return run_provenance(cfg.data, cfg.where, options=vars(self.args))
+
     def _summary(self, play_s: float, up_s: float, codes: dict[str, int | None]) -> dict[str, Any]:
         stats_path = self.out / "tracking_stats.json"
         stats = json.loads(stats_path.read_text()) if stats_path.is_file() else {}
@@ -515,6 +523,7 @@ class Graph:
         summary["lossless_incomplete"] = (lossless_gaps(self.player.log_text(), stats, summary["local_mapping"])
                                           if self.args.lossless else [])  # fmt: skip
         summary.update(self._cpu_summary())
+        summary["provenance"] = self._provenance()
         summary.update(evaluate(self.bag, self.config, self.out))
         summary["outputs_mcap"] = write_outputs_mcap(self.bag, self.config, self.out)
         summary["map_out"] = str(self.out_dir.path_after_commit(self.out / "map.npz")) \

@@ -46,6 +46,7 @@ from changing_slam_ros.io.bag_reader import SkippedMessage
 from changing_slam_ros.io.camera_check import CameraMismatch, first_keyframe_camera, map_camera_mismatch
 from changing_slam_ros.io.map_file import LoadedMap, load_map, save_map
 from changing_slam_ros.io.output_dir import OutputDir
+from changing_slam_ros.provenance import run_provenance
 from changing_slam_ros.commands.changes import write_change_outputs
 from changing_slam_ros.core.objects.change_report import compare_maps
 from changing_slam_ros.core.objects.object_evidence import EvidenceConfig, ObjectEvidence, evidence_of, map_up
@@ -203,6 +204,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
         "tracking_ms_median": timing.get("tracking", {}).get("p50", 0.0),
         "cpu_ms_per_frame": 1e3 * cpu_s / len(system.records) if system.records else 0.0,
         "dynamic": dynamic.summary(),
+        "provenance": run_provenance(data, where, options=vars(args)),
     }
     if args.map_in:
         metrics["multi_session"] = multi_session_summary(system, args.map_in)

@@ -29,6 +29,7 @@ from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter, Dynamic
 from changing_slam_ros.core.features.frame import Frame
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.slam.local_mapping import LocalMapper, MappingConfig, MappingStats
+from changing_slam_ros.core.slam.initial_pose import PoseHint
 from changing_slam_ros.core.slam.localization import Mode, Sightings
 from changing_slam_ros.core.slam.loop_closing import MapMerge
 from changing_slam_ros.core.slam.map_merging import MergeResult, merge_maps, move_frame
@@ -147,6 +148,13 @@ class SlamSystem:
             raise ConfigError("localization mode needs a map: load one (--map-in / map_file) or map first")
         self.mode = mode
         self.tracker.localization = mode is Mode.LOCALIZATION
+
+    def set_pose_hint(self, hint: PoseHint | None) -> None:
+        """Relocalise near `hint` (an initial pose in the current map, `core/slam/initial_pose.py`) from the next
+        frame on; None drops it. Needs a map with keyframes."""
+        if hint is not None and not self.atlas.current.keyframes:
+            raise ConfigError("initial pose: no map to relocalise in (load a map or map first)")
+        self.tracker.set_pose_hint(hint)
 
     def start_from_map(self, atlas: Atlas, next_keyframe_id: int,
                        objects: dict[int, SavedObjectMap] | None = None, mode: Mode = Mode.MAPPING) -> None:

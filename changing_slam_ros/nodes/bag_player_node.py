@@ -38,10 +38,40 @@ from changing_slam_ros.io.playback import (
     parse_remaps,
     plan,
 )
+from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, message_class, run_node, undeclared_parameters
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 
 STRING_ARRAY = Parameter.Type.STRING_ARRAY
+
+BAG_PLAYER_PARAMETERS: tuple[ParamSpec, ...] = (
+    ("bag", "", "ROS 1 .bag, ROS 2 bag folder or .mcap file to play (or the first argument)"),
+    ("rate", 1.0, "playback speed factor relative to the recorded timing"),
+    ("start_offset_s", 0.0, "seconds of the bag skipped at the start"),
+    ("loop", False, "play again from the offset after the end, until stopped"),
+    ("topics", STRING_ARRAY, "bag topics to play; empty = all"),
+    ("remap", STRING_ARRAY, "topic renames 'from:=to' (as well as --ros-args -r)"),
+    ("publish_clock", True, "publish rosgraph_msgs/Clock on /clock"),
+    ("clock_hz", 100.0, "/clock publishing rate while waiting between messages"),
+    ("qos_depth", 10, "publisher history depth (ignored in lossless mode: KEEP_ALL)"),
+    ("progress_period_s", 2.0, "seconds between progress log lines"),
+    ("lossless", False, "wait for subscribers and acknowledgements instead of dropping"),
+    ("dds_ack_wait", True, "lossless: wait for every reliable subscription's DDS-level ack after each "
+                           "message; across processes Fast DDS acks on its heartbeat (up to 3 s)"),
+    ("wait_subscribers", False, "also without lossless: wait for subscribers (as lossless does) before playing"),
+    ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = ack_topics or all"),
+    ("min_subscribers", 1, "lossless: subscriptions each waited-for ack topic (every topic without ack_topics) "
+                           "needs before playing; other waited-for topics need one"),
+    ("wait_subscribers_timeout_s", 60.0, "lossless: give up (error) after this long without subscribers"),
+    ("ack_topics", STRING_ARRAY, "lossless: bag topics whose messages wait for a processing ack"),
+    ("ack_topic", "/bag_player/ack", "lossless: std_msgs/Header acks (stamp = acknowledged stamp)"),
+    ("ack_count", 1, "lossless: distinct acknowledging nodes awaited per message on ack_topics"),
+    ("ack_timeout_s", 2.0, "lossless: longest wait per message for acks (DDS and processing)"),
+    ("confirm_topics", STRING_ARRAY, "lossless: bag topics a subscriber must confirm (a Header on ack_topic "
+                                     "with frame_id = the topic) before the next ack_topics message"),
+    ("confirm_resend_s", 0.5, "lossless: re-send an unconfirmed confirm_topics message this often"),
+    ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports while playing (0 = off)"),
+)
 
 
 @dataclass
@@ -126,34 +156,8 @@ class BagPlayerNode(QuietQosEvents, Node):
 
     # -- set-up ------------------------------------------------------------------------------
     def _declare_parameters(self, bag_path: str | None) -> dict[str, Any]:
-        specs: list[tuple[str, Any, str]] = [
-            ("bag", bag_path or "", "ROS 1 .bag, ROS 2 bag folder or .mcap file to play (or the first argument)"),
-            ("rate", 1.0, "playback speed factor relative to the recorded timing"),
-            ("start_offset_s", 0.0, "seconds of the bag skipped at the start"),
-            ("loop", False, "play again from the offset after the end, until stopped"),
-            ("topics", STRING_ARRAY, "bag topics to play; empty = all"),
-            ("remap", STRING_ARRAY, "topic renames 'from:=to' (as well as --ros-args -r)"),
-            ("publish_clock", True, "publish rosgraph_msgs/Clock on /clock"),
-            ("clock_hz", 100.0, "/clock publishing rate while waiting between messages"),
-            ("qos_depth", 10, "publisher history depth (ignored in lossless mode: KEEP_ALL)"),
-            ("progress_period_s", 2.0, "seconds between progress log lines"),
-            ("lossless", False, "wait for subscribers and acknowledgements instead of dropping"),
-            ("dds_ack_wait", True, "lossless: wait for every reliable subscription's DDS-level ack after each "
-                                   "message; across processes Fast DDS acks on its heartbeat (up to 3 s)"),
-            ("wait_subscribers", False, "also without lossless: wait for subscribers (as lossless does) before playing"),
-            ("wait_for_topics", STRING_ARRAY, "lossless: topics that must have subscribers; empty = ack_topics or all"),
-            ("min_subscribers", 1, "lossless: subscriptions each waited-for ack topic (every topic without ack_topics) "
-                                   "needs before playing; other waited-for topics need one"),
-            ("wait_subscribers_timeout_s", 60.0, "lossless: give up (error) after this long without subscribers"),
-            ("ack_topics", STRING_ARRAY, "lossless: bag topics whose messages wait for a processing ack"),
-            ("ack_topic", "/bag_player/ack", "lossless: std_msgs/Header acks (stamp = acknowledged stamp)"),
-            ("ack_count", 1, "lossless: distinct acknowledging nodes awaited per message on ack_topics"),
-            ("ack_timeout_s", 2.0, "lossless: longest wait per message for acks (DDS and processing)"),
-            ("confirm_topics", STRING_ARRAY, "lossless: bag topics a subscriber must confirm (a Header on ack_topic "
-                                             "with frame_id = the topic) before the next ack_topics message"),
-            ("confirm_resend_s", 0.5, "lossless: re-send an unconfirmed confirm_topics message this often"),
-            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports while playing (0 = off)"),
-        ]
+        specs = [(name, bag_path or "", text) if name == "bag" else (name, default, text)
+                 for name, default, text in BAG_PLAYER_PARAMETERS]
         values = declare_parameters(self, specs)
         for name in ("clock_hz", "progress_period_s", "confirm_resend_s"):
             if not values[name] > 0:
@@ -419,13 +423,16 @@ def _play(node: Node, executor: Any) -> int:
     return 1 if result.error else 0
 
 
+NODE_HELP = NodeHelp("bag_player", first_line(__doc__), BAG_PLAYER_PARAMETERS, positional="[BAG]")
+
+
 def main(args: Sequence[str] | None = None) -> int:
     def make(argv: list[str]) -> BagPlayerNode:
         if len(argv) > 1:
             raise ConfigError(f"bag_player: expected at most one bag argument, got {' '.join(argv)}")
         return BagPlayerNode(bag_path=argv[0] if argv else None)
 
-    return run_node(make, args, body=_play)
+    return run_node(make, args, body=_play, node_help=NODE_HELP)
 
 
 if __name__ == "__main__":

@@ -32,8 +32,24 @@ from changing_slam_ros.config import find_config, load_yaml, section
 from changing_slam_ros.core.dynamic.detector import Detector, DetectorConfig
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import detections_to_msg, image_to_rgb, stamp_to_ns
+from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
+
+
+DETECTION_PARAMETERS: tuple[ParamSpec, ...] = (
+    ("config", "", "config name (tum_fr3, realsense_d435, ...) or YAML path; its `detector` section"),
+    ("model_path", "", "ONNX detector; empty = from the config, else the shipped SSD-MobileNetV2"),
+    ("model", "", "shipped detector (ssd_mobilenet_v2_coco, ssd_mobilenet_v2_coco_int8); empty = from the config"),
+    ("score_threshold", -1.0, "drop detections below this score; < 0 = from the config (0.3)"),
+    ("intra_op_threads", -1, "onnxruntime threads; < 0 = from the config (2)"),
+    ("max_rate_hz", 0.0, "detect at most this often by image stamp (an image less than 1/max_rate_hz after "
+                         "the last detected one is skipped before decoding); 0 = every image it is free for"),
+    ("compressed", False, "subscribe sensor_msgs/CompressedImage on image/compressed instead"),
+    ("autostart", True, "configure and activate at start (main() only)"),
+    ("reliable_images", False, "reliable image subscription (keep last 1) instead of sensor-data best effort"),
+    ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
+)  # fmt: skip
 
 
 class DetectionNode(QuietQosEvents, LifecycleNode):
@@ -46,19 +62,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         **node_kwargs: Any,
     ) -> None:
         super().__init__("detection", **node_kwargs)
-        self.params = declare_parameters(self, [
-            ("config", "", "config name (tum_fr3, realsense_d435, ...) or YAML path; its `detector` section"),
-            ("model_path", "", "ONNX detector; empty = from the config, else the shipped SSD-MobileNetV2"),
-            ("model", "", "shipped detector (ssd_mobilenet_v2_coco, ssd_mobilenet_v2_coco_int8); empty = from the config"),
-            ("score_threshold", -1.0, "drop detections below this score; < 0 = from the config (0.3)"),
-            ("intra_op_threads", -1, "onnxruntime threads; < 0 = from the config (2)"),
-            ("max_rate_hz", 0.0, "detect at most this often by image stamp (an image less than 1/max_rate_hz after "
-                                 "the last detected one is skipped before decoding); 0 = every image it is free for"),
-            ("compressed", False, "subscribe sensor_msgs/CompressedImage on image/compressed instead"),
-            ("autostart", True, "configure and activate at start (main() only)"),
-            ("reliable_images", False, "reliable image subscription (keep last 1) instead of sensor-data best effort"),
-            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
-        ])  # fmt: skip
+        self.params = declare_parameters(self, DETECTION_PARAMETERS)
         self._image_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE) if self.params["reliable_images"] \
             else image_qos  # fmt: skip
         self._detections_qos = detections_qos
@@ -202,6 +206,9 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         return out
 
 
+NODE_HELP = NodeHelp("detection", first_line(__doc__), DETECTION_PARAMETERS)
+
+
 def main(args: Sequence[str] | None = None) -> int:
     def make(argv: list[str]) -> DetectionNode:
         node = DetectionNode()
@@ -210,7 +217,7 @@ def main(args: Sequence[str] | None = None) -> int:
             node.trigger_activate()
         return node
 
-    return run_node(make, args)
+    return run_node(make, args, node_help=NODE_HELP)
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import make_header
 from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, marker_of, update_marker
+from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.replication_conversions import loop_result_from_msg, packet_from_msg, update_to_msg
 
@@ -52,36 +53,39 @@ def points_to_cloud(positions_w: np.ndarray, stamp_ns: int, frame_id: str) -> Po
                        is_bigendian=False, point_step=12, row_step=12 * len(xyz), data=xyz.tobytes(), is_dense=True)  # fmt: skip
 
 
+LOCAL_MAPPING_PARAMETERS: tuple[ParamSpec, ...] = (
+    ("config", "tum_fr1", "config name or YAML path (features, mapping, objects sections)"),
+    ("objects", "config", "object layer (MapObjects, beliefs, active flags): config, on, off"),
+    ("map_frame", "map", "frame of the published map"),
+    ("map_cloud_period_s", 1.0, "shortest time between two map_cloud messages"),
+    ("wait_for_loop_results", False, "map a keyframe only after loop closing answered for the previous "
+                                     "one (lossless graph: the offline order of work)"),
+    ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
+    ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
+    ("map_out", "", "on shutdown, save the whole map here (map.npz format of `changing-slam run`, atomic); "
+                    "also the default path of ~/save_map"),
+    ("map_dir", "", "folder the paths of ~/save_map and ~/load_map requests must lie in (names ending .npz; "
+                    "an existing file is replaced only when it is a map file); empty = request paths refused"),
+    ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
+    ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
+                              "tracking and loop_closing), so that a (re)started node loses no update"),
+    ("update_subscribers_wait_s", 15.0, "update_subscribers: after this long since start, map without them"),
+    ("ba_solver", "", "local BA's solver: gtsam or schur (numpy Schur-complement LM, same cost, ~0.35x the "
+                      "solver's CPU); empty = the config's mapping.ba_solver (gtsam unless set)"),
+    ("ba_yields_to_keyframes", True, "real time (wait_for_loop_results false): local BA ends early when a "
+                                     "new keyframe arrives meanwhile (ORB-SLAM's abort; checked between "
+                                     "solver iterations); never in the lossless graph"),
+    ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz: the "
+                     "Atlas and the saved objects; tracking and loop_closing load the same file; the map is then not asked of tracking, so a node restarted "
+                     "in a running graph is started without it and gets the current map from tracking)"),
+)  # fmt: skip
+
+
 class LocalMappingNode(Node):
     def __init__(self, keyframe_qos: QoSProfile = KEYFRAME_QOS, output_qos: QoSProfile | int = 10,
                  **node_kwargs: Any) -> None:  # fmt: skip
         super().__init__("local_mapping", **node_kwargs)
-        self.params = p = declare_parameters(self, [
-            ("config", "tum_fr1", "config name or YAML path (features, mapping, objects sections)"),
-            ("objects", "config", "object layer (MapObjects, beliefs, active flags): config, on, off"),
-            ("map_frame", "map", "frame of the published map"),
-            ("map_cloud_period_s", 1.0, "shortest time between two map_cloud messages"),
-            ("wait_for_loop_results", False, "map a keyframe only after loop closing answered for the previous "
-                                             "one (lossless graph: the offline order of work)"),
-            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
-            ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
-            ("map_out", "", "on shutdown, save the whole map here (map.npz format of `changing-slam run`, atomic); "
-                            "also the default path of ~/save_map"),
-            ("map_dir", "", "folder the paths of ~/save_map and ~/load_map requests must lie in (names ending .npz; "
-                            "an existing file is replaced only when it is a map file); empty = request paths refused"),
-            ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
-            ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
-                                      "tracking and loop_closing), so that a (re)started node loses no update"),
-            ("update_subscribers_wait_s", 15.0, "update_subscribers: after this long since start, map without them"),
-            ("ba_solver", "", "local BA's solver: gtsam or schur (numpy Schur-complement LM, same cost, ~0.35x the "
-                              "solver's CPU); empty = the config's mapping.ba_solver (gtsam unless set)"),
-            ("ba_yields_to_keyframes", True, "real time (wait_for_loop_results false): local BA ends early when a "
-                                             "new keyframe arrives meanwhile (ORB-SLAM's abort; checked between "
-                                             "solver iterations); never in the lossless graph"),
-            ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz: the "
-                             "Atlas and the saved objects; tracking and loop_closing load the same file; the map is then not asked of tracking, so a node restarted "
-                             "in a running graph is started without it and gets the current map from tracking)"),
-        ])  # fmt: skip
+        self.params = p = declare_parameters(self, LOCAL_MAPPING_PARAMETERS)
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import MapOwner
 
@@ -461,17 +465,20 @@ class LocalMappingNode(Node):
             super().destroy_node()
 
 
+NODE_HELP = NodeHelp("local_mapping", first_line(__doc__), LOCAL_MAPPING_PARAMETERS)
+
+
 def main(args: Sequence[str] | None = None) -> int:
     profile_out = os.environ.get(PROFILE_ENV, "")
     if not profile_out:
-        return run_node(lambda argv: LocalMappingNode(), args)
+        return run_node(lambda argv: LocalMappingNode(), args, node_help=NODE_HELP)
     import cProfile
 
     # CPU time of the executor's thread (every callback of the node), not wall time: the machine may be shared.
     profiler = cProfile.Profile(time.thread_time)
     profiler.enable()
     try:
-        return run_node(lambda argv: LocalMappingNode(), args)
+        return run_node(lambda argv: LocalMappingNode(), args, node_help=NODE_HELP)
     finally:
         profiler.disable()
         profiler.dump_stats(profile_out)

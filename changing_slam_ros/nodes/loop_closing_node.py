@@ -27,26 +27,30 @@ from changing_slam_ros.core.replication.map_replication import MapUpdate as MapU
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, loop_marker, marker_of
+from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.replication_conversions import loop_result_to_msg, packet_from_msg, update_from_msg
 
 KEYFRAME_QOS = QoSProfile(depth=100)
 
 
+LOOP_CLOSING_PARAMETERS: tuple[ParamSpec, ...] = (
+    ("config", "tum_fr1", "config name or YAML path (loop section: verification, pose graph)"),
+    ("map_frame", "map", "frame of the corrected poses"),
+    ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
+    ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
+    ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz; "
+                     "tracking and local_mapping load the same file; a node restarted in a running graph is started "
+                     "without it and gets the current map from tracking)"),
+    ("objects", "config", "the map owner's object layer (config, on, off): with map_file, the saved "
+                          "objects' point flags are set here as local_mapping sets them"),
+)  # fmt: skip
+
+
 class LoopClosingNode(Node):
     def __init__(self, keyframe_qos: QoSProfile = KEYFRAME_QOS, **node_kwargs: Any) -> None:
         super().__init__("loop_closing", **node_kwargs)
-        self.params = p = declare_parameters(self, [
-            ("config", "tum_fr1", "config name or YAML path (loop section: verification, pose graph)"),
-            ("map_frame", "map", "frame of the corrected poses"),
-            ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
-            ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
-            ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz; "
-                             "tracking and local_mapping load the same file; a node restarted in a running graph is started "
-                             "without it and gets the current map from tracking)"),
-            ("objects", "config", "the map owner's object layer (config, on, off): with map_file, the saved "
-                                  "objects' point flags are set here as local_mapping sets them"),
-        ])  # fmt: skip
+        self.params = p = declare_parameters(self, LOOP_CLOSING_PARAMETERS)
         from changing_slam_ros.nodes.slam_backend import load_backend_config
         from changing_slam_ros.nodes.split_backend import LoopSide, object_layer_for
 
@@ -200,8 +204,11 @@ class LoopClosingNode(Node):
         return out
 
 
+NODE_HELP = NodeHelp("loop_closing", first_line(__doc__), LOOP_CLOSING_PARAMETERS)
+
+
 def main(args: Sequence[str] | None = None) -> int:
-    return run_node(lambda argv: LoopClosingNode(), args)
+    return run_node(lambda argv: LoopClosingNode(), args, node_help=NODE_HELP)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from changing_slam_ros.nodes.node_help import format_value
+
 REPO = Path(__file__).resolve().parents[2]
 DOC = REPO / "docs" / "nodes.md"
 INTROS = REPO / "docs" / "nodes_intro"
@@ -56,9 +58,10 @@ the lifecycle services (`~/change_state`, `~/get_state`, ...) and `~/transition_
 `qos_overrides.<topic>.publisher.<policy>` parameters (left out of the tables).
 
 Run a node with `ros2 run changing_slam_ros NODE --ros-args ...` in a colcon workspace, or with
-`python -m changing_slam_ros.nodes.NODE_node --ros-args ...` from a checkout. `changing-slam graph` starts
-bag_player, detection, tracking, local_mapping, loop_closing and object_map together with the parameters they
-need.
+`python -m changing_slam_ros.nodes.NODE_node --ros-args ...` from a checkout; `--help` (before `--ros-args`)
+prints the node's parameters with type, default and description and exits without starting ROS.
+`changing-slam graph` starts bag_player, detection, tracking, local_mapping, loop_closing and object_map
+together with the parameters they need.
 """
 
 
@@ -136,16 +139,7 @@ def _qos(profile: Any) -> str:
 
 
 def _value(value: Any) -> str:
-    if value is None:
-        return "`[]`"
-    if isinstance(value, bool):
-        return f"`{str(value).lower()}`"
-    if isinstance(value, str):
-        return f'`"{value}"`'
-    if isinstance(value, (list, tuple)) or hasattr(value, "tolist"):
-        items = list(value.tolist() if hasattr(value, "tolist") else value)
-        return "`[" + ", ".join(f'"{v}"' if isinstance(v, str) else str(v) for v in items) + "]`"
-    return f"`{value}`"
+    return f"`{format_value(value)}`"
 
 
 def _parameter_type(type_id: int) -> str:

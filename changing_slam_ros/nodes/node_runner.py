@@ -23,11 +23,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from changing_slam_ros.errors import ConfigError, SlamError
-
-
-# A parameter spec: (name, default, description). Use Parameter.Type.STRING_ARRAY (etc.) as the default of
-# an array parameter that starts empty: rclpy cannot infer a type from [].
-ParamSpec = tuple[str, Any, str]
+from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, format_help, wants_help
 
 
 _TYPE_WORDS = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
@@ -141,16 +137,21 @@ def run_node(
     args: Sequence[str] | None = None,
     body: Callable[[Node, SingleThreadedExecutor], int] | None = None,
     drain_timeout_s: float = 90.0,
+    node_help: NodeHelp | None = None,
 ) -> int:
     """Init rclpy, build the node from the non-ROS command-line arguments, spin (or run `body`), shut down.
 
     A first SIGINT / SIGTERM ends spinning between callbacks; the node then finishes the work it announced
     (`drain_work`, at most `drain_timeout_s`) and `destroy_node` writes its outputs with the context still up.
-    Returns the process exit code: 0 on a normal end or Ctrl-C/SIGTERM, 1 on a `SlamError`.
+    Returns the process exit code: 0 on a normal end or Ctrl-C/SIGTERM, 1 on a `SlamError`. With `node_help`
+    and `-h` / `--help` before `--ros-args`, prints the node's parameters and returns 0 without initialising rclpy.
     """
     from rclpy.signals import SignalHandlerOptions
 
     argv = list(sys.argv if args is None else args)
+    if node_help is not None and wants_help(argv[1:]):
+        sys.stdout.write(format_help(node_help))
+        return 0
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopRequest()
     node: Node | None = None

@@ -34,6 +34,7 @@ from changing_slam_ros.core.objects.object_evidence import evidence_of_semantic
 from changing_slam_ros.core.objects.semantic_map import SemanticMap, SemanticObject
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.change_markers import change_markers
+from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -115,6 +116,20 @@ def _config_belief_threshold(config: str) -> float:
     return float(object_layer_config(cfg.data.get("objects"), f"{cfg.where}: objects").association.belief_threshold)
 
 
+OBJECT_MAP_PARAMETERS: tuple[ParamSpec, ...] = (
+    ("config", "tum_fr1", "config name or YAML path (objects section: thresholds of the paper)"),
+    ("map_frame", "map", "frame of the semantic map"),
+    ("belief_threshold", -1.0, "BeliefThreshold: objects below are inactive (Changing-SLAM §4.7); "
+                               "< 0 = the config's objects section"),
+    ("map_file", "", "semantic map loaded at start, saved after every update and on SaveMap without a "
+                     "path; empty = none"),
+    ("map_dir", "", "folder SaveMap / LoadMap request paths must lie in (names ending .json/.yaml/.yml; "
+                    "an existing file is replaced only when it is a semantic map); empty = paths refused"),
+    ("changes_from", "", "semantic map file the change report compares against; empty = the map loaded "
+                         "from map_file at start, else the first map received"),
+)  # fmt: skip
+
+
 class ObjectMapNode(Node):
     """The semantic map's node (module doc). What changed: it keeps the map it started from (`changes_from`, else
     the map loaded from `map_file`, else the first map received) and after every update publishes the change
@@ -136,18 +151,7 @@ class ObjectMapNode(Node):
 
     def __init__(self, output_qos: QoSProfile | int = 10, **node_kwargs: Any) -> None:
         super().__init__("object_map", **node_kwargs)
-        self.params = declare_parameters(self, [
-            ("config", "tum_fr1", "config name or YAML path (objects section: thresholds of the paper)"),
-            ("map_frame", "map", "frame of the semantic map"),
-            ("belief_threshold", -1.0, "BeliefThreshold: objects below are inactive (Changing-SLAM §4.7); "
-                                       "< 0 = the config's objects section"),
-            ("map_file", "", "semantic map loaded at start, saved after every update and on SaveMap without a "
-                             "path; empty = none"),
-            ("map_dir", "", "folder SaveMap / LoadMap request paths must lie in (names ending .json/.yaml/.yml; "
-                            "an existing file is replaced only when it is a semantic map); empty = paths refused"),
-            ("changes_from", "", "semantic map file the change report compares against; empty = the map loaded "
-                                 "from map_file at start, else the first map received"),
-        ])  # fmt: skip
+        self.params = declare_parameters(self, OBJECT_MAP_PARAMETERS)
         if self.params["belief_threshold"] < 0:
             self.params["belief_threshold"] = _config_belief_threshold(self.params["config"])
         self.objects: dict[int, MapObject] = {}
@@ -305,8 +309,11 @@ class ObjectMapNode(Node):
         return response
 
 
+NODE_HELP = NodeHelp("object_map", first_line(__doc__), OBJECT_MAP_PARAMETERS)
+
+
 def main(args: Sequence[str] | None = None) -> int:
-    return run_node(lambda argv: ObjectMapNode(), args)
+    return run_node(lambda argv: ObjectMapNode(), args, node_help=NODE_HELP)
 
 
 if __name__ == "__main__":

@@ -47,10 +47,12 @@ from changing_slam_ros.nodes.conversions import (
 from changing_slam_ros.nodes.keep_newest import keep_newest as _keep_newest
 from changing_slam_ros.nodes.frame_queue import FrameQueue, PendingFrame
 from changing_slam_ros.nodes.map_load import LoadEpochs
+from changing_slam_ros.nodes.node_help import NodeHelp, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
+from changing_slam_ros.nodes.tracking_initial_pose import InitialPoseInput
 from changing_slam_ros.nodes.tracking_mode import ModeControl
 from changing_slam_ros.nodes.tracking_tf import Rep105Outputs
 from changing_slam_ros.nodes.tracking_detections import DetectionInputs
@@ -189,6 +191,8 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.mode_control = ModeControl(self, p["mode"], lambda: None if self.backend is None else self.backend.system,
                                         None if objects is None else objects.config.association, p["map_frame"],
                                         output_qos)  # fmt: skip
+        self.initial_pose = InitialPoseInput(self, self.mode_control.system, self.frames_out.base_cam, p["map_frame"],
+                                             p["initial_pose_radius_m"], p["initial_pose_angle_deg"])  # fmt: skip
         if self.mode_control.mode is Mode.LOCALIZATION and self.backend is not None:
             ok, why = self.mode_control.apply(Mode.LOCALIZATION)
             if not ok:
@@ -564,8 +568,11 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             self.get_logger().warning(text)
 
 
+NODE_HELP = NodeHelp("tracking", first_line(__doc__), TRACKING_PARAMETERS)
+
+
 def main(args: Sequence[str] | None = None) -> int:
-    return run_node(lambda argv: TrackingNode(), args)
+    return run_node(lambda argv: TrackingNode(), args, node_help=NODE_HELP)
 
 
 if __name__ == "__main__":

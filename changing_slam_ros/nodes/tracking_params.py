@@ -97,4 +97,8 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
                         "time, and by ~/set_mode (std_srvs/SetBool, true = localization)"),
     ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz) and "
                      "relocalise in it first; split backend: local_mapping and loop_closing load it too"),
+    ("initial_pose_radius_m", 0.5, "/initialpose (PoseWithCovarianceStamped of base_frame in map_frame, RViz / "
+                                   "Nav2): relocalisation looks near it and accepts a pose within 3 sigma of its "
+                                   "covariance, and at least this far (m)"),
+    ("initial_pose_angle_deg", 30.0, "/initialpose: the accepted rotation from it, at least this (deg)"),
 )  # fmt: skip

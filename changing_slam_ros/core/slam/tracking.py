@@ -6,7 +6,8 @@ reference keyframe); 3. optimise the pose; 4. track the local map (points of cov
 by projection and optimise again; 5. decide whether the frame becomes a keyframe. When tracking
 fails the state is LOST and every following frame tries relocalisation against candidate keyframes
 (`KeyframeCandidates`, e.g. the loop engineer's bag-of-words database); after
-`lost_frames_new_map` failures a new map is started in the Atlas.
+`lost_frames_new_map` failures a new map is started in the Atlas. An initial pose (`set_pose_hint`,
+`core/slam/initial_pose.py`) limits relocalisation to its surroundings.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from changing_slam_ros.core.features.matcher import ProjectionQuery, match_brute
 from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose, orthonormalised
 from changing_slam_ros.core.geometry.se3 import invert, scale_motion
+from changing_slam_ros.core.slam.initial_pose import HintedCandidates, PoseHint
 from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.slam.motion_gate import MotionGate, MotionGateConfig, check_speed
 from changing_slam_ros.errors import ConfigError
@@ -60,6 +62,8 @@ class TrackingConfig:
     - `n_reloc_candidates`: keyframes tried per relocalisation; `lost_frames_new_map`: failures before a new map.
     - `loaded_map_grace_s`: a session started from a saved map (`Tracker.start_from_map`) tries relocalisation
       against it on every frame for this long (seconds from the first frame) before it starts a new map.
+    - `initial_pose_timeout_s`: an initial pose (`Tracker.set_pose_hint`, `core/slam/initial_pose.py`) limits
+      relocalisation to its surroundings for this long (seconds of frames); then the whole map is searched again.
     - `pose_iterations_per_round`: Gauss-Newton iterations at most in each of the pose optimisation's four
       rounds (each round also stops when the step is negligible). 2 saves ~20 % of the pose optimisation's CPU
       with the ATE unchanged on six sequences, but test_changing_system's moved chair then gets no map object at
@@ -100,6 +104,7 @@ class TrackingConfig:
     n_reloc_candidates: int = 6
     lost_frames_new_map: int = 30
     loaded_map_grace_s: float = 2.0
+    initial_pose_timeout_s: float = 10.0
     busy_mapping_weak_ratio: float = 0.25
     pose_iterations_per_round: int = 6
     motion_pose_rounds: int = 4
@@ -181,6 +186,8 @@ class Tracker:
         # Localisation only: the map is read, never written (no keyframes, no new maps, no point statistics);
         # a lost frame only tries relocalisation, for as long as it takes.
         self.localization = False
+        self.pose_hint: PoseHint | None = None  # relocalise near this pose (an operator's initial pose)
+        self._hint_start_ns: int | None = None
 
     @property
     def map(self) -> SlamMap:
@@ -195,6 +202,33 @@ class Tracker:
         self.next_kf_id = max(self.next_kf_id, int(next_keyframe_id))
         self.awaiting_loaded_map = True
         self._grace_start_ns = None
+
+    def set_pose_hint(self, hint: PoseHint | None) -> None:
+        """Relocalise near `hint` from the next frame on (None: drop it). A tracker that is OK keeps tracking
+        when its last pose lies within the hint's tolerance; elsewhere it is set LOST, so that it relocalises."""
+        self.pose_hint = hint
+        self._hint_start_ns = None
+        if hint is None:
+            return
+        last = self.last_frame
+        if self.state == TrackingState.OK and last is not None and last.T_world_cam is not None \
+                and hint.admits(last.T_world_cam):  # fmt: skip
+            self.pose_hint = None
+            return
+        self.state = TrackingState.LOST
+        self.n_lost = 0
+        self.velocity = None
+
+    def _hint_holds(self, frame: Frame) -> bool:
+        """A pose hint is set and not yet timed out (`initial_pose_timeout_s` of frame stamps)."""
+        if self.pose_hint is None:
+            return False
+        if self._hint_start_ns is None:
+            self._hint_start_ns = frame.stamp_ns
+        if (frame.stamp_ns - self._hint_start_ns) * 1e-9 <= self.cfg.initial_pose_timeout_s:
+            return True
+        self.pose_hint = None
+        return False
 
     def _within_grace(self, frame: Frame) -> bool:
         """Still waiting to relocalise in the loaded map (False once the grace period is over)."""
@@ -226,6 +260,7 @@ class Tracker:
             self.n_lost = 0
             self.gate.reset()  # the track resumes at a relocalisation
         # LOST: relocalise, or start a new map after too many failures.
+        hinted = self._hint_holds(frame)
         if self._relocalise(frame):
             self.state = TrackingState.OK
             self.n_lost = 0
@@ -239,7 +274,7 @@ class Tracker:
         self.n_lost += 1
         self.last_frame = frame
         self.velocity = None
-        if self.localization:
+        if self.localization or hinted:  # a hint: no new map while it holds
             return TrackResult(TrackingState.LOST, None, 0, None)
         if self.awaiting_loaded_map:
             if self._within_grace(frame):
@@ -400,7 +435,10 @@ class Tracker:
         if len(frame) < 50 or not m.keyframes:
             return False
         cam = frame.camera
-        for kf_id in self.candidates.candidates(frame, m):
+        hint = self.pose_hint
+        source = self.candidates if hint is None else \
+            HintedCandidates(self.candidates, hint, self.cfg.n_reloc_candidates)  # fmt: skip
+        for kf_id in source.candidates(frame, m):
             if kf_id not in m.keyframes:
                 continue
             frame.point_ids[:] = -1
@@ -421,11 +459,16 @@ class Tracker:
             T_cw[:3, 3] = tvec.ravel()
             if self._optimise(frame, T_cw) < 10:
                 continue
+            if hint is not None and not self._near_hint(frame, hint):
+                continue  # the place looks the same, but it is not where the hint says
             self.ref_kf_id = kf_id
             frame.ref_kf_id = kf_id
             self.last_reloc_index = frame.index
             # Local map (wider window right after relocalisation), stricter threshold.
-            if self._track_local_map(frame, self.cfg.min_reloc_inliers) and self._plausible_after_loss(frame):
+            # A hint says where the camera is; without one, the pose must be reachable from the last accepted one.
+            if self._track_local_map(frame, self.cfg.min_reloc_inliers) and (
+                    self._near_hint(frame, hint) if hint is not None else self._plausible_after_loss(frame)):
+                self.pose_hint = None
                 return True
         frame.point_ids[:] = -1
         frame.T_world_cam = None
@@ -473,6 +516,10 @@ class Tracker:
             return True
         self.n_gated += 1
         return False
+
+    @staticmethod
+    def _near_hint(frame: Frame, hint: PoseHint) -> bool:
+        return frame.T_world_cam is not None and hint.admits(frame.T_world_cam)
 
     # 5. Accept the frame, keyframe decision -------------------------------------------------------
     def _accept(self, frame: Frame) -> TrackResult:
