@@ -24,7 +24,7 @@ def _pose(x: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
 
 
 def test_a_metre_in_a_thirtieth_of_a_second_is_refused_and_a_centimetre_passes() -> None:
-    cfg = MotionGateConfig()
+    cfg = MotionGateConfig(enabled=True)
     assert check_speed(cfg, _pose(), _pose(0.01), DT).ok
     refused = check_speed(cfg, _pose(), _pose(0.9), DT)
     assert not refused.ok and refused.step_m == pytest.approx(0.9)
@@ -40,7 +40,7 @@ def _track(gate: MotionGate, xs: list[float]) -> int:
 
 
 def test_a_sudden_innovation_is_refused_on_a_clean_track_and_passes_on_a_noisy_one() -> None:
-    cfg = MotionGateConfig()
+    cfg = MotionGateConfig(enabled=True)
     clean = MotionGate(cfg)
     t = _track(clean, [0.01 * i for i in range(20)])  # 0.3 m/s, noiseless
     assert clean.check(_pose(0.20), t).ok
@@ -63,7 +63,7 @@ def test_real_hand_held_motion_passes_at_30_hz(name: str) -> None:
     stamps, poses = traj.stamps_s, traj.poses()
     t = np.arange(stamps[0], stamps[-1], DT)
     idx = np.searchsorted(stamps, t).clip(0, len(stamps) - 1)
-    gate = MotionGate(MotionGateConfig())
+    gate = MotionGate(MotionGateConfig(enabled=True))
     n = 0
     for k, i in enumerate(idx):
         if abs(stamps[i] - t[k]) > 0.02:
