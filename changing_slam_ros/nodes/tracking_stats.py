@@ -83,13 +83,18 @@ class TrackingStats:
         return out
 
     def _log_stats(self) -> None:
+        """The counts line (every stats_period_s while they change; `changing-slam graph` reads its progress
+        from it)."""
         s = self.pairer.stats
         if s.pairs or s.dropped_first or s.dropped_second:
+            counts = (f"tracking: {self.colour_in} colour received, {self.frames_in} frames, {s.pairs} colour/depth "
+                      f"pairs, unpaired dropped: {s.dropped_first} colour, {s.dropped_second} depth, "
+                      f"{self.published_poses} poses")  # fmt: skip
+            if counts == getattr(self, "_last_counts_line", ""):
+                return
+            self._last_counts_line = counts
             lat = f", latency median {np.median(self.latency_ms):.0f} ms" if self.latency_ms else ""
-            self.get_logger().info(
-                f"tracking: {self.frames_in} frames, {s.pairs} colour/depth pairs, unpaired dropped: "
-                f"{s.dropped_first} colour, {s.dropped_second} depth, {self.published_poses} poses{lat}"
-            )
+            self.get_logger().info(counts + lat)
 
 
 def _warn_if(values: Any) -> str | None:
