@@ -98,6 +98,9 @@ class TrackingStats:
 
 
 def _warn_if(values: Any) -> str | None:
+    """/diagnostics level WARN: tracking lost, or the latency over its target."""
+    if values.get("tracking_state") == "LOST":
+        return "tracking LOST: no pose until relocalisation"
     lat = values.get("latency_ms_median")
     if lat is not None and lat > 60.0:
         return f"image-to-pose latency median {lat:.0f} ms > 60 ms"
