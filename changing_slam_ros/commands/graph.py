@@ -9,8 +9,8 @@
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
 `tracking`, `local_mapping`, `loop_closing` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node`
 processes on a ROS domain of their own, plays the bag, stops the nodes, evaluates the trajectory against the
-bag's ground truth and prints a summary (`Graph`). Process handling is in `commands/graph_process.py`, the
-outputs read back and written after the run in `commands/graph_outputs.py`; the nodes: docs/nodes.md.
+bag's ground truth and prints a summary (`Graph`). Processes: `graph_process.py`; outputs: `graph_outputs.py`;
+the progress line: `graph_progress.py`; `--live` (a camera driver's topics, no bag): `graph_live.py`.
 """
 
 from __future__ import annotations
