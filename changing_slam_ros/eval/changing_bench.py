@@ -312,7 +312,7 @@ def run_semantic_map(scene_dir: Path, run_dir: Path, include_inactive: bool = Fa
     """The run's semantic map in the ground-truth frame: its MapObjects moved by the run's object-placing
     trajectory alignment, selected and boxed with the object-map settings of the run's config (with
     `include_inactive`, also the objects whose belief keeps them out of it)."""
-    from changing_slam_ros.commands.objects_options import aligned_objects, aligned_planes, trajectory_alignment
+    from changing_slam_ros.eval.object_alignment import aligned_objects, aligned_planes, trajectory_alignment
     from changing_slam_ros.config import find_config, load_yaml
     from changing_slam_ros.core.objects.object_layer import object_layer_config
     from changing_slam_ros.core.objects.semantic_map import build_semantic_map

@@ -17,7 +17,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import Executor
 from rclpy.node import Node

@@ -7,9 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from changing_slam_ros.commands.objects_options import (
-    LoopRecord, aligned_objects, loop_error, object_layer_setup, trajectory_alignment,
-)
+from changing_slam_ros.commands.objects_options import LoopRecord, loop_error, object_layer_setup
+from changing_slam_ros.eval.object_alignment import aligned_objects, trajectory_alignment
 from changing_slam_ros.core.objects.map_object import MapObject
 from changing_slam_ros.core.objects.object_layer import ObjectLayer
 from changing_slam_ros.core.geometry.se3 import make_pose

@@ -10,7 +10,7 @@ import pytest
 from helpers import FR1_XYZ_10, REDKITCHEN, require
 
 from changing_slam_ros.cli import main as cli_main
-from changing_slam_ros.commands.objects_options import trajectory_alignment
+from changing_slam_ros.eval.object_alignment import trajectory_alignment
 from changing_slam_ros.eval.multi_session import map_frame_errors_m
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, require
 
-from changing_slam_ros.commands.objects_options import trajectory_alignment
+from changing_slam_ros.eval.object_alignment import trajectory_alignment
 from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter
 from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
 from changing_slam_ros.core.objects.map_object import MapObject

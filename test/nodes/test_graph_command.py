@@ -122,7 +122,7 @@ def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path)
     # while the image top cuts it.
     import numpy as np
 
-    from changing_slam_ros.commands.objects_options import trajectory_alignment
+    from changing_slam_ros.eval.object_alignment import trajectory_alignment
     from changing_slam_ros.eval.object_metrics import load_ground_truth_objects
     from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 

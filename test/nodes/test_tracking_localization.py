@@ -4,7 +4,6 @@ mode switched by ~/set_mode and by the parameter."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 pytestmark = pytest.mark.ros

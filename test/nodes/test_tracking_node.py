@@ -146,8 +146,6 @@ def test_tracking_node_rejects_malformed_images_and_survives_nan_depth(ros_conte
     import cv2
     from helpers import FR1_XYZ_10, require
 
-    from changing_slam_ros.io.image_codec import depth_image_fields, rgb_image_fields
-
     root = require(FR1_XYZ_10)
     row = next(ln.split() for ln in (root / "associations.txt").read_text().splitlines() if ln and ln[0] != "#")
     rgb = np.ascontiguousarray(cv2.imread(str(root / row[1]), cv2.IMREAD_COLOR)[:, :, ::-1])
@@ -202,7 +200,6 @@ def test_frames_whose_detections_will_not_come_are_tracked_at_once_and_latest_dr
     import time
 
     from helpers import FR1_XYZ_10, require
-    from std_msgs.msg import Header
 
     src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
     frames = list(itertools.islice(iter(src), 7))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from changing_slam_ros.sim.actors import Actor, Part, Shape, limb, person_parts, sitting_person_parts
+from changing_slam_ros.sim.actors import Actor, Part, limb, person_parts, sitting_person_parts
 from changing_slam_ros.sim.camera_path import look_at
 from changing_slam_ros.sim.renderer import SimRenderer, fovy_for_focal
 from changing_slam_ros.sim.scene import Light, Room, SceneSpec, ellipsoid_mesh

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 import numpy.typing as npt
-from gtsam.symbol_shorthand import L, X
+from gtsam.symbol_shorthand import X
 
 from changing_slam_ros.core.backend import schur_lm
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics

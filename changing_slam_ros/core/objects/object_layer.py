@@ -32,7 +32,7 @@ from changing_slam_ros.core.map.map_point import PointStore
 from changing_slam_ros.core.objects.box_depth import (  # noqa: F401 - re-exported: the layer's depth band
     MIN_DEPTH_BAND_M, DepthBand, box_depth_band, box_depth_samples,
 )
-from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig, object_map_config
+from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig, object_map_config
 from changing_slam_ros.core.objects.object_box_completion import gravity_up
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
 from changing_slam_ros.core.objects.picture_check import is_picture, plane_extent_m

@@ -16,7 +16,7 @@ from changing_slam_ros.core.movers.keyframe_segmentation import (
     window_measurements,
 )
 from changing_slam_ros.core.slam.local_mapping import MappingConfig
-from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationConfig, segment
+from changing_slam_ros.core.movers.point_correlation import SegmentationConfig, segment
 from changing_slam_ros.core.geometry.pose_optimizer import se3_exp_left
 from changing_slam_ros.core.geometry.se3 import invert, transform_points
 from changing_slam_ros.core.map.slam_map import SlamMap

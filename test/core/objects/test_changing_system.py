@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from changing_slam_ros.commands.objects_options import LoopLog, aligned_objects, trajectory_alignment
+from changing_slam_ros.commands.objects_options import LoopLog
+from changing_slam_ros.eval.object_alignment import aligned_objects, trajectory_alignment
 from changing_slam_ros.commands.run import system_config_from_mapping
 from changing_slam_ros.config import find_config, load_yaml
 from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing

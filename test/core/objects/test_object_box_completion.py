@@ -96,7 +96,7 @@ def test_gravity_up_is_the_floor_normal_near_the_camera_up_not_a_wall():
 
 
 def test_viewing_directions_are_saved_and_turned_with_the_map():
-    from changing_slam_ros.commands.objects_options import aligned_objects
+    from changing_slam_ros.eval.object_alignment import aligned_objects
 
     obj = _seen_from(_cameras([-90, -80]), np.random.default_rng(3))
     back = object_map_from_dict(object_map_to_dict([obj]), "test")[0]
