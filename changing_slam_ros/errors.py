@@ -53,6 +53,18 @@ def utf8_error(path: str | os.PathLike[str], err: UnicodeDecodeError, what: str)
     return f"{path}:{line}: not UTF-8 {what}{byte}"
 
 
+def read_utf8(path: str | os.PathLike[str], error: type[SlamError], what: str = "text", noun: str = "") -> str:
+    """The text of `path`; `error` with a one-line message naming the file where it cannot be read
+    (`path: cannot read [noun] (reason)`) or stops being UTF-8 (`utf8_error`)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read()
+    except OSError as err:
+        raise error(f"{path}: cannot read{' ' + noun if noun else ''} ({err.strerror or err})") from err
+    except UnicodeDecodeError as err:
+        raise error(utf8_error(path, err, what)) from err
+
+
 def yaml_error(path: str | os.PathLike[str], err: Exception) -> str:
     """`path:line: not valid YAML (problem)` from a PyYAML error, on one line (PyYAML's own text spans several)."""
     mark = getattr(err, "problem_mark", None)

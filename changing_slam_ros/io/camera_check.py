@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
-from changing_slam_ros.errors import DatasetError, utf8_error
+from changing_slam_ros.errors import DatasetError, read_utf8
 
 FOCAL_TOLERANCE = 0.01  # relative: calibrations of one camera agree to well under 1 %
 CENTRE_TOLERANCE = 0.01  # of the image width / height
@@ -117,12 +117,7 @@ def map_camera_mismatch(map_name: str, map_camera: CameraIntrinsics | None,
 def read_intrinsics_txt(path: Path, width: int, height: int) -> CameraIntrinsics:
     """7-Scenes' `camera-intrinsics.txt`: a 3x3 camera matrix, three numbers a row; the file gives no image
     size, so `width` x `height` (the config's) is assumed. DatasetError naming the file and line."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise DatasetError(f"{path}: cannot read ({err.strerror})") from err
-    except UnicodeDecodeError as err:
-        raise DatasetError(utf8_error(path, err, "text")) from err
+    text = read_utf8(path, DatasetError)
     rows = [(i, line.split()) for i, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if len(rows) != 3 or any(len(r) != 3 for _, r in rows):
         raise DatasetError(f"{path}: expected a 3x3 camera matrix (three rows of three numbers)")

@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
-from changing_slam_ros.errors import DatasetError, SlamError, utf8_error
+from changing_slam_ros.errors import DatasetError, SlamError, read_utf8
 from changing_slam_ros.io.camera_check import CameraMismatch, check_cameras, read_intrinsics_txt
 from changing_slam_ros.io.camera_info import read_camera_info_yaml
 from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
@@ -72,12 +72,7 @@ def read_file_list(path: Path) -> list[StampedFile]:
 
 
 def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise DatasetError(f"{path}: cannot read ({err.strerror})") from err
-    except UnicodeDecodeError as err:
-        raise DatasetError(utf8_error(path, err, "text")) from err
+    text = read_utf8(path, DatasetError)
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if s and not s.startswith("#"):

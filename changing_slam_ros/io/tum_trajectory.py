@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from changing_slam_ros.core.geometry.trajectory import Trajectory
-from changing_slam_ros.errors import EvalError, utf8_error
+from changing_slam_ros.errors import EvalError, read_utf8
 from changing_slam_ros.io.atomic import atomic_write_text
 
 
@@ -18,12 +18,7 @@ def read_tum_trajectory(path: str | os.PathLike[str]) -> Trajectory:
     Separators may be spaces, tabs or commas (as evo accepts). Rows are returned sorted by stamp.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as err:
-        raise EvalError(f"{p}: cannot read trajectory ({err.strerror or err})") from err
-    except UnicodeDecodeError as err:
-        raise EvalError(utf8_error(p, err, "text")) from err
+    text = read_utf8(p, EvalError, noun="trajectory")
     rows: list[list[float]] = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
