@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from changing_slam_ros.errors import ConfigError, utf8_error, yaml_error
+from changing_slam_ros.errors import ConfigError, read_utf8, yaml_error
 
 T = TypeVar("T")
 
@@ -66,12 +66,7 @@ def _share_config_dir() -> Path:
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; errors name the file."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as err:
-        raise ConfigError(f"{p}: cannot read config ({err.strerror})") from err
-    except UnicodeDecodeError as err:
-        raise ConfigError(utf8_error(p, err, "text")) from err
+    text = read_utf8(p, ConfigError, noun="config")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as err:

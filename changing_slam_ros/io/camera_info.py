@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
-from changing_slam_ros.errors import BagError, DatasetError, utf8_error, yaml_error
+from changing_slam_ros.errors import BagError, DatasetError, read_utf8, yaml_error
 from changing_slam_ros.io.atomic import atomic_write_text
 
 SUPPORTED_MODELS = ("plumb_bob", "rational_polynomial")
@@ -88,12 +88,9 @@ def _model_for(dist: tuple[float, ...]) -> str:
 def read_camera_info_yaml(path: str | os.PathLike[str]) -> CameraIntrinsics:
     """Read a ROS camera-calibration YAML (as written by camera_calibration / camera_info_manager)."""
     p = Path(path)
+    text = read_utf8(p, DatasetError, what="camera calibration", noun="camera calibration")
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise DatasetError(f"{p}: cannot read camera calibration ({err.strerror})") from err
-    except UnicodeDecodeError as err:
-        raise DatasetError(utf8_error(p, err, "camera calibration")) from err
+        data = yaml.safe_load(text)
     except yaml.YAMLError as err:
         raise DatasetError(yaml_error(p, err)) from err
     if not isinstance(data, dict):

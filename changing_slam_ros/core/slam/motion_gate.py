@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from changing_slam_ros.core.geometry.se3 import invert, rotation_angle_rad
 from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
@@ -83,9 +84,8 @@ class MotionCheck:
 
 
 def _between(T_a: F64, T_b: F64) -> tuple[float, float]:  # noqa: N803
-    rel = np.linalg.inv(T_a) @ T_b
-    cos = (np.trace(rel[:3, :3]) - 1.0) / 2.0
-    return float(np.linalg.norm(rel[:3, 3])), float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    rel = invert(T_a) @ T_b
+    return float(np.linalg.norm(rel[:3, 3])), float(np.degrees(rotation_angle_rad(rel[:3, :3])))
 
 
 def check_speed(cfg: MotionGateConfig, T_world_prev: F64, T_world_now: F64, dt_s: float) -> MotionCheck:  # noqa: N803
