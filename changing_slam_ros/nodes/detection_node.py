@@ -4,8 +4,10 @@ Every image it receives but will not detect (`max_rate_hz` skipped it, or it was
 `~/skipped` (std_msgs/Header, the image's header), so that a tracker waiting for that frame's detections
 (`detections_wait_s`) stops waiting at once and tracks it with the earlier ones carried forward.
 
-A lifecycle node: the ONNX session (core.dynamic.detector.Detector) is created in `on_activate` and released in
-`on_deactivate`, as yolo_ros does; `main()` configures and activates it at start (`autostart`).
+A lifecycle node: the ONNX session (core.dynamic.detector.Detector) and the image subscription are created in
+`on_activate` and released in `on_deactivate`, as yolo_ros does; `main()` configures and activates it at start
+(`autostart`). Subscribing only once the model is loaded lets a publisher that waits for subscribers (the lossless
+bag player) know that every image it sends will be detected.
 Images arrive with sensor-data QoS (best effort, shallow queue): when inference is slower than the camera,
 old frames are dropped rather than queued (tracking then carries the last detections forward).
 Topics and parameters: docs/nodes.md#detection.
@@ -109,14 +111,23 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )  # fmt: skip
         self._skipped_pub = self.create_lifecycle_publisher(Header, "~/skipped", self._detections_qos)
+        self.get_logger().info("detection: configured")
+        return TransitionCallbackReturn.SUCCESS
+
+    def _subscribe_images(self) -> None:
+        """The image subscription exists only while the node is active (detector loaded): a lossless player that
+        waits for subscribers then never sends an image to a node that would drop it while its model loads."""
         if self.params["compressed"]:
             self._sub = self.create_subscription(CompressedImage, "image/compressed", self.on_image, self._image_qos,
                                                  event_callbacks=SubscriptionEventCallbacks())  # fmt: skip
         else:
             self._sub = self.create_subscription(Image, "image", self.on_image, self._image_qos,
                                                  event_callbacks=SubscriptionEventCallbacks())  # fmt: skip
-        self.get_logger().info(f"detection: configured, images on {self._sub.topic_name}")
-        return TransitionCallbackReturn.SUCCESS
+
+    def _unsubscribe_images(self) -> None:
+        if self._sub is not None:
+            self.destroy_subscription(self._sub)
+            self._sub = None
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
@@ -124,22 +135,23 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         except SlamError as err:
             self.get_logger().error(f"detection: {err}")
             return TransitionCallbackReturn.FAILURE
+        result = super().on_activate(state)
+        self._subscribe_images()
         self.get_logger().info(
             f"detection: active, model {self.detector.model_path.name} ({self.detector.layout}) on "
-            f"{', '.join(self.detector.providers)}, publishing {self._pub.topic_name}"
+            f"{', '.join(self.detector.providers)}, images on {self._sub.topic_name}, publishing {self._pub.topic_name}"
         )
-        return super().on_activate(state)
+        return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._unsubscribe_images()
         if self.detector is not None:
             self.detector.close()
             self.detector = None
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        if self._sub is not None:
-            self.destroy_subscription(self._sub)
-            self._sub = None
+        self._unsubscribe_images()
         if self._pub is not None:
             self.destroy_lifecycle_publisher(self._pub)
             self._pub = None
