@@ -1,11 +1,12 @@
 """The changing_slam_ros node graph, for machines with a full ROS 2 install (`ros2 launch` is not on PyPI).
 
     ros2 launch changing_slam_ros changing_slam.launch.py bag:=bags/tum_fr1_xyz_first10.mcap config:=tum_fr1
-    ros2 launch changing_slam_ros changing_slam.launch.py config:=realsense_d435 use_sim_time:=false \
-        colour_topic:=/camera/camera/color/image_raw camera_info_topic:=/camera/camera/color/camera_info \
-        depth_topic:=/camera/camera/aligned_depth_to_color/image_raw
+    ros2 launch changing_slam_ros changing_slam.launch.py config:=realsense_d435 topics:=realsense_jazzy \
+        use_sim_time:=false
 
-Without a bag the graph runs on live topics. The arguments whose default is `auto` take what
+Without a bag the graph runs on live topics: `topics` names a preset of the three sensor topics (tum, realsense,
+realsense_jazzy: `io.dataset_config.TOPIC_PRESETS`), and colour_topic / depth_topic / camera_info_topic replace
+single names of it. The arguments whose default is `auto` take what
 `changing-slam graph` gives the nodes (`commands.graph.MODE_DEFAULTS`): its measured real-time settings, or
 with lossless:=true the config's, so that the graph repeats `changing-slam run`. Each argument's description
 says what it sets; `changing-slam graph BAG` starts the same processes without ROS 2 launch.
@@ -18,6 +19,7 @@ from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
 from changing_slam_ros.commands.graph import MODE_DEFAULTS
+from changing_slam_ros.io.dataset_config import TOPIC_PRESETS
 
 PACKAGE = "changing_slam_ros"
 
@@ -31,6 +33,12 @@ def _auto(name: str, lossless: LaunchConfiguration) -> PythonExpression:
                              arg, "' == 'auto' else ", type(real_time).__name__, "('", arg, "')"])  # fmt: skip
 
 
+def _topic(name: str, field: str, topics: LaunchConfiguration) -> PythonExpression:
+    """Launch argument `name` when given, else the `field` (rgb, depth, camera_info) of the `topics` preset."""
+    names = {preset: getattr(t, field) for preset, t in TOPIC_PRESETS.items()}
+    return PythonExpression(["'", LaunchConfiguration(name), "' or ", repr(names), "['", topics, "']"])
+
+
 def generate_launch_description() -> LaunchDescription:
     bag = LaunchConfiguration("bag")
     config = LaunchConfiguration("config")
@@ -39,9 +47,10 @@ def generate_launch_description() -> LaunchDescription:
     use_sim_time = LaunchConfiguration("use_sim_time")
     map_file = LaunchConfiguration("map_file")
     map_out = LaunchConfiguration("map_out")
-    colour_topic = LaunchConfiguration("colour_topic")
-    depth_topic = LaunchConfiguration("depth_topic")
-    camera_info_topic = LaunchConfiguration("camera_info_topic")
+    topics = LaunchConfiguration("topics")
+    colour_topic = _topic("colour_topic", "rgb", topics)
+    depth_topic = _topic("depth_topic", "depth", topics)
+    camera_info_topic = _topic("camera_info_topic", "camera_info", topics)
     base_frame = LaunchConfiguration("base_frame")
     odom_source = LaunchConfiguration("odom_source")
     mode = LaunchConfiguration("mode")
@@ -56,12 +65,17 @@ def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
         DeclareLaunchArgument("bag", default_value="", description="bag or mcap to replay; empty = live input"),
         DeclareLaunchArgument("config", default_value="tum_fr1", description="config name or YAML path"),
-        DeclareLaunchArgument("colour_topic", default_value="/camera/rgb/image_color",
-                              description="colour image topic (sensor_msgs/Image)"),
-        DeclareLaunchArgument("depth_topic", default_value="/camera/depth/image",
-                              description="depth image registered to colour (32FC1 metres or 16UC1 millimetres)"),
-        DeclareLaunchArgument("camera_info_topic", default_value="/camera/rgb/camera_info",
-                              description="colour camera_info (intrinsics)"),
+        DeclareLaunchArgument("topics", default_value="tum", choices=list(TOPIC_PRESETS),
+                              description="sensor topic names: " + "; ".join(
+                                  f"{name}: {t.rgb}, {t.depth}, {t.camera_info}" for name, t in TOPIC_PRESETS.items())
+                              + " (realsense_jazzy: realsense2_camera's defaults on Jazzy)"),
+        DeclareLaunchArgument("colour_topic", default_value="",
+                              description="colour image topic (sensor_msgs/Image); empty = the topics preset's"),
+        DeclareLaunchArgument("depth_topic", default_value="",
+                              description="depth image registered to colour (32FC1 metres or 16UC1 millimetres); "
+                                          "empty = the topics preset's"),
+        DeclareLaunchArgument("camera_info_topic", default_value="",
+                              description="colour camera_info (intrinsics); empty = the topics preset's"),
         DeclareLaunchArgument("base_frame", default_value="",
                               description="robot base frame (base_link): pose, odometry and TF for it; empty = camera"),
         DeclareLaunchArgument("odom_source", default_value="visual",

@@ -9,8 +9,8 @@
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
 `tracking`, `local_mapping`, `loop_closing` and `bag_player` as `python -m changing_slam_ros.nodes.<name>_node`
 processes on a ROS domain of their own, plays the bag, stops the nodes, evaluates the trajectory against the
-bag's ground truth and prints a summary (`Graph`). Process handling is in `commands/graph_process.py`, the
-outputs read back and written after the run in `commands/graph_outputs.py`; the nodes: docs/nodes.md.
+bag's ground truth and prints a summary (`Graph`). Processes: `graph_process.py`; outputs: `graph_outputs.py`;
+the progress line: `graph_progress.py`; `--live` (a camera driver's topics, no bag): `graph_live.py`.
 """
 
 from __future__ import annotations
@@ -28,6 +28,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from changing_slam_ros.commands.graph_arguments import (  # noqa: F401 - add_arguments: the command's options
+    BACKENDS,
+    add_arguments,
+    check_bag_arguments,
+)
 from changing_slam_ros.commands.graph_outputs import (
     camera_mismatches,
     detection_median_ms,
@@ -46,6 +51,7 @@ from changing_slam_ros.commands.graph_process import (
     python_argv,
     stop_all,
 )
+from changing_slam_ros.commands.graph_progress import GraphProgress
 from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
@@ -60,7 +66,6 @@ READY_MARKERS = {
 }
 # What nodes.map_resync logs when a (re)started map owner has its map back from tracking, or starts empty.
 RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
-BACKENDS = ("split", "in_process")
 MAPS_DIR = "maps"  # in DIR: the map_dir of local_mapping's and object_map's SaveMap / LoadMap
 ACK_TOPIC = "/bag_player/ack"
 CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
@@ -85,64 +90,6 @@ def mode_default(name: str, lossless: bool) -> Any:
 
 
 PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bag", metavar="BAG", help="ROS 1 bag, ROS 2 bag folder or mcap file to replay")
-    parser.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
-    parser.add_argument("--config", default="", metavar="NAME|FILE", help="config YAML (as for `changing-slam run`)")
-    parser.add_argument("--rate", type=float, default=1.0, metavar="R", help="playback speed factor (default 1)")
-    parser.add_argument("--lossless", action="store_true",
-                        help="the player waits for tracking's ack of each colour frame (no drops; not real time)")
-    parser.add_argument("--detection", action=argparse.BooleanOptionalAction, default=None,
-                        help="start the detection node (default: when the config's dynamic filter uses detections)")
-    parser.add_argument("--object-map", action=argparse.BooleanOptionalAction, default=True,
-                        help="start the object_map node (default on)")
-    parser.add_argument("--detections-wait", type=float, default=None, metavar="S",
-                        help="longest wait of tracking for a frame's own detections (default 0.05 in real time: the "
-                             "frames the detector detects wait for their boxes, ~17 ms with INT8, the ones it skips "
-                             "(its rate cap) are tracked at once with the earlier boxes carried forward; 0: never "
-                             "wait; lossless 10 s)")
-    parser.add_argument("--queue-depth", type=int, default=2, metavar="N",
-                        help="colour/depth frames the middleware keeps for tracking while it is busy (default 2; "
-                             "real time then tracks them in order while they are within their detection wait and "
-                             "drops the older ones past it, frame_policy latest; 1: the middleware keeps the newest only)")
-    parser.add_argument("--detector-threads", type=int, default=None, metavar="N",
-                        help="onnxruntime threads of the detection node (default: 1 in real time, where the graph's "
-                             "six processes share the cores and one thread costs ~10 %% less CPU per detection; "
-                             "the config's in --lossless, where the detector's wall time per frame counts; -1: the config's)")
-    parser.add_argument("--detector-model", default=None, metavar="NAME",
-                        help="shipped detector of the detection node (default: ssd_mobilenet_v2_coco_int8 in real "
-                             "time, the static INT8 SSD at ~0.4x the fp32 CPU per detection; the config's in "
-                             "--lossless, so that the graph repeats `changing-slam run`; config: the config's)")
-    parser.add_argument("--detection-max-hz", type=float, default=None, metavar="HZ",
-                        help="real time: the detection node detects at most this often by image stamp (detection "
-                             "node max_rate_hz; default 15 in real time: every other frame of a 30 Hz camera, half the INT8 "
-                             "detector's CPU at the same 1x ATE; 0 = as often as it is free); not with --lossless, "
-                             "where tracking waits for every frame's detections")
-    parser.add_argument("--ba-solver", choices=("gtsam", "schur", "config"), default=None,
-                        help="local_mapping's local BA solver (default: schur in real time, the numpy Schur-complement "
-                             "LM that solves gtsam's problem at ~0.35x the CPU; the config's, gtsam unless set, in "
-                             "--lossless, so that the graph repeats `changing-slam run`)")
-    parser.add_argument("--max-restarts", type=int, default=2, metavar="N",
-                        help="restarts per node (default 2); a node that dies once more, dies twice in a row with "
-                             "the same error, or dies while (re)starting stops the graph: every process is stopped "
-                             "within 10 s, the node's last log lines and log path are printed, exit 1")
-    parser.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up after S seconds")
-    parser.add_argument("--backend", choices=BACKENDS, default="split",
-                        help="split: local_mapping and loop_closing in their own processes (default); "
-                             "in_process: tracking runs the whole SLAM system")
-    parser.add_argument("--map-in", metavar="MAP", default="",
-                        help="multi-session: start from a map saved by `changing-slam run` (its DIR/map.npz); "
-                             "tracking relocalises in it, poses stay in its frame")
-    parser.add_argument("--nice", action="append", default=[], metavar="NODE=N",
-                        help="start NODE with its niceness raised by N (repeatable; e.g. local_mapping=5 lets tracking "
-                             "and detection take the cores first when they are short; a restart keeps it)")
-    parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
-                        help="fault injection: SIGKILL NODE S seconds after playback starts (repeatable)")
-    parser.add_argument("--load-map", action="append", default=[], metavar="MAP@S",
-                        help="multi-session mid-run: S seconds after the player's first message, call local_mapping's LoadMap "
-                             "with MAP (a map.npz); tracking and loop_closing follow (repeatable)")
 
 
 @dataclass(frozen=True)
@@ -217,13 +164,12 @@ class Graph:
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
-        self.bag = str(Path(args.bag).resolve())
-        self.info = inspect_bag(self.bag)
         self.config = str(Path(args.config).resolve()) if args.config and Path(args.config).is_file() else args.config
         if self.config:
             from changing_slam_ros.nodes.slam_backend import load_backend_config
 
             load_backend_config(self.config)  # a bad config fails here, before any process starts
+        self.bag, self.info = self._open_source()
         self.detection = _uses_detections(self.config) if args.detection is None else args.detection
         self.kills = parse_kills(args.kill)
         self.loads = parse_loads(getattr(args, "load_map", []))
@@ -236,7 +182,7 @@ class Graph:
 
             loaded = load_map(args.map_in)  # a bad map fails here, before any process starts
             self.map_in = str(Path(args.map_in).resolve())
-        self.mismatches = camera_mismatches(self.bag, self.config or "", self.map_in, loaded)
+        self.mismatches = camera_mismatches(self.bag, self.config or "", self.map_in, loaded) if self.bag else []
         for mismatch in self.mismatches:
             print(f"graph: warning: {mismatch.message()}", file=sys.stderr, flush=True)
         # Everything is written into a fresh folder beside --out, which replaces it when the run is complete
@@ -245,10 +191,8 @@ class Graph:
         self.out = self.out_dir.work
         self.logs = self.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
-        domain = os.environ.get("ROS_DOMAIN_ID") or str(random.SystemRandom().randint(1, 99))
-        self.env = child_env(dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                        PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0",
-                        ROS_LOG_DIR=str(self.logs / "ros")))  # fmt: skip
+        self.env = child_env(dict(os.environ, **self._ros_env(), PYTHONUNBUFFERED="1",
+                                  RCUTILS_LOGGING_BUFFERED_STREAM="0", ROS_LOG_DIR=str(self.logs / "ros")))  # fmt: skip
         # One OpenBLAS thread per node (unless set): six processes share the cores, and a second BLAS thread per
         # process only spins on the small products tracking and mapping do (in-process tracking + mapping on
         # the sim bag: 6.6 -> 5.9 s CPU, 9.6 -> 8.5 s wall for 150 frames).
@@ -257,11 +201,31 @@ class Graph:
         self.restarts: dict[str, int] = {}
         self._failures: dict[str, str] = {}  # node -> the error it last died with (`NodeProcess.failure`)
         self.cpu = PlayCpu()  # CPU seconds per process during playback (graph_summary.json)
+        self.player: NodeProcess | None = None  # bag_player; none on live topics
+        self.progress: GraphProgress | None = None
         try:
             self._build()
         except BaseException:
             shutil.rmtree(self.out, ignore_errors=True)
             raise
+
+    def _open_source(self) -> tuple[str, BagInfo]:
+        """The bag (absolute path) and what it holds; `graph_live.LiveGraph` listens to live topics instead."""
+        check_bag_arguments(self.args)
+        if not self.args.bag:
+            raise ConfigError("no BAG given: name a bag to replay, or --live to listen to a camera driver's topics")
+        bag = str(Path(self.args.bag).resolve())
+        return bag, inspect_bag(bag)
+
+    def _ros_env(self) -> dict[str, str]:
+        """A domain of the run's own (unless ROS_DOMAIN_ID is set), discovery on this machine only."""
+        domain = os.environ.get("ROS_DOMAIN_ID") or str(random.SystemRandom().randint(1, 99))
+        return {"ROS_DOMAIN_ID": domain, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+
+    def _sensor_inputs(self) -> tuple[dict[str, str], bool]:
+        """Remappings of the TUM sensor topic names the nodes subscribe to, and whether the images come reliable
+        (the player's, on Fast DDS across processes) rather than sensor-data best effort (a driver's)."""
+        return {}, True
 
     def _build(self) -> None:
         a, info = self.args, self.info
@@ -286,7 +250,9 @@ class Graph:
                 "loop_closing", node_argv("loop_closing_node", {"config": self.config, "map_file": self.map_in}),
                 self.logs, restart_argv=node_argv("loop_closing_node", {"config": self.config, "map_file": ""}))  # fmt: skip
         if self.detection:
-            remaps = {"image": "/camera/rgb/image_color", "image/compressed": "/camera/rgb/image_color/compressed"}
+            sensor_remaps, reliable = self._sensor_inputs()
+            remaps = {"image": sensor_remaps.get("/camera/rgb/image_color", "/camera/rgb/image_color"),
+                      "image/compressed": "/camera/rgb/image_color/compressed"}  # fmt: skip
             threads = a.detector_threads if a.detector_threads is not None else mode_default("detector_threads", a.lossless)
             model = a.detector_model or mode_default("detector_model", a.lossless)
             from changing_slam_ros.core.dynamic.detector import SHIPPED_MODELS
@@ -299,16 +265,26 @@ class Graph:
                 raise ConfigError(f"--detection-max-hz {max_hz}: must be >= 0, and 0 with --lossless (tracking waits "
                                   "for every frame's detections there)")  # fmt: skip
             self.nodes["detection"] = NodeProcess("detection", node_argv("detection_node", {
-                "config": self.config, "compressed": info.compressed, "reliable_images": True,
+                "config": self.config, "compressed": info.compressed, "reliable_images": reliable,
                 "intra_op_threads": int(threads), "model": "" if model == "config" else model,
                 "max_rate_hz": float(max_hz)}, remaps), self.logs)  # fmt: skip
+        sensor_remaps, reliable = self._sensor_inputs()
         self.nodes["tracking"] = NodeProcess("tracking", node_argv("tracking_node", {
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,
             "ack_topic": ACK_TOPIC, "detections_required": self.detection, "detections_wait_s": float(wait),
             "in_process_backend": not split, "wait_for_map_updates": bool(a.lossless and split),
-            "reliable_images": True, "image_queue_depth": a.queue_depth, "map_file": self.map_in,
+            "reliable_images": reliable, "image_queue_depth": a.queue_depth, "map_file": self.map_in,
             "frame_policy": "all" if a.lossless else "latest", "detections_skip_late": not a.lossless,
-        }), self.logs)  # fmt: skip
+            "stats_period_s": 1.0,  # its frame and pose counts: the progress line
+        }, sensor_remaps), self.logs)  # fmt: skip
+        if self.bag:
+            self._build_player()
+        processes = {**self.nodes, **({"bag_player": self.player} if self.player else {})}
+        for name, increment in parse_nice(getattr(a, "nice", []), tuple(processes)).items():
+            processes[name].nice = increment
+
+    def _build_player(self) -> None:
+        a, info = self.args, self.info
         player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
                   "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
                   "wait_for_topics": list(info.sensor_topics or (info.colour_topic,)),
@@ -319,8 +295,6 @@ class Graph:
             # confirms each camera_info on the ack topic, and the player re-sends it until one is confirmed
             player["confirm_topics"] = [CAMERA_INFO_TOPIC]
         self.player = NodeProcess("bag_player", node_argv("bag_player_node", player), self.logs)
-        for name, increment in parse_nice(getattr(a, "nice", []), (*self.nodes, "bag_player")).items():
-            (self.player if name == "bag_player" else self.nodes[name]).nice = increment
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _start(self, node: NodeProcess, timeout_s: float) -> None:
@@ -338,7 +312,7 @@ class Graph:
             time.sleep(0.1)
 
     def _pids(self, with_player: bool = True) -> dict[str, int]:
-        nodes = [*self.nodes.values(), self.player] if with_player else list(self.nodes.values())
+        nodes = [*self.nodes.values(), *([self.player] if with_player and self.player else [])]
         return {n.name: n.proc.pid for n in nodes if n.proc is not None and n.proc.poll() is None}
 
     def _supervise(self, started_s: float) -> None:
@@ -347,16 +321,17 @@ class Graph:
         pending_loads = list(self.loads)
         first_message_s: float | None = None  # --load-map counts from the player's first message
         deadline = started_s + self.args.timeout
-        while self.player.running():
+        while self._playing(started_s):
             now = time.monotonic()
-            if now > deadline:
+            if now > deadline and self.player is not None:
                 raise SlamError(f"graph: still playing after --timeout {self.args.timeout:.0f} s; stopped")
             for name, at_s in list(pending_kills):
                 if now - started_s >= at_s and name in self.nodes and self.nodes[name].running():
                     print(f"graph: --kill: SIGKILL {name} at {now - started_s:.1f} s", flush=True)
                     self.nodes[name].stop(signal.SIGKILL, 5.0)
                     pending_kills.remove((name, at_s))
-            if pending_loads and first_message_s is None and PLAYER_FIRST_MESSAGE in self.player.log_text():
+            if pending_loads and first_message_s is None and (self.player is None or PLAYER_FIRST_MESSAGE in
+                                                              self.player.log_text()):  # fmt: skip
                 first_message_s = now
             for path, at_s in list(pending_loads):
                 if first_message_s is not None and now - first_message_s >= at_s:
@@ -366,7 +341,13 @@ class Graph:
                 if not node.running():
                     self._restart(node, killed=any(name == node.name for name, _ in self.kills))
             self.cpu.sample(self._pids())
+            if self.progress is not None:
+                self.progress.update(now)
             time.sleep(0.2)
+
+    def _playing(self, started_s: float) -> bool:
+        """Whether the run goes on: the player still plays."""
+        return self.player is not None and self.player.running()
 
     def _restart(self, node: NodeProcess, killed: bool) -> None:
         """Restart a dead node, or raise NodeFailed when that cannot help: it died more than --max-restarts
@@ -432,9 +413,11 @@ class Graph:
         """Tracking first (SIGINT: it writes its outputs), then the others; escalate to SIGTERM, SIGKILL."""
         codes: dict[str, int | None] = {}
         order = [n for n in ("tracking", "local_mapping", "loop_closing", "detection", "object_map")
-                 if n in self.nodes] + ["bag_player"]  # fmt: skip
+                 if n in self.nodes] + (["bag_player"] if self.player else [])  # fmt: skip
         for name in order:
             node = self.player if name == "bag_player" else self.nodes[name]
+            if node is None:
+                continue
             code = node.stop(signal.SIGINT, 120.0 if name in ("tracking", "local_mapping") else 15.0)
             if code is None:
                 code = node.stop(signal.SIGTERM, 10.0)
@@ -451,22 +434,19 @@ class Graph:
             for node in self.nodes.values():
                 self._wait_ready(node, 300.0)
             up_s = time.monotonic() - t0
-            print(f"graph: {', '.join(self.nodes)} up after {up_s:.1f} s (ROS_DOMAIN_ID {self.env['ROS_DOMAIN_ID']}); "
-                  f"playing {self.bag} at {self.args.rate}x{' lossless' if self.args.lossless else ''}", flush=True)
             t_play = time.monotonic()
             self.cpu.start(self._pids(with_player=False))
-            self.player.start(self.env)
-            self._supervise(t_play)
+            self.progress = GraphProgress(self.nodes["tracking"], self.player, self.info.colour_frames)
+            self._play(t_play, up_s)
+            self.progress.finish()
             play_s = time.monotonic() - t_play
-            if self.player.proc is not None and self.player.proc.returncode != 0:
-                raise SlamError(f"graph: bag_player failed (exit {self.player.proc.returncode}); see {self.player.log_path}")
             if not self.args.lossless:
                 time.sleep(1.0 if self.args.backend == "in_process" else 3.0)  # frames, keyframes, map updates in flight
             self.cpu.sample(self._pids(with_player=False))  # the work on the last frames counts too
             self._wait_resynced(120.0)
             self.map_loads = self._finish_load_calls(90.0)
         except NodeFailed as err:
-            stop_all([*self.nodes.values(), self.player])
+            stop_all([*self.nodes.values(), *([self.player] if self.player else [])])
             for c in self.load_calls:
                 c["proc"].kill()
             lines = err.node.last_lines(12)
@@ -474,10 +454,22 @@ class Graph:
                   + "\n".join(f"  {ln[:300]}" for ln in lines), file=sys.stderr, flush=True)  # fmt: skip
             raise
         except BaseException:
+            if self.progress is not None:
+                self.progress.finish()
             self.shutdown()
             raise
         codes = self.shutdown()
         return self._summary(play_s, up_s, codes)
+
+    def _play(self, t_play: float, up_s: float) -> None:
+        """Play the bag, supervising the nodes until the player ends."""
+        assert self.player is not None
+        print(f"graph: {', '.join(self.nodes)} up after {up_s:.1f} s (ROS_DOMAIN_ID {self.env['ROS_DOMAIN_ID']}); "
+              f"playing {self.bag} at {self.args.rate}x{' lossless' if self.args.lossless else ''}", flush=True)
+        self.player.start(self.env)
+        self._supervise(t_play)
+        if self.player.proc is not None and self.player.proc.returncode != 0:
+            raise SlamError(f"graph: bag_player failed (exit {self.player.proc.returncode}); see {self.player.log_path}")
 
     # -- results --------------------------------------------------------------------------------
     def _provenance(self) -> dict[str, Any]:
@@ -492,11 +484,13 @@ class Graph:
         stats_path = self.out / "tracking_stats.json"
         stats = json.loads(stats_path.read_text()) if stats_path.is_file() else {}
         poses = int(stats.get("poses_published", 0))
+        frames_in = self.info.colour_frames if self.bag else int(stats.get("colour_received") or 0)
         summary: dict[str, Any] = {
-            "bag": self.bag, "config": self.config or "defaults", "rate": self.args.rate, "lossless": self.args.lossless,
-            "colour_frames_in_bag": self.info.colour_frames, "colour_received": stats.get("colour_received"),
+            "bag": self.bag or None, "config": self.config or "defaults", "rate": self.args.rate,
+            "lossless": self.args.lossless, "colour_frames_in_bag": self.info.colour_frames if self.bag else None,
+            "colour_received": stats.get("colour_received"),
             "frames_processed": stats.get("frames_processed"), "frames_tracked": stats.get("frames_tracked"),
-            "poses_published": poses, "drops": self.info.colour_frames - poses,
+            "poses_published": poses, "drops": frames_in - poses,
             "latency_ms_median": stats.get("latency_ms_median"), "latency_ms_p90": stats.get("latency_ms_p90"),
             "process_ms_median": stats.get("process_ms_median"), "keyframes": stats.get("keyframes"),
             "process_cpu_ms_median": stats.get("process_cpu_ms_median"),
@@ -521,10 +515,12 @@ class Graph:
             "detection_rate_hz": (stats.get("detections_received") or 0) / play_s if play_s > 0 else None,
         }  # fmt: skip
         summary["lossless_incomplete"] = (lossless_gaps(self.player.log_text(), stats, summary["local_mapping"])
-                                          if self.args.lossless else [])  # fmt: skip
-        summary.update(self._cpu_summary())
+                                          if self.args.lossless and self.player else [])  # fmt: skip
+        summary.update(self._cpu_summary(frames_in))
         summary["provenance"] = self._provenance()
-        summary.update(evaluate(self.bag, self.config, self.out))
+        summary.update(self._source_summary())
+        summary.update(evaluate(self.bag, self.config, self.out) if self.bag else
+                       {"evaluation_error": "live topics: no ground truth"})  # fmt: skip
         summary["outputs_mcap"] = write_outputs_mcap(self.bag, self.config, self.out)
         summary["map_out"] = str(self.out_dir.path_after_commit(self.out / "map.npz")) \
             if (self.out / "map.npz").is_file() else None  # fmt: skip
@@ -536,16 +532,20 @@ class Graph:
         return summary
 
 
-    def _cpu_summary(self) -> dict[str, Any]:
+    def _source_summary(self) -> dict[str, Any]:
+        """What graph_summary.json says about the input beyond the bag's path (`LiveGraph`: its topics)."""
+        return {}
+
+    def _cpu_summary(self, frames: int) -> dict[str, Any]:
         """CPU seconds per process during playback and per bag frame (`commands/process_cpu.py`); the player's
         own figure for its play() (its log line) replaces the sampled one, which includes its start-up."""
         import re
 
-        found = re.findall(r"messages in [0-9.]+ s \(CPU ([0-9.]+) s\)", self.player.log_text())
+        found = re.findall(r"messages in [0-9.]+ s \(CPU ([0-9.]+) s\)", self.player.log_text() if self.player else "")
         sec = self.cpu.seconds()
         if found:
             sec["bag_player"] = float(found[-1])
-        return {"cpu_s_during_play": sec, "cpu_ms_per_bag_frame": per_frame_ms(sec, self.info.colour_frames)}
+        return {"cpu_s_during_play": sec, "cpu_ms_per_bag_frame": per_frame_ms(sec, frames)}
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
@@ -553,7 +553,12 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    graph = Graph(args)
+    if getattr(args, "live", False):
+        from changing_slam_ros.commands.graph_live import LiveGraph
+
+        graph: Graph = LiveGraph(args)
+    else:
+        graph = Graph(args)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)  # `timeout`/kill: still stop the children
     try:
         s = graph.run()
@@ -568,8 +573,10 @@ def main(args: argparse.Namespace) -> int:
     ate_text = f"ATE RMSE {s['ate_rmse_m'] * 100:.2f} cm (online {s.get('ate_online_rmse_m', float('nan')) * 100:.2f} cm)" \
         if "ate_rmse_m" in s else f"no ATE ({s.get('evaluation_error', 'no ground truth')})"  # fmt: skip
     lat = s["latency_ms_median"]
+    frames = s["colour_frames_in_bag"] if s["colour_frames_in_bag"] is not None else (s["colour_received"] or 0)
     print(
-        f"{s['poses_published']}/{s['colour_frames_in_bag']} frames with a pose ({s['drops']} dropped), "
+        f"{s['poses_published']}/{frames} {'frames' if graph.bag else 'frames received'} with a pose "
+        f"({s['drops']} dropped), "
         f"{s['keyframes']} keyframes, {s['loops_closed']} loops, {ate_text}, image-to-pose latency median "
         + (f"{lat:.0f} ms" if lat is not None else "n/a")
         + (f", detection {s['detection_rate_hz']:.1f} Hz" if s.get("detection_node") and s.get("detection_rate_hz") else "")
@@ -583,4 +590,4 @@ def main(args: argparse.Namespace) -> int:
     if cpu:
         print("CPU ms per bag frame during playback: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items()))
     print(f"results in {graph.out_dir.target}")
-    return 1 if s["colour_frames_in_bag"] and not s["frames_tracked"] else 0  # nothing useful produced
+    return 1 if frames and not s["frames_tracked"] else 0  # nothing useful produced

@@ -41,7 +41,7 @@ def write_outputs_mcap(bag: str, config: str, out: Path) -> str | None:
     if not final.is_file():
         return None
     try:
-        gt = open_dataset(bag, config or None).groundtruth
+        gt = open_dataset(bag, config or None).groundtruth if bag else None  # live topics: none
     except SlamError:
         gt = None
     path = out / "outputs.mcap"
@@ -167,8 +167,13 @@ def camera_mismatches(bag: str, config: str, map_in: str, loaded: Any) -> list[C
 
 
 def graph_warnings(summary: dict[str, Any], mismatches: list[CameraMismatch]) -> list[str]:
-    """graph_summary.json `warnings`: cameras that disagree, and no frame tracked (then `graph` exits 1)."""
+    """graph_summary.json `warnings`: cameras that disagree, no frame tracked (then `graph` exits 1), no frame
+    received from live topics."""
     out = [m.message() for m in mismatches]
+    live = summary.get("live")
+    if live and not summary.get("colour_received"):
+        out.append(f"no colour frame received on {live['colour_topic']}: is the camera driver running, on this "
+                   "ROS_DOMAIN_ID, with these topic names (`ros2 topic list`)?")  # fmt: skip
     if summary.get("colour_frames_in_bag") and not summary.get("frames_tracked"):
         out.append(f"0 of {summary['colour_frames_in_bag']} colour frames tracked: check the config's camera and "
                    "dataset against the bag, and logs/tracking.log")  # fmt: skip

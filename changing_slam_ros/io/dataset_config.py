@@ -32,8 +32,15 @@ TUM_TOPICS = TopicSet("/camera/rgb/image_color", "/camera/depth/image", "/camera
 REALSENSE_TOPICS = TopicSet(
     "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw", "/camera/color/camera_info"
 )
+# realsense2_camera 4.5x on Jazzy (rs_launch.py, align_depth.enable:=true): camera_namespace and camera_name
+# both default to `camera`, so every topic is under /camera/camera.
+REALSENSE_JAZZY_TOPICS = TopicSet(
+    "/camera/camera/color/image_raw", "/camera/camera/aligned_depth_to_color/image_raw",
+    "/camera/camera/color/camera_info",
+)
 # Our own mcaps (convert, simulator) use the TUM names, so they need no preset of their own.
-TOPIC_PRESETS: dict[str, TopicSet] = {"tum": TUM_TOPICS, "realsense": REALSENSE_TOPICS}
+TOPIC_PRESETS: dict[str, TopicSet] = {"tum": TUM_TOPICS, "realsense": REALSENSE_TOPICS,
+                                      "realsense_jazzy": REALSENSE_JAZZY_TOPICS}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -86,7 +93,8 @@ class DatasetConfig:
       also the approximate-time slop for bags.
     - `offset_s`: added to depth stamps before pairing (associate.py `--offset`).
     - `gt_max_time_diff_s`: a frame gets the nearest ground-truth pose within this difference.
-    - `topic_preset`: `auto` (detect TUM or RealSense names in the bag), `tum` or `realsense`;
+    - `topic_preset`: `auto` (detect TUM or RealSense names in the bag), `tum`, `realsense` (`/camera/color/...`)
+      or `realsense_jazzy` (`/camera/camera/...`, realsense2_camera's default on Jazzy);
     - `rgb_topic`, `depth_topic`, `camera_info_topic`: override single names of the preset when non-empty.
     - `bag_intrinsics_from`: `camera_info` (the bag's latest CameraInfo, the config's camera when
       none was recorded) or `config` (the config's camera always; TUM bags carry the uncalibrated

@@ -83,16 +83,24 @@ class TrackingStats:
         return out
 
     def _log_stats(self) -> None:
+        """The counts line (every stats_period_s while they change; `changing-slam graph` reads its progress
+        from it)."""
         s = self.pairer.stats
         if s.pairs or s.dropped_first or s.dropped_second:
+            counts = (f"tracking: {self.colour_in} colour received, {self.frames_in} frames, {s.pairs} colour/depth "
+                      f"pairs, unpaired dropped: {s.dropped_first} colour, {s.dropped_second} depth, "
+                      f"{self.published_poses} poses")  # fmt: skip
+            if counts == getattr(self, "_last_counts_line", ""):
+                return
+            self._last_counts_line = counts
             lat = f", latency median {np.median(self.latency_ms):.0f} ms" if self.latency_ms else ""
-            self.get_logger().info(
-                f"tracking: {self.frames_in} frames, {s.pairs} colour/depth pairs, unpaired dropped: "
-                f"{s.dropped_first} colour, {s.dropped_second} depth, {self.published_poses} poses{lat}"
-            )
+            self.get_logger().info(counts + lat)
 
 
 def _warn_if(values: Any) -> str | None:
+    """/diagnostics level WARN: tracking lost, or the latency over its target."""
+    if values.get("tracking_state") == "LOST":
+        return "tracking LOST: no pose until relocalisation"
     lat = values.get("latency_ms_median")
     if lat is not None and lat > 60.0:
         return f"image-to-pose latency median {lat:.0f} ms > 60 ms"

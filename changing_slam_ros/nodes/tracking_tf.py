@@ -59,6 +59,7 @@ class Rep105Outputs:
         self.has_map_odom = False  # a map -> odom has been computed (before: nothing to hold while lost)
         self.tracking = "NOT_INITIALISED"  # OK, LOST, or RELOCALISED (the first pose after LOST)
         self.n_lost_frames = 0
+        self.n_relocalised = 0  # LOST -> a pose again
         self.odom_timeouts = 0  # frames whose odometry never came within tf_timeout_s
         self.odom_missing = 0  # frames with no odometry path at all (no odom -> base_frame on /tf)
         self._map_moved = False
@@ -120,7 +121,8 @@ class Rep105Outputs:
         return self.T_base_cam
 
     def diagnostic_values(self) -> dict[str, Any]:
-        return {"tracking_state": self.tracking, "odom_source": self.source.value, "lost_frames": self.n_lost_frames,
+        return {"tracking_state": self.tracking, "relocalisations": self.n_relocalised,
+                "odom_source": self.source.value, "lost_frames": self.n_lost_frames,
                 "map_odom_jumps": self.state.jumps, "odom_lookups_timed_out": self.odom_timeouts}  # fmt: skip
 
     # -- odom_source tf -------------------------------------------------------------------------
@@ -169,6 +171,7 @@ class Rep105Outputs:
             self.node.get_logger().warning(f"tracking: LOST at {stamp_ns * 1e-9:.3f} s; no pose until "
                                            f"relocalisation, map -> {self.odom_frame} held")  # fmt: skip
         elif state == "RELOCALISED":
+            self.n_relocalised += 1
             self.node.get_logger().info(f"tracking: relocalised at {stamp_ns * 1e-9:.3f} s")
         self.tracking = state
 

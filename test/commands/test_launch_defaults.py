@@ -95,8 +95,15 @@ def test_auto_launch_arguments_give_the_nodes_the_graph_commands_settings(monkey
         assert launch["tracking"]["detections_wait_s"] == 0.05 and launch["local_mapping"]["ba_solver"] == "schur"
 
 
-def test_camera_topic_arguments_remap_tracking_and_detection(monkeypatch):
-    """A live camera (a RealSense driver's topics) reaches tracking and detection through the three topic arguments."""
+@pytest.mark.parametrize(("given", "expected"), [
+    ({}, ("/camera/rgb/image_color", "/camera/depth/image", "/camera/rgb/camera_info")),
+    ({"topics": "realsense_jazzy"}, ("/camera/camera/color/image_raw", "/camera/camera/aligned_depth_to_color/image_raw",
+                                     "/camera/camera/color/camera_info")),
+    ({"topics": "realsense", "depth_topic": "/d"}, ("/camera/color/image_raw", "/d", "/camera/color/camera_info")),
+], ids=["tum", "realsense_jazzy", "realsense_one_replaced"])  # fmt: skip
+def test_camera_topic_arguments_remap_tracking_and_detection(monkeypatch, given, expected):
+    """A live camera (a RealSense driver's topics) reaches tracking and detection through the `topics` preset and
+    the three topic arguments that replace single names of it."""
     for name, module in _stand_ins().items():
         monkeypatch.setitem(sys.modules, name, module)
     spec = importlib.util.spec_from_file_location("changing_slam_launch", REPO / "launch" / "changing_slam.launch.py")
@@ -104,12 +111,20 @@ def test_camera_topic_arguments_remap_tracking_and_detection(monkeypatch):
     spec.loader.exec_module(module)  # type: ignore[union-attr]
     entities = module.generate_launch_description()
     nodes = {e.kwargs["executable"]: e for e in entities if type(e).__name__ == "Node"}
+    args = {e.args[0]: e.kwargs["default_value"] for e in entities if type(e).__name__ == "DeclareLaunchArgument"}
+    args.update(given)
+
+    def value(v: Any) -> Any:
+        if isinstance(v, str):
+            return v
+        if type(v).__name__ == "LaunchConfiguration":
+            return args[v.args[0]]
+        return eval("".join(str(value(p)) for p in v.args[0]))  # noqa: S307 - what launch does with it
 
     def remaps(node: str) -> dict[str, str]:
-        return {src: dst.args[0] for src, dst in nodes[node].kwargs["remappings"]}
+        return {src: value(dst) for src, dst in nodes[node].kwargs["remappings"]}
 
-    assert remaps("tracking") == {"/camera/rgb/image_color": "colour_topic", "/camera/depth/image": "depth_topic",
-                                  "/camera/rgb/camera_info": "camera_info_topic"}  # fmt: skip
-    assert remaps("detection") == {"image": "colour_topic"}
-    defaults = {e.args[0]: e.kwargs["default_value"] for e in entities if type(e).__name__ == "DeclareLaunchArgument"}
-    assert defaults["colour_topic"] == "/camera/rgb/image_color" and defaults["depth_topic"] == "/camera/depth/image"
+    colour, depth, info = expected
+    assert remaps("tracking") == {"/camera/rgb/image_color": colour, "/camera/depth/image": depth,
+                                  "/camera/rgb/camera_info": info}  # fmt: skip
+    assert remaps("detection") == {"image": colour}

@@ -19,6 +19,7 @@ from changing_slam_ros.io.camera_info import (
     write_camera_info_yaml,
 )
 from changing_slam_ros.io.dataset_config import (
+    REALSENSE_JAZZY_TOPICS,
     REALSENSE_TOPICS,
     TUM_TOPICS,
     DatasetConfig,
@@ -130,8 +131,9 @@ def test_shipped_configs_hold_the_published_calibrations(
 
 def test_topic_presets_and_overrides() -> None:
     assert load_dataset_settings("tum_fr1").dataset.candidate_topics() == [TUM_TOPICS]
-    assert load_dataset_settings("realsense_d435").dataset.candidate_topics() == [REALSENSE_TOPICS]
-    assert DatasetConfig().candidate_topics() == [TUM_TOPICS, REALSENSE_TOPICS]  # auto-detect
+    assert load_dataset_settings("realsense_d435").dataset.candidate_topics() == [REALSENSE_JAZZY_TOPICS]
+    assert REALSENSE_JAZZY_TOPICS.rgb == "/camera/camera/color/image_raw"  # realsense2_camera on Jazzy
+    assert DatasetConfig().candidate_topics() == [TUM_TOPICS, REALSENSE_TOPICS, REALSENSE_JAZZY_TOPICS]  # auto
     cfg = DatasetConfig(topic_preset="realsense", depth_topic="/d")
     assert cfg.candidate_topics() == [TopicSet(REALSENSE_TOPICS.rgb, "/d", REALSENSE_TOPICS.camera_info)]
     # only the colour topic given: depth from each preset, CameraInfo beside the colour topic
@@ -139,6 +141,7 @@ def test_topic_presets_and_overrides() -> None:
     assert cfg.candidate_topics() == [
         TopicSet("/kinect2/qhd/image_color_rect/compressed", TUM_TOPICS.depth, "/kinect2/qhd/camera_info"),
         TopicSet("/kinect2/qhd/image_color_rect/compressed", REALSENSE_TOPICS.depth, "/kinect2/qhd/camera_info"),
+        TopicSet("/kinect2/qhd/image_color_rect/compressed", REALSENSE_JAZZY_TOPICS.depth, "/kinect2/qhd/camera_info"),
     ]
 
 

@@ -182,14 +182,22 @@ def test_while_lost_the_last_map_to_odom_goes_on_and_relocalisation_jumps_only_m
     out.on_lost(3)
     out.on_lost(4)
     assert out.tracking == "LOST" and out.n_lost_frames == 2
+    from changing_slam_ros.nodes.tracking_stats import _warn_if
+
+    # /diagnostics: the state, and level WARN while lost
+    assert _warn_if(out.diagnostic_values()) == "tracking LOST: no pose until relocalisation"
     assert [s for s, _ in sent[3:]] == [3, 4] and all(len(e) == 1 and e[0][1] == "odom" for _, e in sent[3:])
     np.testing.assert_allclose(sent[4][1][0][2], np.eye(4))  # the last map -> odom: still identity
     # Relocalised 1 m to the left of where odometry last was (0.2 m forward): odom -> camera holds, map -> odom jumps.
     reloc = make_pose(np.eye(3), np.array([-1.0, 0.0, 0.5]))
     T_map_pose, child = out.on_tracked(5, reloc, map_moved=False, T_prev_cur_cam=None)  # noqa: N806
     assert out.tracking == "RELOCALISED" and child == "camera" and out.state.jumps == 1
+    values = out.diagnostic_values()
+    assert values["tracking_state"] == "RELOCALISED" and values["relocalisations"] == 1 and _warn_if(values) is None
     (_, _, T_map_odom), (_, _, T_odom_cam) = sent[-1][1]  # noqa: N806
     np.testing.assert_allclose(T_odom_cam[:3, 3], [0.0, 0.0, 0.2], atol=1e-12)
     np.testing.assert_allclose(T_map_odom[:3, 3], [-1.0, 0.0, 0.3], atol=1e-12)
     np.testing.assert_allclose(T_map_odom @ T_odom_cam, T_map_pose, atol=1e-12)
+    out.on_tracked(6, reloc @ step, map_moved=False, T_prev_cur_cam=step)
+    assert out.diagnostic_values()["tracking_state"] == "OK" and out.diagnostic_values()["relocalisations"] == 1
     node.destroy_node()
