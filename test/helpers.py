@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -17,6 +18,13 @@ REDKITCHEN = DATA / "7scenes_redkitchen"
 TUM_REFERENCE = DATA / "tum_reference_trajectories"
 FR3_WALKING_FRAMES = DATA / "tum_fr3_walking_frames"
 MODELS = SHARED / "models"
+
+
+def default_sigint() -> None:
+    """`preexec_fn` of a child that a test stops with SIGINT: a suite started in the background (`make test &`)
+    passes SIGINT on as ignored, and Python then installs no KeyboardInterrupt; the child gets the default action
+    back, as at a terminal."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def require(path: Path) -> Path:

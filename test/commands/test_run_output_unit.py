@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import default_sigint
 
 from changing_slam_ros.cli import main as cli_main
 from changing_slam_ros.io.output_dir import SUPERSEDED, OutputDir
@@ -177,12 +178,6 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
-def _default_sigint() -> None:
-    """A suite started in the background (`make test &`) passes SIGINT on as ignored, and Python then installs
-    no KeyboardInterrupt for it: the child gets the default action back, as at a terminal."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("point,sig", [("write", signal.SIGKILL), ("write", signal.SIGINT), ("commit", signal.SIGKILL)])
 def test_a_signal_at_the_write_phase_or_the_commit_leaves_one_consistent_run(out, point, sig):
@@ -190,7 +185,7 @@ def test_a_signal_at_the_write_phase_or_the_commit_leaves_one_consistent_run(out
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen([sys.executable, "-c", KILLER, point, "run", str(BAG), "--out", str(out), *ARGS],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            preexec_fn=_default_sigint)  # fmt: skip
+                            preexec_fn=default_sigint)  # fmt: skip
     deadline = time.monotonic() + 300
     assert proc.stdout is not None
     while time.monotonic() < deadline:

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import default_sigint
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 REPO = Path(__file__).resolve().parents[2]
@@ -38,7 +39,7 @@ def test_an_interrupted_graph_keeps_the_earlier_results_and_its_own_aside(tmp_pa
     proc = subprocess.Popen([sys.executable, "-m", "changing_slam_ros", "graph", str(BAG), "--out", str(out),
                              "--config", "tum_fr1", "--lossless", "--no-detection", "--no-object-map", "--rate", "0.1"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
-                            env=env, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
+                            env=env, preexec_fn=default_sigint)  # fmt: skip
     # (a suite started in the background passes SIGINT on as ignored: the graph gets the terminal's default back)
     assert proc.stdout is not None
     seen = []

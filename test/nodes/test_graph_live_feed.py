@@ -59,12 +59,12 @@ def test_live_graph_poses_most_frames_of_a_30_hz_best_effort_camera_and_publishe
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     out = tmp_path / "live"
-    from helpers import REPO
+    from helpers import REPO, default_sigint
 
     graph = subprocess.Popen(
         [sys.executable, "-m", "changing_slam_ros", "graph", "--live", "--topics", "realsense_jazzy", "--out",
          str(out), "--config", "sim", "--no-detection", "--no-object-map"],
-        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, preexec_fn=default_sigint,
     )  # fmt: skip
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=_lines, args=(graph.stdout, lines), daemon=True).start()
