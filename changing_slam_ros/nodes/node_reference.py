@@ -3,8 +3,8 @@
 Each node class is built in-process with its default parameters (no spinning, no bag played) and read back:
 parameters (name, type, default, description from the ParameterDescriptor), publishers, subscriptions and
 services with their types and QoS. Defaults are cheap: tracking's split backend, local_mapping and
-loop_closing load their config and vocabulary in under a second; detection is configured but not activated
-(its ONNX model is never loaded); bag_player opens the bundled sample bag. Tracking is built again with
+loop_closing load their config and vocabulary in under a second; detection is configured and activated (it
+subscribes to images only once its ONNX model is loaded, about a second); bag_player opens the bundled sample bag. Tracking is built again with
 overrides (`NodeSpec.variants`: compressed, ack_topic, movers, in-process backend, slam:=false, ...) because
 some topics exist only with them (the map resync topics only with the split backend); those rows say when.
 The hand-written text of each section comes from docs/nodes_intro/<node>.md, so regenerating keeps it.
@@ -75,7 +75,8 @@ class NodeSpec:
     # (label shown in the *When* column, parameter overrides): rebuilt with these to find conditional topics
     variants: list[tuple[str, dict[str, Any]]] = field(default_factory=list)
     args: tuple[Any, ...] = ()  # positional arguments of the constructor
-    configure: bool = False  # a lifecycle node: call trigger_configure() (creates its topics) but not activate
+    configure: bool = False  # a lifecycle node: call trigger_configure() (creates its publishers)
+    activate: bool = False  # and trigger_activate() (detection's image subscription exists only while active)
     # parameters whose reference value is not the built node's (bag_player is built with the sample bag)
     defaults: dict[str, Any] = field(default_factory=dict)
 
@@ -97,7 +98,7 @@ def node_specs(tmp: Path) -> list[NodeSpec]:
         NodeSpec("bag_player", "bag_player_node", "BagPlayerNode", args=(str(SAMPLE_BAG),), defaults={"bag": ""},
                  variants=[("`lossless:=true` with `ack_topics` or `confirm_topics`",
                             {"lossless": True, "ack_topics": ["/camera/rgb/image_color"]})]),
-        NodeSpec("detection", "detection_node", "DetectionNode", configure=True,
+        NodeSpec("detection", "detection_node", "DetectionNode", configure=True, activate=True,
                  variants=[("`compressed:=true`", {"compressed": True})]),
         NodeSpec("tracking", "tracking_node", "TrackingNode", variants=[
             ("`compressed:=true`", {"compressed": True}),
@@ -183,6 +184,8 @@ def build_node(spec: NodeSpec, context: Any, overrides: dict[str, Any]) -> Any:
     node = cls(*spec.args, context=context, parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
     if spec.configure:
         node.trigger_configure()
+    if spec.activate:
+        node.trigger_activate()
     return node
 
 
