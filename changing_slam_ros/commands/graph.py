@@ -36,6 +36,8 @@ from changing_slam_ros.commands.graph_arguments import (  # noqa: F401 - add_arg
 from changing_slam_ros.commands.graph_outputs import (
     camera_mismatches,
     detection_median_ms,
+    drops_by_reason,
+    drops_text,
     evaluate,
     graph_warnings,
     lossless_gaps,
@@ -151,8 +153,8 @@ class Graph:
     latency, ATE, restarts, CPU seconds per process during playback: `commands/process_cpu.py`), and with the
     config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's
     class-agnostic movers; in outputs.mcap as /moving_objects/object_<id>/pose, /tracking/moving_objects,
-    /tracking/moving_object_markers). Drops: colour frames in the bag that did not become a pose (not
-    received, not paired, or not tracked).
+    /tracking/moving_object_markers). Drops: colour frames in the bag that did not become a pose, split by
+    reason in `drops_by_reason` (`graph_outputs.DROP_REASONS`, docs/commands.md#drops-by-reason).
 
     Multi-session (`--map-in PREVIOUS/map.npz`, as `changing-slam run --map-in`): tracking, local_mapping and
     loop_closing each load the map file at start, tracking relocalises in the loaded current map first and the
@@ -491,6 +493,10 @@ class Graph:
             "colour_received": stats.get("colour_received"),
             "frames_processed": stats.get("frames_processed"), "frames_tracked": stats.get("frames_tracked"),
             "poses_published": poses, "drops": frames_in - poses,
+            "drops_by_reason": drops_by_reason(frames_in, stats) if stats else None,
+            "unpaired_depth_dropped": stats.get("unpaired_depth_dropped"),
+            "duplicates_dropped": {"colour": stats.get("colour_duplicates_dropped"),
+                                   "depth": stats.get("depth_duplicates_dropped")},
             "latency_ms_median": stats.get("latency_ms_median"), "latency_ms_p90": stats.get("latency_ms_p90"),
             "process_ms_median": stats.get("process_ms_median"), "keyframes": stats.get("keyframes"),
             "process_cpu_ms_median": stats.get("process_cpu_ms_median"),
@@ -576,7 +582,7 @@ def main(args: argparse.Namespace) -> int:
     frames = s["colour_frames_in_bag"] if s["colour_frames_in_bag"] is not None else (s["colour_received"] or 0)
     print(
         f"{s['poses_published']}/{frames} {'frames' if graph.bag else 'frames received'} with a pose "
-        f"({s['drops']} dropped), "
+        f"({drops_text(s['drops'], s['drops_by_reason'] or {})}), "
         f"{s['keyframes']} keyframes, {s['loops_closed']} loops, {ate_text}, image-to-pose latency median "
         + (f"{lat:.0f} ms" if lat is not None else "n/a")
         + (f", detection {s['detection_rate_hz']:.1f} Hz" if s.get("detection_node") and s.get("detection_rate_hz") else "")
