@@ -14,6 +14,15 @@ from changing_slam_ros.errors import SlamError
 from changing_slam_ros.io.camera_check import CameraMismatch, first_keyframe_camera, map_camera_mismatch
 
 
+def graph_provenance(config: str, args: Any) -> dict[str, Any]:
+    """Package version, git commit and the nodes' configuration as resolved (graph_summary.json)."""
+    from changing_slam_ros.nodes.slam_backend import load_backend_config
+    from changing_slam_ros.provenance import run_provenance
+
+    cfg = load_backend_config(config or "")
+    return run_provenance(cfg.data, cfg.where, options=vars(args))
+
+
 def read_json(path: Path) -> dict[str, Any] | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
