@@ -42,6 +42,7 @@ def test_a_process_killed_mid_run_is_restarted_and_the_outputs_are_complete(tmp_
     assert (s["colour_frames_in_bag"], s["poses_published"], s["drops"]) == (9, 9, 0), s["drops_by_reason"]
     assert len([ln for ln in (out / "trajectory.txt").read_text().splitlines() if not ln.startswith("#")]) == 9
     assert s["ate_rmse_m"] < 0.01  # offline: 0.36 cm
+    assert s["lossless_incomplete"] == []  # no ack or map-update wait timed out
     lm = s["local_mapping"]
     assert lm["keyframes_in_map"] >= s["keyframes"] >= 1 and lm["map_points"] > 300, lm
     assert (out / "map.npz").is_file() and (out / "semantic_map_node.json").is_file()
