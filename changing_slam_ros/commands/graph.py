@@ -3,7 +3,7 @@
     changing-slam graph BAG --out DIR [--config NAME|FILE] [--rate R] [--lossless] [--[no-]detection]
         [--[no-]object-map] [--detections-wait S] [--queue-depth N] [--detector-threads N]
         [--detector-model NAME|config] [--detection-max-hz HZ] [--ba-solver gtsam|schur|config]
-        [--max-restarts N] [--timeout S] [--kill NODE@SECONDS] [--load-map MAP@SECONDS]
+        [--max-restarts N] [--timeout S] [--kill NODE@SECONDS] [--load-map MAP@SECONDS] [--loop N]
         [--backend split|in_process] [--map-in PREVIOUS/map.npz]
 
 Starts `object_map`, `detection` (when the config's dynamic filter uses detections, or --detection),
@@ -24,7 +24,6 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +35,10 @@ from changing_slam_ros.commands.graph_arguments import (  # noqa: F401 - add_arg
 from changing_slam_ros.commands.graph_outputs import (
     camera_mismatches,
     detection_median_ms,
+    drops_by_reason,
+    drops_text,
     evaluate,
+    graph_provenance,
     graph_warnings,
     lossless_gaps,
     read_json,
@@ -52,7 +54,16 @@ from changing_slam_ros.commands.graph_process import (
     stop_all,
 )
 from changing_slam_ros.commands.graph_progress import GraphProgress
-from changing_slam_ros.commands.process_cpu import PlayCpu, per_frame_ms
+from changing_slam_ros.commands.graph_source import (  # noqa: F401 - BagInfo, inspect_bag: graph_live, tests
+    ACK_TOPIC,
+    PLAYER_FIRST_MESSAGE,
+    BagInfo,
+    ResumePoint,
+    inspect_bag,
+    player_params,
+    resume_point,
+)
+from changing_slam_ros.commands.process_cpu import PlayCpu, play_cpu_summary
 from changing_slam_ros.errors import ConfigError, SlamError
 from changing_slam_ros.io.atomic import atomic_write_text
 from changing_slam_ros.io.output_dir import OutputDir
@@ -67,8 +78,6 @@ READY_MARKERS = {
 # What nodes.map_resync logs when a (re)started map owner has its map back from tracking, or starts empty.
 RESYNC_DONE_MARKERS = ("map restored from tracking's replica", "starting empty")
 MAPS_DIR = "maps"  # in DIR: the map_dir of local_mapping's and object_map's SaveMap / LoadMap
-ACK_TOPIC = "/bag_player/ack"
-CAMERA_INFO_TOPIC = "/camera/rgb/camera_info"
 # What the graph gives its nodes unless an option says otherwise, as node parameter values: (in real time, with
 # --lossless). Real time: settings measured for six processes on two cores (bench/bench_graph_configs.py):
 # one onnxruntime thread, the static INT8 SSD capped at 15 Hz by image stamp, tracking waiting up to 50 ms for a
@@ -89,34 +98,6 @@ def mode_default(name: str, lossless: bool) -> Any:
     return MODE_DEFAULTS[name][1 if lossless else 0]
 
 
-PLAYER_FIRST_MESSAGE = "bag_player: played 1/"  # the player's log line when its first message is out
-
-
-@dataclass(frozen=True)
-class BagInfo:
-    colour_topic: str
-    compressed: bool
-    colour_frames: int
-    duration_s: float
-    sensor_topics: tuple[str, ...] = ()  # colour, depth, camera_info as the bag has them (tracking reads all)
-
-
-def inspect_bag(path: str) -> BagInfo:
-    """Which colour topic the bag has (raw or compressed TUM names) and how many frames."""
-    from changing_slam_ros.io.bag_messages import BagMessages
-
-    with BagMessages(path) as bag:
-        topics = bag.topics
-        duration_s = (bag.end_ns - bag.start_ns) / 1e9
-    sensors = ("/camera/depth/image", "/camera/depth/image/compressed", "/camera/depth/image/compressedDepth",
-               CAMERA_INFO_TOPIC)
-    for name, compressed in (("/camera/rgb/image_color", False), ("/camera/rgb/image_color/compressed", True)):
-        if name in topics:
-            return BagInfo(name, compressed, topics[name].msgcount, duration_s,
-                           (name, *(t for t in sensors if t in topics)))
-    raise ConfigError(f"{path}: no /camera/rgb/image_color[/compressed] topic (has {', '.join(sorted(topics))})")
-
-
 def _uses_detections(config: str) -> bool:
     from changing_slam_ros.config import section
     from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig
@@ -133,7 +114,8 @@ class Graph:
     The nodes run on a random ROS_DOMAIN_ID unless ROS_DOMAIN_ID is set, discovery limited to this machine. It
     waits until each node says it is up, plays the bag, waits for the player to finish, asks tracking to write
     its outputs (SIGINT, then waits) and stops the rest (SIGINT, then SIGTERM, then SIGKILL). A node that dies
-    before the end is restarted (at most --max-restarts times per node); `--kill object_map@5` kills a node on
+    before the end is restarted (at most --max-restarts times per node; the player resumes where it was, a
+    tracking restart replays the bag from its start: `_restart`); `--kill object_map@5` kills a process on
     purpose after 5 s (fault test).
 
     Backends: `split` (default): tracking tracks against a replica of the map, `local_mapping` owns the map
@@ -151,8 +133,8 @@ class Graph:
     latency, ATE, restarts, CPU seconds per process during playback: `commands/process_cpu.py`), and with the
     config's `dynamic.movers` on, moving_objects.json + moving_objects/object_<id>.txt (tracking's
     class-agnostic movers; in outputs.mcap as /moving_objects/object_<id>/pose, /tracking/moving_objects,
-    /tracking/moving_object_markers). Drops: colour frames in the bag that did not become a pose (not
-    received, not paired, or not tracked).
+    /tracking/moving_object_markers). Drops: colour frames in the bag that did not become a pose, split by
+    reason in `drops_by_reason` (`graph_outputs.DROP_REASONS`, docs/commands.md#drops-by-reason).
 
     Multi-session (`--map-in PREVIOUS/map.npz`, as `changing-slam run --map-in`): tracking, local_mapping and
     loop_closing each load the map file at start, tracking relocalises in the loaded current map first and the
@@ -284,17 +266,9 @@ class Graph:
             processes[name].nice = increment
 
     def _build_player(self) -> None:
-        a, info = self.args, self.info
-        player = {"bag": self.bag, "rate": float(a.rate), "lossless": bool(a.lossless), "ack_topic": ACK_TOPIC,
-                  "ack_topics": [info.colour_topic], "ack_timeout_s": 120.0, "wait_subscribers_timeout_s": 300.0,
-                  "wait_for_topics": list(info.sensor_topics or (info.colour_topic,)),
-                  "min_subscribers": 2 if self.detection else 1, "wait_subscribers": True,
-                  "dds_ack_wait": False}  # fmt: skip
-        if a.lossless and CAMERA_INFO_TOPIC in info.sensor_topics:
-            # camera_info's own writer can be matched after the images' (volatile: lost intrinsics); tracking
-            # confirms each camera_info on the ack topic, and the player re-sends it until one is confirmed
-            player["confirm_topics"] = [CAMERA_INFO_TOPIC]
-        self.player = NodeProcess("bag_player", node_argv("bag_player_node", player), self.logs)
+        self.player_params = player_params(self.args, self.bag, self.info, self.detection)
+        self.resume = ResumePoint()  # where the player started last (moved on by each restart)
+        self.player = NodeProcess("bag_player", node_argv("bag_player_node", self.player_params), self.logs)
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _start(self, node: NodeProcess, timeout_s: float) -> None:
@@ -321,14 +295,15 @@ class Graph:
         pending_loads = list(self.loads)
         first_message_s: float | None = None  # --load-map counts from the player's first message
         deadline = started_s + self.args.timeout
-        while self._playing(started_s):
+        while self._playing(started_s) or self._player_resumed():
             now = time.monotonic()
             if now > deadline and self.player is not None:
                 raise SlamError(f"graph: still playing after --timeout {self.args.timeout:.0f} s; stopped")
             for name, at_s in list(pending_kills):
-                if now - started_s >= at_s and name in self.nodes and self.nodes[name].running():
+                target = self.player if name == "bag_player" else self.nodes.get(name)
+                if now - started_s >= at_s and target is not None and target.running():
                     print(f"graph: --kill: SIGKILL {name} at {now - started_s:.1f} s", flush=True)
-                    self.nodes[name].stop(signal.SIGKILL, 5.0)
+                    target.stop(signal.SIGKILL, 5.0)
                     pending_kills.remove((name, at_s))
             if pending_loads and first_message_s is None and (self.player is None or PLAYER_FIRST_MESSAGE in
                                                               self.player.log_text()):  # fmt: skip
@@ -349,9 +324,25 @@ class Graph:
         """Whether the run goes on: the player still plays."""
         return self.player is not None and self.player.running()
 
+    def _player_resumed(self) -> bool:
+        """A player killed by a signal (a --kill, the OOM killer) is restarted where it was (`resume_point`), within
+        --max-restarts; one that exited by itself (0 at the end of the bag, else its own error, which a restart
+        would repeat) ends the playback."""
+        player = self.player
+        if player is None or player.proc is None or player.proc.returncode is None or player.proc.returncode >= 0:
+            return False
+        self.resume = resume_point(player.log_text(), self.resume)
+        player.restart_argv = node_argv("bag_player_node", {**self.player_params, **self.resume.params()})
+        self._restart(player, killed=any(name == player.name for name, _ in self.kills))
+        print(f"graph: bag_player resumes in pass {self.resume.first_pass + 1} at {self.resume.resume_at_s:.2f} s "
+              "of the bag", flush=True)  # fmt: skip
+        return True
+
     def _restart(self, node: NodeProcess, killed: bool) -> None:
         """Restart a dead node, or raise NodeFailed when that cannot help: it died more than --max-restarts
-        times, or with the same error as the last time (a bad config, say: the next start fails alike)."""
+        times, or with the same error as the last time (a bad config, say: the next start fails alike).
+        Tracking holds the trajectory and the map's replica, which die with it: in a bag replay it restarts with
+        local_mapping and loop_closing afresh and the player from the bag's start (`_replay_from_start`)."""
         code = node.proc.returncode if node.proc is not None else -1
         node.exit_codes.append(code)
         failure = "" if killed else node.failure()
@@ -364,7 +355,27 @@ class Graph:
         self.restarts[node.name] = self.restarts.get(node.name, 0) + 1
         print(f"graph: {node.name} died (exit {code}){': ' + failure if failure else ''}; restarting "
               f"({self.restarts[node.name]}/{self.args.max_restarts}); log {node.log_path}", flush=True)  # fmt: skip
-        self._start(node, 180.0)
+        if node.name == "tracking" and self.player is not None:
+            self._replay_from_start(node)
+        else:
+            self._start(node, 180.0)
+
+    def _replay_from_start(self, tracking: NodeProcess) -> None:
+        """The player and the map's other holders stopped, then tracking, local_mapping and loop_closing started as
+        at the run's start (the --map-in file, if any) and the bag played again from its start: the outputs are
+        then those of a run without the death (the ones before it are written over). A live graph cannot replay:
+        its tracking restarts empty instead, a new map."""
+        assert self.player is not None
+        holders = [self.nodes[n] for n in ("local_mapping", "loop_closing") if n in self.nodes]
+        stop_all([self.player, *holders], budget_s=4.0)
+        for node in (tracking, *holders):
+            node.start(self.env, fresh=True)
+        for node in (tracking, *holders):
+            self._wait_ready(node, 180.0)
+        self.resume = ResumePoint()
+        self.player.start(self.env, fresh=True)
+        print("graph: tracking's trajectory and map died with it: local_mapping, loop_closing and the bag started "
+              "again from the start", flush=True)  # fmt: skip
 
     def _call_load_map(self, path: str, at_s: float) -> None:
         """Start one LoadMap call (`nodes.map_service_call`) without waiting for it; `_finish_load_calls` collects it."""
@@ -436,7 +447,7 @@ class Graph:
             up_s = time.monotonic() - t0
             t_play = time.monotonic()
             self.cpu.start(self._pids(with_player=False))
-            self.progress = GraphProgress(self.nodes["tracking"], self.player, self.info.colour_frames)
+            self.progress = GraphProgress(self.nodes["tracking"], self.player, self.info.colour_frames)  # per pass
             self._play(t_play, up_s)
             self.progress.finish()
             play_s = time.monotonic() - t_play
@@ -472,25 +483,23 @@ class Graph:
             raise SlamError(f"graph: bag_player failed (exit {self.player.proc.returncode}); see {self.player.log_path}")
 
     # -- results --------------------------------------------------------------------------------
-    def _provenance(self) -> dict[str, Any]:
-        """Package version, git commit and the nodes' configuration as resolved (graph_summary.json)."""
-        from changing_slam_ros.nodes.slam_backend import load_backend_config
-        from changing_slam_ros.provenance import run_provenance
-
-        cfg = load_backend_config(self.config or "")
-        return run_provenance(cfg.data, cfg.where, options=vars(self.args))
-
     def _summary(self, play_s: float, up_s: float, codes: dict[str, int | None]) -> dict[str, Any]:
         stats_path = self.out / "tracking_stats.json"
         stats = json.loads(stats_path.read_text()) if stats_path.is_file() else {}
         poses = int(stats.get("poses_published", 0))
-        frames_in = self.info.colour_frames if self.bag else int(stats.get("colour_received") or 0)
+        passes = self.args.loop if self.bag else 1
+        frames_in = self.info.colour_frames * passes if self.bag else int(stats.get("colour_received") or 0)
         summary: dict[str, Any] = {
             "bag": self.bag or None, "config": self.config or "defaults", "rate": self.args.rate,
             "lossless": self.args.lossless, "colour_frames_in_bag": self.info.colour_frames if self.bag else None,
+            "passes": passes, "colour_frames_played": frames_in if self.bag else None,
             "colour_received": stats.get("colour_received"),
             "frames_processed": stats.get("frames_processed"), "frames_tracked": stats.get("frames_tracked"),
             "poses_published": poses, "drops": frames_in - poses,
+            "drops_by_reason": drops_by_reason(frames_in, stats) if stats else None,
+            "unpaired_depth_dropped": stats.get("unpaired_depth_dropped"),
+            "duplicates_dropped": {"colour": stats.get("colour_duplicates_dropped"),
+                                   "depth": stats.get("depth_duplicates_dropped")},
             "latency_ms_median": stats.get("latency_ms_median"), "latency_ms_p90": stats.get("latency_ms_p90"),
             "process_ms_median": stats.get("process_ms_median"), "keyframes": stats.get("keyframes"),
             "process_cpu_ms_median": stats.get("process_cpu_ms_median"),
@@ -516,8 +525,8 @@ class Graph:
         }  # fmt: skip
         summary["lossless_incomplete"] = (lossless_gaps(self.player.log_text(), stats, summary["local_mapping"])
                                           if self.args.lossless and self.player else [])  # fmt: skip
-        summary.update(self._cpu_summary(frames_in))
-        summary["provenance"] = self._provenance()
+        summary.update(play_cpu_summary(self.cpu, self.player.log_text() if self.player else "", frames_in))
+        summary["provenance"] = graph_provenance(self.config, self.args)
         summary.update(self._source_summary())
         summary.update(evaluate(self.bag, self.config, self.out) if self.bag else
                        {"evaluation_error": "live topics: no ground truth"})  # fmt: skip
@@ -535,17 +544,6 @@ class Graph:
     def _source_summary(self) -> dict[str, Any]:
         """What graph_summary.json says about the input beyond the bag's path (`LiveGraph`: its topics)."""
         return {}
-
-    def _cpu_summary(self, frames: int) -> dict[str, Any]:
-        """CPU seconds per process during playback and per bag frame (`commands/process_cpu.py`); the player's
-        own figure for its play() (its log line) replaces the sampled one, which includes its start-up."""
-        import re
-
-        found = re.findall(r"messages in [0-9.]+ s \(CPU ([0-9.]+) s\)", self.player.log_text() if self.player else "")
-        sec = self.cpu.seconds()
-        if found:
-            sec["bag_player"] = float(found[-1])
-        return {"cpu_s_during_play": sec, "cpu_ms_per_bag_frame": per_frame_ms(sec, frames)}
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
@@ -573,10 +571,10 @@ def main(args: argparse.Namespace) -> int:
     ate_text = f"ATE RMSE {s['ate_rmse_m'] * 100:.2f} cm (online {s.get('ate_online_rmse_m', float('nan')) * 100:.2f} cm)" \
         if "ate_rmse_m" in s else f"no ATE ({s.get('evaluation_error', 'no ground truth')})"  # fmt: skip
     lat = s["latency_ms_median"]
-    frames = s["colour_frames_in_bag"] if s["colour_frames_in_bag"] is not None else (s["colour_received"] or 0)
+    frames = s["colour_frames_played"] if s["colour_frames_played"] is not None else (s["colour_received"] or 0)
     print(
         f"{s['poses_published']}/{frames} {'frames' if graph.bag else 'frames received'} with a pose "
-        f"({s['drops']} dropped), "
+        f"({drops_text(s['drops'], s['drops_by_reason'] or {})}), "
         f"{s['keyframes']} keyframes, {s['loops_closed']} loops, {ate_text}, image-to-pose latency median "
         + (f"{lat:.0f} ms" if lat is not None else "n/a")
         + (f", detection {s['detection_rate_hz']:.1f} Hz" if s.get("detection_node") and s.get("detection_rate_hz") else "")

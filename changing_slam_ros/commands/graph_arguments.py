@@ -62,7 +62,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="start NODE with its niceness raised by N (repeatable; e.g. local_mapping=5 lets tracking "
                              "and detection take the cores first when they are short; a restart keeps it)")
     parser.add_argument("--kill", action="append", default=[], metavar="NODE@S",
-                        help="fault injection: SIGKILL NODE S seconds after playback starts (repeatable)")
+                        help="fault injection: SIGKILL NODE (or bag_player) S seconds after playback starts "
+                             "(repeatable); the graph restarts it: the player resumes where it was, a tracking "
+                             "restart replays the bag from its start with local_mapping and loop_closing afresh")
+    parser.add_argument("--loop", type=int, default=1, metavar="N",
+                        help="play the bag N times, each pass later by the bag's duration so time runs forward "
+                             "(a soak test; bench/bench_soak.py)")
     parser.add_argument("--load-map", action="append", default=[], metavar="MAP@S",
                         help="multi-session mid-run: S seconds after the player's first message, call local_mapping's LoadMap "
                              "with MAP (a map.npz); tracking and loop_closing follow (repeatable)")
@@ -110,3 +115,5 @@ def check_bag_arguments(args: argparse.Namespace) -> None:
                             ("--duration", args.duration)) if v]  # fmt: skip
     if given:
         raise ConfigError(f"{', '.join(given)}: only with --live (a bag's topics are found in the bag)")
+    if args.loop < 1:
+        raise ConfigError(f"--loop {args.loop}: expected the number of passes, 1 or more")

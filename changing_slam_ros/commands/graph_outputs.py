@@ -14,6 +14,15 @@ from changing_slam_ros.errors import SlamError
 from changing_slam_ros.io.camera_check import CameraMismatch, first_keyframe_camera, map_camera_mismatch
 
 
+def graph_provenance(config: str, args: Any) -> dict[str, Any]:
+    """Package version, git commit and the nodes' configuration as resolved (graph_summary.json)."""
+    from changing_slam_ros.nodes.slam_backend import load_backend_config
+    from changing_slam_ros.provenance import run_provenance
+
+    cfg = load_backend_config(config or "")
+    return run_provenance(cfg.data, cfg.where, options=vars(args))
+
+
 def read_json(path: Path) -> dict[str, Any] | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
@@ -128,6 +137,40 @@ def evaluate(bag: str, config: str, out: Path) -> dict[str, Any]:
         except SlamError as err:
             result.setdefault("evaluation_error", str(err))
     return result
+
+
+# Why a colour frame of the bag has no pose, in the order a frame meets them; graph_summary.json `drops_by_reason`
+# (docs/commands.md#drops-by-reason): reason -> where the count comes from (tracking_stats.json).
+DROP_REASONS: dict[str, str] = {
+    "not_received": "colour frames played (the bag's, times the passes) minus colour_received",
+    "unpaired": "unpaired_colour_dropped",
+    "waiting_for_depth_at_end": "colour_waiting_for_depth",
+    "stale": "frames_dropped_stale",
+    "malformed": "frames_rejected",
+    "no_camera_info": "frames_skipped_no_camera_info",
+    "waiting_for_map": "frames_skipped_waiting_for_map",
+    "not_tracked": "frames_lost",
+}
+
+
+def drops_by_reason(frames_played: int, stats: dict[str, Any]) -> dict[str, int]:
+    """Each colour frame played that did not become a pose, by the reason tracking counted (`DROP_REASONS`), every
+    reason present (0 where none). `unaccounted` is what the counts do not explain (0 in a complete run; a frame
+    in flight when tracking stopped, say), so that the values add up to `frames_played - poses_published`."""
+    received = int(stats.get("colour_received") or 0)
+    out = {"not_received": max(frames_played - received, 0)}
+    for reason, key in DROP_REASONS.items():
+        if reason != "not_received":
+            out[reason] = int(stats.get(key) or 0)
+    dropped = frames_played - int(stats.get("poses_published") or 0)
+    out["unaccounted"] = dropped - sum(out.values())
+    return out
+
+
+def drops_text(drops: int, by_reason: dict[str, int]) -> str:
+    """`3 dropped: 1 malformed, 2 not_tracked` (the reasons with a count), or `0 dropped`."""
+    named = [f"{n} {reason}" for reason, n in by_reason.items() if n]
+    return f"{drops} dropped" + (": " + ", ".join(named) if named and drops else "")
 
 
 def lossless_gaps(player_log: str, stats: dict[str, Any], mapping: dict[str, Any] | None) -> list[str]:

@@ -26,10 +26,11 @@ class NodeProcess:
     restart_argv: list[str] | None = None  # the command of a restart, when it differs from the first start's
     nice: int = 0  # niceness added to the process (and all its threads) before it starts
 
-    def start(self, env: dict[str, str]) -> None:
+    def start(self, env: dict[str, str], fresh: bool = False) -> None:
+        """Start the process (`restart_argv` for a restart unless `fresh`: as at the first start)."""
         suffix = "" if self.starts == 0 else f".{self.starts}"
         self.log_path = self.log_dir / f"{self.name}{suffix}.log"
-        argv = self.restart_argv if self.starts > 0 and self.restart_argv is not None else self.argv
+        argv = self.restart_argv if self.starts > 0 and self.restart_argv is not None and not fresh else self.argv
         log = open(self.log_path, "wb")  # noqa: SIM115 - the child keeps writing it
         try:
             increment = self.nice

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from typing import Any
 
 _TICKS_PER_S = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
@@ -67,3 +68,15 @@ def per_frame_ms(seconds: dict[str, float], frames: int) -> dict[str, float]:
     out = {name: round(v * 1e3 / frames, 2) for name, v in seconds.items()}
     out["total"] = round(sum(seconds.values()) * 1e3 / frames, 2)
     return out
+
+
+def play_cpu_summary(cpu: "PlayCpu", player_log: str, frames: int) -> dict[str, Any]:
+    """graph_summary.json's CPU seconds per process during playback and per bag frame; the player's own figure for
+    its play() (its log line) replaces the sampled one, which includes its start-up."""
+    import re
+
+    found = re.findall(r"messages in [0-9.]+ s \(CPU ([0-9.]+) s\)", player_log)
+    sec = cpu.seconds()
+    if found:
+        sec["bag_player"] = float(found[-1])
+    return {"cpu_s_during_play": sec, "cpu_ms_per_bag_frame": per_frame_ms(sec, frames)}

@@ -15,7 +15,7 @@ from __future__ import annotations
 import enum
 import struct
 from collections.abc import Collection, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -363,6 +363,20 @@ def _cdr_header_stamp_ns(cdr: bytes | memoryview) -> int | None:
     endian = "<" if cdr[1] & 1 else ">"
     sec, nanosec = struct.unpack_from(f"{endian}iI", cdr, 4)
     return int(sec) * 1_000_000_000 + int(nanosec)
+
+
+def with_stamps_shifted(msg: RawMessage, shift_ns: int) -> RawMessage:
+    """`msg` `shift_ns` later: its log time, and its `header.stamp` rewritten in the CDR bytes when the type starts
+    with a Header (a looped bag's later passes, so that time keeps running forward)."""
+    if shift_ns == 0:
+        return msg
+    if msg.header_stamp_ns is None:
+        return replace(msg, log_stamp_ns=msg.log_stamp_ns + shift_ns)
+    stamp_ns = msg.header_stamp_ns + shift_ns
+    cdr = bytearray(msg.cdr)
+    if len(cdr) >= 12:
+        struct.pack_into(f"{'<' if cdr[1] & 1 else '>'}iI", cdr, 4, *divmod(stamp_ns, 1_000_000_000))
+    return replace(msg, log_stamp_ns=msg.log_stamp_ns + shift_ns, header_stamp_ns=stamp_ns, cdr=bytes(cdr))
 
 
 def _describe(err: BaseException) -> str:

@@ -5,9 +5,10 @@
 
     t_wall = anchor_wall + (t_bag - anchor_bag) / rate
 
-where the anchor is (bag start + start offset, the wall time the pass started). A pause (lossless mode
+where the anchor is (bag start + start offset, the wall time playback started). A pause (lossless mode
 waiting for subscribers) shifts `anchor_wall` by the time waited, so playback resumes at the recorded
-spacing instead of bursting to catch up. The simulated time published on `/clock` at wall time `w` is
+spacing instead of bursting to catch up. Looping, pass k plays every message `k x pass_period_ns` later, its
+header stamp rewritten alike (`pass_period_ns`), so that time keeps running forward across passes. The simulated time published on `/clock` at wall time `w` is
 `anchor_bag + (w - anchor_wall) * rate`, never behind the last message published.
 
 All times are integer nanoseconds; wall times come from a monotonic clock the caller passes in.
@@ -15,12 +16,12 @@ All times are integer nanoseconds; wall times come from a monotonic clock the ca
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 from changing_slam_ros.errors import BagError, ConfigError
-from changing_slam_ros.io.bag_messages import RawMessage
+from changing_slam_ros.io.bag_messages import RawMessage, with_stamps_shifted
 
 NS_PER_S = 1_000_000_000
 
@@ -31,9 +32,12 @@ class PlaybackOptions:
 
     - `rate`: playback speed factor (2.0 = twice as fast as recorded), > 0.
     - `start_offset_s`: seconds of the bag skipped at the start (from the bag's first message), >= 0.
-    - `loop`: play again from the offset after the end, until stopped.
+    - `loop`: play again from the offset after the end, each pass shifted in time, until stopped.
+    - `loop_passes`: with `loop`, how many passes in all (0 = until stopped).
     - `topics`: bag topics to play; empty = all.
     - `remap`: (bag topic, published topic) pairs; other topics keep their names.
+    - `first_pass`, `resume_at_s`: where a restarted player resumes: that pass (0-based, its messages shifted
+      as that pass's), that many seconds after the offset; later passes start at the offset again.
     """
 
     rate: float = 1.0
@@ -41,12 +45,20 @@ class PlaybackOptions:
     loop: bool = False
     topics: tuple[str, ...] = ()
     remap: tuple[tuple[str, str], ...] = ()
+    loop_passes: int = 0
+    first_pass: int = 0
+    resume_at_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.rate > 0.0:
             raise ConfigError(f"bag_player: rate must be > 0, got {self.rate}")
-        if not self.start_offset_s >= 0.0:
-            raise ConfigError(f"bag_player: start_offset_s must be >= 0, got {self.start_offset_s}")
+        for name in ("start_offset_s", "resume_at_s", "loop_passes", "first_pass"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"bag_player: {name} must be >= 0, got {getattr(self, name)}")
+        if self.first_pass and not self.loop:
+            raise ConfigError(f"bag_player: first_pass {self.first_pass} needs loop:=true")
+        if self.loop and self.loop_passes and self.first_pass >= self.loop_passes:
+            raise ConfigError(f"bag_player: first_pass {self.first_pass} is not before loop_passes {self.loop_passes}")
 
     def output_topic(self, bag_topic: str) -> str:
         """The name `bag_topic` is published under."""
@@ -95,12 +107,6 @@ class PlaybackClock:
         """Account for `waited_wall_ns` of waiting: later messages keep their recorded spacing."""
         self.anchor_wall_ns += max(0, waited_wall_ns)
 
-    def restart(self, anchor_bag_ns: int, anchor_wall_ns: int) -> None:
-        """Start a new pass (looping): time restarts at `anchor_bag_ns`."""
-        self.anchor_bag_ns = anchor_bag_ns
-        self.anchor_wall_ns = anchor_wall_ns
-        self._last_published_bag_ns = anchor_bag_ns
-
 
 class MessageSource(Protocol):
     """What playback needs of a bag (`io.bag_messages.BagMessages` provides it)."""
@@ -110,6 +116,9 @@ class MessageSource(Protocol):
 
     @property
     def end_ns(self) -> int: ...
+
+    @property
+    def topics(self) -> Mapping[str, Any]: ...  # name -> connection with `msgcount`
 
     def messages(
         self,
@@ -121,37 +130,63 @@ class MessageSource(Protocol):
 
 @dataclass(frozen=True)
 class PlannedMessage:
-    """One message to publish: its pass (0-based, > 0 when looping) and output topic."""
+    """One message to publish: its pass (0-based, > 0 when looping), output topic, and the message with its log
+    time and header stamp shifted by `shift_ns` (the pass's, 0 in the first)."""
 
     pass_index: int
     topic: str
     msg: RawMessage
+    shift_ns: int = 0
 
 
 def first_bag_ns(bag: MessageSource, options: PlaybackOptions) -> int:
-    """Log time playback starts at: the bag's first message plus the start offset."""
+    """Log time a pass starts at: the bag's first message plus the start offset."""
     return bag.start_ns + round(options.start_offset_s * NS_PER_S)
 
 
+def pass_period_ns(bag: MessageSource, options: PlaybackOptions) -> int:
+    """How much later each pass of a loop plays: the span from the offset to the bag's end plus one period of the
+    bag's most frequent topic, so that a pass's first frame follows the previous pass's last at the recorded
+    spacing and no stamp repeats (at least 1 ms)."""
+    counts = [int(c.msgcount) for c in bag.topics.values()]
+    busiest = max(counts, default=0)
+    gap = (bag.end_ns - bag.start_ns) // (busiest - 1) if busiest > 1 else 0
+    return bag.end_ns - first_bag_ns(bag, options) + max(gap, 1_000_000)
+
+
+def resume_bag_ns(bag: MessageSource, options: PlaybackOptions) -> int:
+    """Log time (shifted) of the first message this playback plays: its first pass at its resume point."""
+    return (first_bag_ns(bag, options) + options.first_pass * pass_period_ns(bag, options)
+            + round(options.resume_at_s * NS_PER_S))  # fmt: skip
+
+
 def plan(bag: MessageSource, options: PlaybackOptions, max_passes: int | None = None) -> Iterator[PlannedMessage]:
-    """Messages in log-time order from the offset on, pass after pass when looping.
+    """Messages in log-time order from the offset on, pass after pass when looping, each pass shifted by
+    `pass_period_ns` more; from `first_pass` at `resume_at_s` for a resumed player.
 
     Raises BagError when the offset lies past the bag's end or a pass yields nothing (so a loop never spins
-    empty). `max_passes` bounds looping (None = forever when `options.loop`, else 1).
+    empty). `max_passes` bounds the passes in all, counted from pass 0 (None = `loop_passes`, forever when 0
+    and `options.loop`, else 1).
     """
     start = first_bag_ns(bag, options)
     if start > bag.end_ns:
         span_s = (bag.end_ns - bag.start_ns) / NS_PER_S
         raise BagError(f"bag_player: start offset {options.start_offset_s} s is past the bag's end ({span_s:.3f} s)")
     topics = list(options.topics) or None
-    passes = max_passes if max_passes is not None else (None if options.loop else 1)
-    index = 0
+    if max_passes is not None:
+        passes: int | None = max_passes
+    else:
+        passes = (options.loop_passes or None) if options.loop else 1
+    period = pass_period_ns(bag, options) if options.loop else 0
+    index = options.first_pass
     while passes is None or index < passes:
         count = 0
-        for msg in bag.messages(topics=topics, start_ns=start):
+        resume = start + round(options.resume_at_s * NS_PER_S) if index == options.first_pass else start
+        for msg in bag.messages(topics=topics, start_ns=resume):
             count += 1
-            yield PlannedMessage(index, options.output_topic(msg.topic), msg)
-        if count == 0:
+            yield PlannedMessage(index, options.output_topic(msg.topic), with_stamps_shifted(msg, index * period),
+                                 index * period)  # fmt: skip
+        if count == 0 and resume == start:
             raise BagError(
                 f"bag_player: nothing to play from {options.start_offset_s} s on"
                 + (f" on topics {', '.join(options.topics)}" if options.topics else "")

@@ -4,7 +4,7 @@
                                 -p lossless:=true -r /camera/rgb/image_color:=/image ...]
 
 Messages go out as recorded (raw CDR from `io.bag_messages`, no decoding) at the recorded log times x `rate`,
-with `/clock` following the bag's time. Lossless mode (`lossless:=true`) waits for subscribers, for DDS-level
+with `/clock` following the bag's time; looping, each pass later by the bag's duration (header stamps too). Lossless mode (`lossless:=true`) waits for subscribers, for DDS-level
 acknowledgements and for the processing acks of the nodes on `ack_topic` (one frame in flight), and re-sends
 `confirm_topics` until confirmed; the steps are in `play` and its helpers. The timing logic is ROS-free, in
 `changing_slam_ros.io.playback`. Topics and parameters: docs/nodes.md#bag_player.
@@ -36,6 +36,7 @@ from changing_slam_ros.io.playback import (
     first_bag_ns,
     parse_remaps,
     plan,
+    resume_bag_ns,
 )
 from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, message_class, run_node, undeclared_parameters
@@ -47,7 +48,11 @@ BAG_PLAYER_PARAMETERS: tuple[ParamSpec, ...] = (
     ("bag", "", "ROS 1 .bag, ROS 2 bag folder or .mcap file to play (or the first argument)"),
     ("rate", 1.0, "playback speed factor relative to the recorded timing"),
     ("start_offset_s", 0.0, "seconds of the bag skipped at the start"),
-    ("loop", False, "play again from the offset after the end, until stopped"),
+    ("loop", False, "play again from the offset after the end, until stopped; each pass's log times and header "
+                    "stamps shifted by the bag's duration (plus one frame) more, so time keeps running forward"),
+    ("loop_passes", 0, "loop: passes in all, then the player ends (0 = until stopped)"),
+    ("first_pass", 0, "resume a stopped playback in this pass (0-based; loop only; `changing-slam graph` sets it)"),
+    ("resume_at_s", 0.0, "resume the first pass this many seconds after start_offset_s (a restarted player)"),
     ("topics", STRING_ARRAY, "bag topics to play; empty = all"),
     ("remap", STRING_ARRAY, "topic renames 'from:=to' (as well as --ros-args -r)"),
     ("publish_clock", True, "publish rosgraph_msgs/Clock on /clock"),
@@ -102,6 +107,9 @@ class BagPlayerNode(QuietQosEvents, Node):
             loop=p["loop"],
             topics=tuple(p["topics"]),
             remap=parse_remaps(p["remap"]),
+            loop_passes=p["loop_passes"],
+            first_pass=p["first_pass"],
+            resume_at_s=p["resume_at_s"],
         )
         self.lossless: bool = p["lossless"]
         self._wait_subscribers: bool = p["lossless"] or p["wait_subscribers"]
@@ -149,7 +157,9 @@ class BagPlayerNode(QuietQosEvents, Node):
             f"bag_player: {self.bag.path} ({self.bag.kind.value}), {len(self.bag_publishers)} topics, "
             f"{self.bag.message_count} messages, {(self.bag.end_ns - self.bag.start_ns) / NS_PER_S:.2f} s, "
             f"rate {self.options.rate}, offset {self.options.start_offset_s} s"
-            + (", loop" if self.options.loop else "")
+            + (f", loop ({self.options.loop_passes or 'endless'} passes)" if self.options.loop else "")
+            + (f", resuming pass {self.options.first_pass + 1} at {self.options.resume_at_s:.2f} s"
+               if self.options.first_pass or self.options.resume_at_s else "")
             + (", lossless" if self.lossless else "")
         )
 
@@ -229,9 +239,9 @@ class BagPlayerNode(QuietQosEvents, Node):
             return result
         start_bag_ns = first_bag_ns(self.bag, self.options)
         span_ns = self.bag.end_ns - start_bag_ns
-        clock = PlaybackClock(self.options.rate, start_bag_ns, _now_ns())
+        clock = PlaybackClock(self.options.rate, resume_bag_ns(self.bag, self.options), _now_ns())
         progress = PlaybackProgress(self._pass_message_count(), span_ns, self._progress_period_ns)
-        current_pass = 0
+        current_pass = self.options.first_pass
         pending: Any = None  # lossless: last message on an ack topic, not yet acknowledged
         for item in plan(self.bag, self.options):
             if not self.context.ok():
@@ -239,10 +249,9 @@ class BagPlayerNode(QuietQosEvents, Node):
             pub = self.bag_publishers.get(item.msg.topic)
             if pub is None:
                 continue
-            if item.pass_index != current_pass:
+            if item.pass_index != current_pass:  # the clock runs on: the pass's stamps are shifted
                 self.get_logger().info(f"bag_player: end of pass {current_pass + 1}, looping")
                 current_pass = item.pass_index
-                clock.restart(start_bag_ns, _now_ns())
                 progress = PlaybackProgress(progress.total_messages, span_ns, self._progress_period_ns)
             if not self._sleep_until(clock, item.msg.log_stamp_ns, executor):
                 break
@@ -277,13 +286,13 @@ class BagPlayerNode(QuietQosEvents, Node):
                     pending = item.msg
             if progress.due(_now_ns()):
                 self.get_logger().info(
-                    "bag_player: " + progress.line(current_pass, item.msg.log_stamp_ns - start_bag_ns)
+                    "bag_player: " + progress.line(current_pass, item.msg.log_stamp_ns - item.shift_ns - start_bag_ns)
                 )
         else:
             result.completed = True
             if pending is not None:
                 self._wait_processed(pending, executor, result)
-        result.passes = current_pass + 1
+        result.passes = current_pass + 1 - self.options.first_pass
         result.wall_s = time.monotonic() - t_start
         result.cpu_s = time.process_time() - c_start
         self.get_logger().info(

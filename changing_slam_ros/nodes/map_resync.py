@@ -122,10 +122,10 @@ class ResyncServer:
     """Tracking's side: answers requests with its replica (`snapshot()`: (keyframes, full delta) per map)."""
 
     def __init__(self, node: Node, snapshot: Callable[[], list[tuple[list[Keyframe], MapDelta]]],
-                 frame_id: str, after: Callable[[], None] | None = None) -> None:  # fmt: skip
+                 frame_id: str, after: Callable[[str], None] | None = None) -> None:  # fmt: skip
         self.node = node
         self.snapshot = snapshot
-        self.after = after  # called after each answer (tracking re-sends keyframes not mapped yet)
+        self.after = after  # called with the asker's name after each answer (tracking re-sends what is missing)
         self.frame_id = frame_id
         self.answered = 0
         self._kf_pub = node.create_publisher(KeyframeMsg, KEYFRAMES_TOPIC, SNAPSHOT_QOS)
@@ -142,7 +142,7 @@ class ResyncServer:
         if not maps:
             self._map_pub.publish(MapUpdate(header=Header(frame_id=msg.frame_id), keyframe_id=-2))
             if self.after is not None:
-                self.after()
+                self.after(msg.frame_id)
             return
         for keyframes, _ in maps:
             for kf in keyframes:
@@ -154,4 +154,4 @@ class ResyncServer:
         self.node.get_logger().info(f"tracking: map snapshot sent to {msg.frame_id} "
                                     f"({sum(len(k) for k, _ in maps)} keyframes)")  # fmt: skip
         if self.after is not None:
-            self.after()
+            self.after(msg.frame_id)

@@ -36,6 +36,11 @@ class ApproximatePairer(Generic[A, B]):
         self._second: deque[tuple[int, B]] = deque()
         self.stats = PairStats()
 
+    @property
+    def waiting_first(self) -> int:
+        """First-stream (colour) items still waiting for their pair."""
+        return len(self._first)
+
     def add_first(self, stamp_ns: int, item: A) -> list[tuple[int, A, int, B]]:
         self._first.append((stamp_ns, item))
         return self._match()

@@ -84,6 +84,11 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.colour_in = 0  # colour messages received
         self.frames_rejected = 0
         self.frames_without_detections = 0
+        self.frames_no_camera = 0  # converted but skipped: no camera_info (nor config intrinsics) yet
+        self.frames_lost = 0  # tracked without a pose (not initialised, lost, relocalising)
+        # a colour / depth stamp not newer than the newest received: a player re-sending after a restart
+        self.duplicates = {"colour": 0, "depth": 0}
+        self._newest_ns = {"colour": -1, "depth": -1}
         self.latency_ms: list[float] = []
         self.process_ms: list[float] = []
         self.process_cpu_ms: list[float] = []  # process CPU time per processed frame (load-independent)
@@ -245,8 +250,11 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
 
     # -- inputs ---------------------------------------------------------------------------------
     def on_colour(self, msg: Any) -> None:
-        self.colour_in += 1
         stamp_ns = stamp_to_ns(msg.header.stamp)
+        if self._duplicate("colour", stamp_ns):
+            self._ack(msg.header)  # a lossless player waits for it before it sends the next frame
+            return
+        self.colour_in += 1
         self._received_s[stamp_ns] = time.monotonic()
         _keep_newest(self._received_s, 200)
         for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_first(stamp_ns, msg):
@@ -254,7 +262,10 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self._warn_if_unpaired()
 
     def on_depth(self, msg: Any) -> None:
-        for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_second(stamp_to_ns(msg.header.stamp), msg):
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if self._duplicate("depth", stamp_ns):
+            return
+        for t_rgb, rgb_msg, _t_d, depth_msg in self.pairer.add_second(stamp_ns, msg):
             self.on_frame(t_rgb, rgb_msg, depth_msg)
         self._warn_if_unpaired()
 
@@ -385,6 +396,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             depth = image_to_depth_m(item.depth_msg, self.depth_topic)
             camera = self._frame_camera(rgb.shape[1], rgb.shape[0])
             if camera is None:
+                self.frames_no_camera += 1
                 self._warn_once("no_camera", "tracking: no camera_info yet; frames are skipped until one arrives")
                 self._ack(item.rgb_msg.header)
                 return
@@ -431,6 +443,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
                 self.frames_out.map_moved()
             self.latency_ms.append((time.monotonic() - item.received_s) * 1e3)
         else:
+            self.frames_lost += 1
             self.frames_out.on_lost(item.stamp_ns)
         self.mode_control.after_frame(item.stamp_ns, out)
         if out.loop_corrected:
@@ -552,15 +565,6 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
     def _ack(self, header: Header) -> None:
         if self.ack_pub is not None:
             self.ack_pub.publish(Header(stamp=header.stamp, frame_id=self.get_name()))
-
-    def _warn_if_unpaired(self) -> None:
-        s = self.pairer.stats
-        if s.dropped_first > 10 and s.pairs == 0:
-            self._warn_once(
-                "unpaired",
-                f"tracking: colour and depth do not pair within {self.params['sync_slop_s']} s "
-                f"({s.dropped_first} colour frames dropped); check the stamps or raise sync_slop_s",
-            )
 
     def _warn_once(self, key: str, text: str) -> None:
         if key not in self._warned:

@@ -50,10 +50,17 @@ class ReplicaInputs:
             self._rebuild_path()
         self._settle(update=update.keyframe_id, relay=update.loop_query_kf_id)
 
-    def _resend_unmapped(self) -> None:
-        """After a map snapshot: keyframes sent but not mapped (local_mapping was down) go out again."""
+    def _resend_unmapped(self, asker: str) -> None:
+        """After a map snapshot: keyframes sent but not mapped (local_mapping was down) go out again. A restarted
+        loop_closing has the keyframe whose verdict the held ack waits for in its snapshot, and checks no loop for
+        a keyframe it restored: that verdict will not come, and the ack goes without it (its loop check skipped)."""
         for packet in self.split.resend():
             self._send_packet(packet, resend=True)
+        a = self._awaiting
+        if asker == "loop_closing" and a is not None and not a["verdict"]:
+            self.get_logger().warning(f"tracking: keyframe {a['kf']} went to loop_closing in its map snapshot; "
+                                      "no loop check of it")  # fmt: skip
+            self._settle(verdict=a["kf"])
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
         """Split backend: loop_closing's verdict; a closed loop reaches the replica through local_mapping's update."""

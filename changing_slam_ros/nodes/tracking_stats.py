@@ -23,6 +23,9 @@ class TrackingStats:
             "colour_received": self.colour_in, "pairs": s.pairs, "unpaired_colour_dropped": s.dropped_first,
             "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
             "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
+            "frames_skipped_no_camera_info": self.frames_no_camera, "frames_lost": self.frames_lost,
+            "colour_waiting_for_depth": self.pairer.waiting_first,
+            "colour_duplicates_dropped": self.duplicates["colour"], "depth_duplicates_dropped": self.duplicates["depth"],
             "frames_without_detections": self.frames_without_detections,
             "detections_skipped_received": self.detections_skipped_in,
             "frames_with_carried_detections": self.frames_with_carried_detections,
@@ -81,6 +84,27 @@ class TrackingStats:
         out.update(self.frames_out.diagnostic_values())  # tracking state, map -> odom jumps, odometry time-outs
         out.update(self.mode_control.diagnostic_values())  # mapping / localization, objects present
         return out
+
+    def _duplicate(self, stream: str, stamp_ns: int) -> bool:
+        """Whether a colour or depth message is not newer than the newest of its stream (then counted, and the
+        caller drops it): a bag player restarted mid-run resumes a little before where it stopped, and the pairer
+        and the map take each stamp once, in order."""
+        if stamp_ns <= self._newest_ns[stream]:
+            self.duplicates[stream] += 1
+            self.get_logger().info(f"tracking: {stream} at {stamp_ns * 1e-9:.6f} s received again; dropped",
+                                   throttle_duration_sec=5.0)  # fmt: skip
+            return True
+        self._newest_ns[stream] = stamp_ns
+        return False
+
+    def _warn_if_unpaired(self) -> None:
+        s = self.pairer.stats
+        if s.dropped_first > 10 and s.pairs == 0:
+            self._warn_once(
+                "unpaired",
+                f"tracking: colour and depth do not pair within {self.params['sync_slop_s']} s "
+                f"({s.dropped_first} colour frames dropped); check the stamps or raise sync_slop_s",
+            )
 
     def _log_stats(self) -> None:
         """The counts line (every stats_period_s while they change; `changing-slam graph` reads its progress

@@ -22,6 +22,7 @@ from std_msgs.msg import Header  # noqa: E402
 from changing_slam_ros.errors import BagError, ConfigError  # noqa: E402
 from changing_slam_ros.io.image_codec import decode_rgb, decode_depth  # noqa: E402
 from changing_slam_ros.nodes.bag_player_node import BagPlayerNode, main  # noqa: E402
+from changing_slam_ros.io.playback import pass_period_ns  # noqa: E402
 
 
 def stamp_ns(msg) -> int:  # noqa: ANN001
@@ -154,7 +155,7 @@ def test_a_slow_subscriber_loses_frames_at_full_speed_but_none_in_lossless_mode(
     player.destroy_node()
 
 
-def test_loop_plays_the_bag_again_until_stopped(ros_context, tmp_path, fr1_bag_writer):
+def test_loop_plays_the_bag_again_shifted_in_time_until_stopped(ros_context, tmp_path, fr1_bag_writer):
     bag = fr1_bag_writer(tmp_path / "small", n=3, scale=8)
     rec = Recorder(ros_context)
     topic = "/camera/rgb/image_color"
@@ -173,7 +174,11 @@ def test_loop_plays_the_bag_again_until_stopped(ros_context, tmp_path, fr1_bag_w
         executor.spin_once(timeout_sec=0.02)
     result = player.play(executor)
     assert not result.completed and result.passes >= 3
-    assert [stamp_ns(m) for m in rec.images[topic]][:7] == (bag.rgb_stamps_ns * 3)[:7]
+    # each pass later by the bag's duration and one frame: header stamps keep running forward
+    period = pass_period_ns(player.bag, player.options)
+    assert period > bag.rgb_stamps_ns[-1] - bag.rgb_stamps_ns[0]
+    shifted = [t + k * period for k in range(3) for t in bag.rgb_stamps_ns]
+    assert [stamp_ns(m) for m in rec.images[topic]][:7] == shifted[:7]
 
 
 def test_lossless_mode_refuses_to_play_to_nobody(ros_context, fr1_bag):
