@@ -18,7 +18,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from changing_slam_ros.commands.run import _loop_closing, _prefetch, system_config_from_mapping  # noqa: E402
+from changing_slam_ros.commands.frame_pipeline import FramePipeline  # noqa: E402
+from changing_slam_ros.commands.run import _loop_closing, system_config_from_mapping  # noqa: E402
 from changing_slam_ros.config import find_config, load_yaml  # noqa: E402
 from changing_slam_ros.core.system import SlamSystem  # noqa: E402
 from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
@@ -53,8 +54,9 @@ def main() -> int:
     n = len(source) if not args.max_frames else min(args.max_frames, len(source))
     rss0 = rss_mib()
     t0 = time.perf_counter()
-    for frame in _prefetch(source, n):
-        system.process(frame)
+    with FramePipeline(source, n, lambda frame: None, overlap=False) as frames:
+        for frame, _ in frames:
+            system.process(frame)
     wall = time.perf_counter() - t0
     rss1 = rss_mib()
     t = system.timing_summary()

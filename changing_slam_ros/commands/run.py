@@ -2,7 +2,7 @@
 
     changing-slam run SOURCE --out DIR [--config NAME|FILE] [--max-frames N] [--no-loop] [--no-plot] [--quiet]
         [--map-in PREVIOUS/map.npz] [--detections none|model|oracle] [--detections-file FILE] [--no-dynamic]
-        [--strict] [ablation switches]
+        [--strict] [--serial] [ablation switches]
 (dynamic-scene options: see `commands/dynamic_options.py`).
 
 SOURCE is anything `io.dataset.open_dataset` reads (TUM-layout folder, 7-Scenes, ROS 1/2 bag, mcap). DIR
@@ -10,33 +10,32 @@ receives the trajectories, keyframes, the map (`map.npz`), metrics and timing (s
 `--map-in PREVIOUS/map.npz` the run continues a saved map (multi-session; see `multi_session_summary`). With the object layer
 on, a `--map-in` run ends with the "what changed" report against the loaded map (`changes.json`,
 `changes.png`; `commands/changes.py`), one printed line per change and its counts in metrics.json `changes`.
-The run is deterministic for a given config (single-threaded OpenCV, seeded RNG, frames in order).
+The run is deterministic for a given config (single-threaded OpenCV, seeded RNG, frames in order, each frame
+tracked with its own detections whether the detector runs ahead on its own thread or, `--serial`, in turn).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import queue
 import sys
-import threading
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.commands.dynamic_options import add_dynamic_arguments, dynamic_setup
+from changing_slam_ros.commands.frame_pipeline import FramePipeline
 from changing_slam_ros.commands.objects_options import (
     LoopLog, add_object_arguments, object_layer_setup, write_object_outputs,
 )
 from changing_slam_ros.config import load_config, section
 from changing_slam_ros.core.slam.local_mapping import MappingConfig
 from changing_slam_ros.core.features.orb_features import FeatureConfig
-from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.core.slam.localization import Mode
@@ -54,6 +53,8 @@ from changing_slam_ros.core.objects.object_layer import ObjectLayer
 from changing_slam_ros.io.change_report_file import summary_lines
 from changing_slam_ros.io.moving_objects_file import write_moving_objects
 from changing_slam_ros.io.tum_trajectory import write_tum_trajectory
+
+T = TypeVar("T")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", metavar="SOURCE", help="TUM-layout folder, ROS 1/2 bag or mcap file")
@@ -75,6 +76,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keypoint-log", type=Path, default=None, metavar="FILE",
                         help="write every frame's keypoints and the dynamic stage's verdict on each to FILE (.npz; "
                              "see commands/keypoint_log.py), for scoring against ground-truth masks")
+    parser.add_argument("--serial", action="store_true", help="detect each frame just before tracking it, on "
+                        "the same thread (default: the detector runs on the next frames on its own thread while "
+                        "the current one is tracked; every frame gets its own detections either way, so both give "
+                        "the same results)")
     add_dynamic_arguments(parser)
     add_object_arguments(parser)
 
@@ -172,9 +177,11 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     n_total = len(source) if not args.max_frames else min(args.max_frames, len(source))
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # every thread of this process: the reader, OpenCV, the detector's
-    for rgbd in _progress(_prefetch(source, n_total), n_total, args.quiet):
-        if system.process(rgbd, dynamic.detections_for(rgbd)).loop_corrected:
-            loops.record(closing, system)
+    overlap = not args.serial and dynamic.detector is not None
+    with FramePipeline(source, n_total, dynamic.detections_for, overlap=overlap) as frames:
+        for rgbd, detections in _progress(frames, n_total, args.quiet):
+            if system.process(rgbd, detections).loop_corrected:
+                loops.record(closing, system)
     wall_s = time.perf_counter() - t0
     cpu_s = time.process_time() - cpu0
     if keypoint_log is not None:
@@ -200,6 +207,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
         "map_points": int(sum(int(m.points.usable().sum()) for m in system.atlas.maps)),
         "loops_closed": system.n_loops,
         "wall_s": wall_s,
+        "detection_overlapped": overlap,
         "fps": len(system.records) / wall_s if wall_s > 0 else 0.0,
         "tracking_ms_median": timing.get("tracking", {}).get("p50", 0.0),
         "cpu_ms_per_frame": 1e3 * cpu_s / len(system.records) if system.records else 0.0,
@@ -348,42 +356,7 @@ def _loop_closing(data: dict[str, Any], where: str) -> Any:
     return SlamMapLoopClosing(LoopCloser(cfg, Vocabulary.load()))
 
 
-def _prefetch(source: Iterable[RgbdFrame], n: int, depth: int = 8) -> Iterator[RgbdFrame]:
-    """Decode frames on a reader thread (image decoding releases the GIL) while SLAM runs; order kept."""
-    q: queue.Queue[Any] = queue.Queue(maxsize=depth)
-    done = object()
-    stop = threading.Event()
-
-    def reader() -> None:
-        try:
-            for i, frame in enumerate(source):
-                if i >= n or stop.is_set():
-                    break
-                q.put(frame)
-        except BaseException as err:  # noqa: BLE001 - re-raised on the main thread
-            q.put(err)
-        q.put(done)
-
-    thread = threading.Thread(target=reader, name="frame-reader", daemon=True)
-    thread.start()
-    try:
-        while True:
-            item = q.get()
-            if item is done:
-                break
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        while thread.is_alive():
-            try:
-                q.get_nowait()
-            except queue.Empty:
-                thread.join(0.05)
-
-
-def _progress(frames: Iterator[RgbdFrame], total: int, quiet: bool) -> Iterator[RgbdFrame]:
+def _progress(frames: Iterable[T], total: int, quiet: bool) -> Iterator[T]:
     if quiet:
         yield from frames
         return
