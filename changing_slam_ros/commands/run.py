@@ -330,11 +330,14 @@ def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:
 
 
 def system_config_from_mapping(data: dict[str, Any], where: str) -> SystemConfig:
-    """The `features`, `tracking` and `mapping` sections of a parsed config (defaults when absent)."""
+    """The `features`, `tracking`, `mapping` and `grid` sections of a parsed config (defaults when absent)."""
+    from changing_slam_ros.core.map.occupancy_grid import GridConfig
+
     return SystemConfig(
         section(FeatureConfig, data.get("features"), f"{where}: features"),
         section(TrackingConfig, data.get("tracking"), f"{where}: tracking"),
         section(MappingConfig, data.get("mapping"), f"{where}: mapping"),
+        section(GridConfig, data.get("grid"), f"{where}: grid"),
     )
 
 
