@@ -93,3 +93,30 @@ def floor_plan(scenario: Scenario, t_s: float, min_z: float, max_z: float, resol
         _fill(fine, xs, ys, f)
     occupied = fine.reshape(h, samples, w, samples).any(axis=(1, 3))
     return FloorPlan(occupied, resolution_m, origin)
+
+
+def swept_plan(scenario: Scenario, actors: Sequence[int], times: Sequence[float], min_z: float, max_z: float,
+               plan: FloorPlan, samples: int = 3) -> FloorPlan:
+    """The cells of `plan`'s raster that the footprints of `actors` (indices) covered at any of `times` and that
+    lie more than one cell from `plan`'s occupied cells: where a person walked, or an object stood before it
+    moved, and nothing stands now (one cell of slack: an estimated grid's cells are not aligned with these)."""
+    h, w = plan.occupied.shape
+    res = plan.resolution_m
+    sub = res / samples
+    xs = plan.origin_xy[0] + (np.arange(w * samples) + 0.5) * sub
+    ys = plan.origin_xy[1] + (np.arange(h * samples) + 0.5) * sub
+    fine = np.zeros((h * samples, w * samples), bool)
+    for i in actors:
+        a = scenario.actors[i]
+        for t in times:
+            T = a.track.pose_at(float(t))
+            if T is not None:
+                for f in _footprints(a.parts, T, min_z, max_z):
+                    _fill(fine, xs, ys, f)
+    near = plan.occupied.copy()
+    near[1:] |= plan.occupied[:-1]
+    near[:-1] |= plan.occupied[1:]
+    near[:, 1:] |= near[:, :-1].copy()
+    near[:, :-1] |= near[:, 1:].copy()
+    covered = fine.reshape(h, samples, w, samples).any(axis=(1, 3))
+    return FloorPlan(covered & ~near, res, plan.origin_xy)

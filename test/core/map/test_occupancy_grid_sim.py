@@ -65,27 +65,12 @@ def compare(sc: object, grid: OccupancyGrid) -> tuple[float, np.ndarray, np.ndar
 
 
 def swept(sc: object, actors: list[int], times: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Cells (centres `xy`) that the footprints of `actors` covered at `times` and that lie more than one cell
-    from the final plan (its cells dilated by one: the grids' cells are not aligned)."""
-    from changing_slam_ros.sim.floor_plan import FloorPlan, _fill, _footprints, floor_plan
+    """Whether each cell centre `xy` (N, 2) lies where `actors` stood at `times` and nothing stands at the end,
+    more than one cell from the plan (`sim.floor_plan.swept_plan`)."""
+    from changing_slam_ros.sim.floor_plan import floor_plan, swept_plan
 
     plan = floor_plan(sc, sc.duration_s, CFG.min_height_m, CFG.max_height_m, CFG.resolution_m)  # type: ignore[attr-defined]
-    fine = np.zeros_like(plan.occupied)
-    xs = plan.origin_xy[0] + (np.arange(fine.shape[1]) + 0.5) * plan.resolution_m
-    ys = plan.origin_xy[1] + (np.arange(fine.shape[0]) + 0.5) * plan.resolution_m
-    for i in actors:
-        a = sc.actors[i]  # type: ignore[attr-defined]
-        for t in times:
-            T = a.track.pose_at(float(t))
-            if T is not None:
-                for f in _footprints(a.parts, T, CFG.min_height_m, CFG.max_height_m):
-                    _fill(fine, xs, ys, f)
-    near = plan.occupied.copy()
-    near[1:] |= plan.occupied[:-1]
-    near[:-1] |= plan.occupied[1:]
-    near[:, 1:] |= near[:, :-1].copy()
-    near[:, :-1] |= near[:, 1:].copy()
-    return FloorPlan(fine & ~near, plan.resolution_m, plan.origin_xy).lookup(xy) == 1
+    return swept_plan(sc, actors, list(times), CFG.min_height_m, CFG.max_height_m, plan).lookup(xy) == 1  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(("name", "seed"), [("static", 0), ("random_changing", 0)])
