@@ -56,12 +56,12 @@ def estimate_floor(points_w: F64, up_hint: F64, inlier_m: float = 0.03, min_frac
                    max_below_fraction: float = 0.02, max_tilt_deg: float = 35.0, iterations: int = 200,
                    max_points: int = 20000, seed: int = 0) -> FloorEstimate | None:
     """The floor under `points_w` (N, 3, map frame), `up_hint` (3,) roughly up. RANSAC planes whose normal lies
-    within `max_tilt_deg` of the hint, that hold at least `min_fraction` of the points within `inlier_m` and have
-    at most `max_below_fraction` below compete, `iterations` drawn from each of the lowest `LOW_QUANTILES` of
-    the points along the hint; the floor is the one with the fewest points below it (a floor has the room above
-    it; a table top has its legs and the floor below), refined by least squares on its inliers. Hypotheses are scored on at most
-    `max_points` points (a seeded subsample). Without such a plane the lowest points (along the hint) stand in,
-    with `n_support` 0. None for fewer than 3 points."""
+    within `max_tilt_deg` of the hint, that hold at least `min_fraction` of the points within `inlier_m` and have at
+    most `max_below_fraction` below compete, `iterations` drawn from each of the lowest `LOW_QUANTILES` of the
+    points along the hint; the floor is the one with the fewest points below it (a floor has the room above it; a
+    table top has its legs and the floor below), refined by least squares on its inliers. Hypotheses are scored on
+    at most `max_points` points (a seeded subsample). Without such a plane the lowest points (along the hint) stand
+    in, with `n_support` 0. None for fewer than 3 points."""
     pts = np.asarray(points_w, float).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(axis=1)]
     if len(pts) < 3:

@@ -11,9 +11,8 @@ first, adds log-odds evidence (`build_grid`):
   table must not clear the table). Rays to excluded points count too: the line of sight to a person is free
   up to the person, and that is what clears the ghost a person left while the detector missed them.
 
-Evidence is clamped, so a newer view outweighs an older one after a few keyframes: a place seen empty after an
-object left it clears. The grid is recomputed from all keyframes whenever it is asked for, so loop corrections
-move every scan with its keyframe.
+Evidence is clamped, so newer views outweigh older ones after a few keyframes (a place seen empty after an
+object left it clears); the grid is recomputed from all keyframes at their current poses whenever asked for.
 """
 
 from __future__ import annotations
