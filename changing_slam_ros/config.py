@@ -22,7 +22,8 @@ T = TypeVar("T")
 PACKAGE_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 # The top-level sections a config file may hold, each read by one area of the code into its dataclass. Any other
 # name (a misspelt `trackng:`) is an error, as unknown keys inside a section are.
-CONFIG_SECTIONS = ("camera", "dataset", "features", "tracking", "mapping", "loop", "dynamic", "objects", "detector")
+CONFIG_SECTIONS = ("camera", "dataset", "features", "tracking", "mapping", "loop", "dynamic", "objects", "detector",
+                   "grid")
 
 
 def section_classes() -> dict[str, type]:
@@ -30,6 +31,7 @@ def section_classes() -> dict[str, type]:
     from changing_slam_ros.core.dynamic.detector import DetectorConfig
     from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig
     from changing_slam_ros.core.features.orb_features import FeatureConfig
+    from changing_slam_ros.core.map.occupancy_grid import GridConfig
     from changing_slam_ros.core.objects.map_object import ObjectMapConfig
     from changing_slam_ros.core.slam.local_mapping import MappingConfig
     from changing_slam_ros.core.slam.loop_closing import LoopConfig
@@ -38,7 +40,7 @@ def section_classes() -> dict[str, type]:
 
     classes = {"camera": CameraConfig, "dataset": DatasetConfig, "features": FeatureConfig,
                "tracking": TrackingConfig, "mapping": MappingConfig, "loop": LoopConfig, "dynamic": DynamicConfig,
-               "detector": DetectorConfig, "objects": ObjectMapConfig}  # fmt: skip
+               "detector": DetectorConfig, "objects": ObjectMapConfig, "grid": GridConfig}  # fmt: skip
     assert set(classes) == set(CONFIG_SECTIONS)
     return classes
 

@@ -92,6 +92,9 @@ def main(args: argparse.Namespace) -> int:
     - `keyframes.txt`          keyframe poses (TUM);
     - `map.npz`                the map (versioned, `io.map_file`): every map of the Atlas with keyframes, points,
                                graph and object map; `--map-in` starts a later run from it;
+    - `grid.pgm`, `grid.yaml`  the current map's 2-D occupancy grid as a Nav2 map_server pair (`io.nav2_map`; with
+                               `grid: enabled`, the default), in the floor frame, its pose in the map under
+                               `floor_pose_in_map`;
     - `metrics.json`           frames tracked, keyframes, loops, speed; ATE / RPE when ground truth exists;
     - `timing.json`            per-stage milliseconds (count, mean, p50, p90, p99, max);
     - `trajectory.png`         the final trajectory against ground truth (when it exists);
@@ -195,6 +198,11 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     # Localisation: the object layer never ran, so the objects go back as they were read.
     saved_objects = loaded.objects if args.localization and loaded is not None else objects
     save_map(out / "map.npz", system.atlas, saved_objects, system.tracker.next_kf_id)
+    grid = system.occupancy_grid()
+    if grid is not None:
+        from changing_slam_ros.io.nav2_map import write_grid
+
+        write_grid(out / "grid.yaml", grid, system.config.grid)
     timing = system.timing_summary()
     metrics: dict[str, Any] = {
         "source": str(args.source),
@@ -226,6 +234,11 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
     if gt is not None and len(final) >= 3:
         metrics.update(evaluate(gt, final, online, out, args.no_plot))
     metrics["loops"] = loops.evaluate(gt)
+    if grid is not None:
+        occ = grid.occupancy(system.config.grid)
+        metrics["grid"] = {"width": int(occ.shape[1]), "height": int(occ.shape[0]),
+                           "resolution_m": grid.resolution_m, "occupied_cells": int((occ == 100).sum()),
+                           "free_cells": int((occ == 0).sum()), "floor_support_points": grid.floor.n_support}  # fmt: skip
     metrics["objects"] = write_object_outputs(out, objects, final, gt, args.source, args.no_plot)
     movers = dynamic.filter.movers if dynamic.filter is not None else None
     if movers is not None:  # class-agnostic moving objects (Dai et al.) and their trajectories
@@ -338,11 +351,14 @@ def multi_session_summary(system: SlamSystem, map_in: str) -> dict[str, Any]:
 
 
 def system_config_from_mapping(data: dict[str, Any], where: str) -> SystemConfig:
-    """The `features`, `tracking` and `mapping` sections of a parsed config (defaults when absent)."""
+    """The `features`, `tracking`, `mapping` and `grid` sections of a parsed config (defaults when absent)."""
+    from changing_slam_ros.core.map.occupancy_grid import GridConfig
+
     return SystemConfig(
         section(FeatureConfig, data.get("features"), f"{where}: features"),
         section(TrackingConfig, data.get("tracking"), f"{where}: tracking"),
         section(MappingConfig, data.get("mapping"), f"{where}: mapping"),
+        section(GridConfig, data.get("grid"), f"{where}: grid"),
     )
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -28,6 +28,8 @@ from changing_slam_ros.core.dynamic.detector import Detection, DetectionSet
 from changing_slam_ros.core.dynamic.dynamic_filter import DynamicFilter, DynamicFrame
 from changing_slam_ros.core.features.frame import Frame
 from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.map.keyframe_grid import keyframe_scan, map_grid, object_views
+from changing_slam_ros.core.map.occupancy_grid import GridConfig, OccupancyGrid
 from changing_slam_ros.core.slam.local_mapping import LocalMapper, MappingConfig, MappingStats
 from changing_slam_ros.core.slam.initial_pose import PoseHint
 from changing_slam_ros.core.slam.localization import Mode, Sightings
@@ -67,11 +69,12 @@ class KeyframeIndex(KeyframeCandidates, Protocol):
 
 @dataclass(frozen=True)
 class SystemConfig:
-    """The YAML sections this system reads: `features`, `tracking`, `mapping` (parsed at the edge)."""
+    """The YAML sections this system reads: `features`, `tracking`, `mapping`, `grid` (parsed at the edge)."""
 
     features: FeatureConfig = field(default_factory=FeatureConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
 
 
 @dataclass
@@ -140,6 +143,7 @@ class SlamSystem:
         self.mode = Mode.MAPPING
         self.sightings = Sightings()  # localisation: the map's objects seen at their mapped place, per frame
         self.loaded_objects: dict[int, list[MapObject]] = {}  # localisation from a saved map: its objects, as saved
+        self.keep_grid_scans = self.config.grid.enabled  # new keyframes keep a depth scan for the occupancy grid
 
     def set_mode(self, mode: Mode) -> None:
         """`Mode.LOCALIZATION`: from the next frame on the map is only read (`core/slam/localization.py`);
@@ -230,6 +234,8 @@ class SlamSystem:
         objects = None
         if res.new_keyframe is not None and self.object_layer is not None and res.new_keyframe.id in self.atlas.current.keyframes:
             objects = self._after_objects(res.new_keyframe, rgbd, dyn)
+        if res.new_keyframe is not None and self.keep_grid_scans and res.new_keyframe.id in self.atlas.current.keyframes:
+            self.keep_grid_scan(res.new_keyframe, rgbd.depth_m, dyn.objects if dyn is not None else (), objects)
         t3 = time.perf_counter()
         if res.new_keyframe is not None and self.loop_closer is not None and res.new_keyframe.id in self.atlas.current.keyframes:
             corrected = bool(self.loop_closer.process(res.new_keyframe, self.atlas.current))
@@ -298,6 +304,20 @@ class SlamSystem:
             refresh(self.atlas.current)
         self.timings_ms["objects_per_keyframe"].append(out.ms)
         return out
+
+    def keep_grid_scan(self, kf: Keyframe, depth_m: npt.NDArray[np.floating] | None, short_term_objects: Any,
+                       layer_result: ObjectLayerResult | None) -> None:
+        """A mapped keyframe keeps its depth scan for the occupancy grid (`core.map.keyframe_grid`), its points
+        labelled with the dynamic objects and the MapObjects the object layer just gave them."""
+        objs = {o.id: o for o in self.map_objects(kf.map_id)}
+        kf.grid_scan = keyframe_scan(kf, depth_m, self.config.grid, short_term_objects,
+                                     object_views(layer_result, objs))
+
+    def occupancy_grid(self, map_id: int | None = None) -> OccupancyGrid | None:
+        """The occupancy grid of a map (the current one by default) from its keyframes' scans at their current poses
+        and its objects' current beliefs; None when no keyframe keeps a scan."""
+        m = self.atlas.current if map_id is None else self.atlas.maps[map_id]
+        return map_grid(m, self.config.grid, self.map_objects(m.id))
 
     def _after_dynamic(self, dyn: DynamicFrame, res: TrackResult) -> None:
         """The object EKFs get the tracked pose; a new keyframe keeps its keypoints' classes and object ids."""

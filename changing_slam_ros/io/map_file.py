@@ -2,8 +2,8 @@
 
 One deflate-compressed npz archive (numpy arrays, no pickles), written atomically and
 byte-for-byte deterministically (fixed zip member dates, sorted members), so that save -> load -> save
-gives the same bytes. Version `MAP_FORMAT_VERSION` (3); version 2 (no keyframe thumbnails, no object evidence)
-still loads; version 1 (keyframe poses and usable points only, written before multi-session support) is refused
+gives the same bytes. Version `MAP_FORMAT_VERSION` (4); versions 3 (no keyframe depth scans for the occupancy
+grid) and 2 (nor keyframe thumbnails, nor object evidence) still load; version 1 (keyframe poses and usable points only, written before multi-session support) is refused
 with an error that says so. The fields are listed in `save_map`.
 
 `load_map` checks every field (present, shape, dtype kind, ids that refer to stored keyframes and points)
@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.grid_scan import GridScan
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.map.map_point import PointStore
 from changing_slam_ros.core.objects.object_evidence import THUMBNAIL_SIZE_PX
@@ -32,8 +33,9 @@ from changing_slam_ros.core.map.slam_map import Atlas, RemovedKeyframe, SlamMap
 from changing_slam_ros.errors import MapFileError
 from changing_slam_ros.io.atomic import atomic_write_bytes
 
-MAP_FORMAT_VERSION = 3
-READABLE_VERSIONS = (2, 3)  # version 2 has no thumbnails; its object documents have no evidence (both optional)
+MAP_FORMAT_VERSION = 4
+# version 3 has no grid scans; version 2 no thumbnails either, and its object documents no evidence (all optional)
+READABLE_VERSIONS = (2, 3, 4)
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 Arrays = dict[str, npt.NDArray[Any]]
 
@@ -73,6 +75,7 @@ def map_arrays(atlas: Atlas, objects: Mapping[int, SavedObjectMap] | None = None
     for m in atlas.maps:
         pre = f"m{m.id}_"
         arrays.update({pre + k: v for k, v in _keyframe_arrays(m).items()})
+        arrays.update({pre + k: v for k, v in _grid_scan_arrays(m).items()})
         arrays.update({pre + k: v for k, v in _point_arrays(m.points).items()})
         arrays.update({pre + k: v for k, v in _graph_arrays(m).items()})
         if m.id in objects:
@@ -93,6 +96,9 @@ def save_map(path: str | Path, atlas: Atlas, objects: ObjectLayer | Mapping[int,
       `kf_n_keypoints` (K,); their N keypoints concatenated in keyframe order: `kp_px` (N, 2) float32,
       `kp_octaves` (N,) int8, `kp_descriptors` (N, 32) uint8, `kp_depths_m` (N,) float32,
       `kp_point_ids` (N,) int64, `kp_classes` (N,) int8, `kp_object_ids` (N,) int64;
+    - from version 4, the depth scans of the keyframes that keep one (`core.map.grid_scan`), S keyframes in id
+      order: `gs_kf_ids` (S,), `gs_counts` (S,); their P points concatenated: `gs_points_cam` (P, 3) float32,
+      `gs_dynamic` (P,) bool, `gs_object_ids` (P,) int64;
     - map points, every row of the `PointStore` (ids are rows; culled rows stay, flagged `bad`):
       `pt_<column>` for each `PointStore.COLUMNS` (position, descriptor, normal, scale range, counters, class,
       object id, active, bad, ...), `pt_obs` (E, 3) rows (point id, keyframe id, keypoint index) in the
@@ -149,6 +155,18 @@ def _keyframe_arrays(m: SlamMap) -> Arrays:
         "kp_point_ids": cat("point_ids", np.int64),
         "kp_classes": cat("kp_classes", np.int8),
         "kp_object_ids": cat("object_ids", np.int64),
+    }
+
+
+def _grid_scan_arrays(m: SlamMap) -> Arrays:
+    kfs = [m.keyframes[k] for k in sorted(m.keyframes) if m.keyframes[k].grid_scan is not None]
+    scans = [k.grid_scan for k in kfs]
+    return {
+        "gs_kf_ids": np.array([k.id for k in kfs], np.int64),
+        "gs_counts": np.array([len(s) for s in scans], np.int64),
+        "gs_points_cam": np.concatenate([s.points_cam for s in scans] or [np.zeros((0, 3), np.float32)]),
+        "gs_dynamic": np.concatenate([s.dynamic for s in scans] or [np.zeros(0, bool)]),
+        "gs_object_ids": np.concatenate([s.object_ids for s in scans] or [np.zeros(0, np.int64)]),
     }
 
 
@@ -288,7 +306,26 @@ class _Reader:
             m.keyframes[kf.id] = kf
         self._observations(pre, m)
         self._graph(pre, m)
+        if pre + "gs_kf_ids" in self.a:  # version 4
+            self._grid_scans(pre, m)
         return m
+
+    def _grid_scans(self, pre: str, m: SlamMap) -> None:
+        ids = self.get(pre + "gs_kf_ids", "i", (None,))
+        counts = self.get(pre + "gs_counts", "i", (len(ids),))
+        unknown = sorted(set(ids.tolist()) - set(m.keyframes))
+        if unknown or len(np.unique(ids)) != len(ids):
+            raise self.fail(pre + "gs_kf_ids", f"unknown or repeated keyframe ids {unknown[:5]}")
+        if (counts < 0).any():
+            raise self.fail(pre + "gs_counts", "negative counts")
+        n = int(counts.sum())
+        pts = self.get(pre + "gs_points_cam", "f", (n, 3)).astype(np.float32)
+        dyn = self.get(pre + "gs_dynamic", "b", (n,))
+        obj = self.get(pre + "gs_object_ids", "i", (n,)).astype(np.int64)
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        for i, k in enumerate(ids.tolist()):
+            s = slice(int(starts[i]), int(starts[i + 1]))
+            m.keyframes[k].grid_scan = GridScan(pts[s].copy(), dyn[s].copy(), obj[s].copy())
 
     def _keyframes(self, pre: str, map_id: int, n_points: int) -> list[Keyframe]:
         ids = self.get(pre + "kf_ids", "i", (None,))

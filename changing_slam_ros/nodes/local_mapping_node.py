@@ -35,6 +35,7 @@ from changing_slam_ros.core.replication.map_replication import KeyframePacket, L
 from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.conversions import make_header
 from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
+from changing_slam_ros.nodes.grid_output import GRID_PARAMETERS, GridOutput
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, marker_of, update_marker
 from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
@@ -62,8 +63,9 @@ LOCAL_MAPPING_PARAMETERS: tuple[ParamSpec, ...] = (
                                      "one (lossless graph: the offline order of work)"),
     ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
     ("output_dir", "", "write semantic_map.json and local_mapping_stats.json here on shutdown"),
-    ("map_out", "", "on shutdown, save the whole map here (map.npz format of `changing-slam run`, atomic); "
-                    "also the default path of ~/save_map"),
+    ("map_out", "", "on shutdown, save the whole map here (map.npz format of `changing-slam run`, atomic) and "
+                    "its occupancy grid beside it (<stem>_grid.yaml / .pgm, Nav2 map_server); also the default "
+                    "path of ~/save_map"),
     ("map_dir", "", "folder the paths of ~/save_map and ~/load_map requests must lie in (names ending .npz; "
                     "an existing file is replaced only when it is a map file); empty = request paths refused"),
     ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
@@ -78,6 +80,7 @@ LOCAL_MAPPING_PARAMETERS: tuple[ParamSpec, ...] = (
     ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz: the "
                      "Atlas and the saved objects; tracking and loop_closing load the same file; the map is then not asked of tracking, so a node restarted "
                      "in a running graph is started without it and gets the current map from tracking)"),
+    *GRID_PARAMETERS,
 )  # fmt: skip
 
 
@@ -131,6 +134,7 @@ class LocalMappingNode(Node):
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.candidate_pub = self.create_publisher(MapObjectArray, "~/object_candidates", output_qos)
         self.cloud_pub = self.create_publisher(PointCloud2, "~/map_cloud", output_qos)
+        self.grid = GridOutput(self, p, p["map_frame"], lambda: self.owner)  # ~/grid, transient local
         from changing_slam_ros.nodes.map_resync import ResyncClient
 
         # After a restart the map comes back from tracking's replica; keyframes wait for it (see map_resync).
@@ -145,8 +149,9 @@ class LocalMappingNode(Node):
         self.create_service(LoadMap, "~/load_map", self.on_load_map)
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
-        if p["map_file"]:  # object_map starts from the loaded objects
+        if p["map_file"]:  # object_map starts from the loaded objects; Nav2 from the loaded grid
             self._publish_semantic_map(0)
+            self.grid.on_change(0, force=True)
         layer = "on" if self.owner.backend.objects is not None else "off"
         self.get_logger().info(f"local_mapping: started (owns the map; object layer {layer}; "
                                f"wait_for_loop_results {p['wait_for_loop_results']})")  # fmt: skip
@@ -284,6 +289,7 @@ class LocalMappingNode(Node):
         self._publish_semantic_map(0)
         self._last_cloud_s = -1e9
         self._publish_cloud(0)
+        self.grid.on_change(0, force=True)
 
     def _publish_semantic_map(self, stamp_ns: int) -> None:
         if self.owner.backend.objects is None:
@@ -294,11 +300,13 @@ class LocalMappingNode(Node):
         self.semantic_pub.publish(semantic_map_to_msg(smap, make_header(stamp_ns, self.params["map_frame"])))
 
     def save_map(self, path: Path) -> None:
-        """The owner's Atlas and object layer (MapObjects, beliefs), atomically (`io.map_file.save_map`)."""
+        """The owner's Atlas and object layer (MapObjects, beliefs), atomically (`io.map_file.save_map`), and the
+        occupancy grid beside it as a Nav2 map_server pair (`<stem>_grid.yaml` and `.pgm`, `io.nav2_map`)."""
         from changing_slam_ros.io.map_file import save_map
 
         path.parent.mkdir(parents=True, exist_ok=True)
         save_map(path, self.owner.atlas, self.owner.backend.objects)
+        self.grid.save_beside(self.owner, path)
 
     # -- work -----------------------------------------------------------------------------------
     def _restore(self, keyframes: list[Any], delta: Any) -> None:
@@ -342,6 +350,7 @@ class LocalMappingNode(Node):
         if update.objects_ran:
             self._publish_semantic_map(kf.stamp_ns)
         self._publish_cloud(kf.stamp_ns)
+        self.grid.on_change(kf.stamp_ns)
         now = time.monotonic()
         self.process_ms.append((now - t0) * 1e3)
         self.process_cpu_ms.append((time.process_time() - c0) * 1e3)
@@ -367,6 +376,7 @@ class LocalMappingNode(Node):
         from changing_slam_ros.nodes.conversions import stamp_to_ns
 
         self.update_pub.publish(update_to_msg(relay, stamp_to_ns(stamp), self.params["map_frame"]))
+        self.grid.on_change(stamp_to_ns(stamp))
         if relay.merge is not None:
             self.merges_applied += 1
             r = relay.merge
@@ -401,6 +411,7 @@ class LocalMappingNode(Node):
             "keyframes_in_map": self.owner.atlas.n_keyframes, "restored_keyframes": self.resync.restored_keyframes,
             "map_loads": self.loads, "dropped_before_load": self.epochs.dropped, "ba_stopped_early": self.ba_stops,
         }  # fmt: skip
+        out.update(self.grid.stats())
         out.update(summarise_ms(self.process_ms, "keyframe"))
         out.update(summarise_ms(self.process_cpu_ms, "keyframe_cpu"))
         out.update(summarise_ms(self.owner_cpu_ms, "owner_thread_cpu"))

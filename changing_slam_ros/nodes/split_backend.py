@@ -103,7 +103,8 @@ class TrackingSide:
     n_moved_keyframes: int = 0  # keyframes without their update yet when a merge came, moved into the merged map
     n_moved_provisional: int = 0  # provisional points of those keyframes, moved with them
 
-    ship_objects: bool = True  # the map owner runs the object layer: packets carry depth and objects
+    # the map owner runs the object layer or keeps grid scans: packets carry depth and the dynamic stage's objects
+    ship_objects: bool = True
     # Real time only: tracking's own points for keyframes not mapped yet (None = wait for the owner's points)
     provisional: ProvisionalPoints | None = None
     # provisional: packets held back, oldest first, while they name another keyframe's provisional points
@@ -117,6 +118,8 @@ class TrackingSide:
         ship = build_backend(cfg, loop=False, dynamic="off", objects=objects).objects is not None
         backend = build_backend(cfg, loop=loop, dynamic=dynamic, objects="off")
         system = backend.system
+        ship = ship or system.config.grid.enabled
+        system.keep_grid_scans = False  # the map owner keeps them
         index = backend.loop_closing  # same class as the loop side's: relocalisation candidates only here
         system.loop_closer = None
         system.keyframe_index = None
@@ -404,9 +407,10 @@ class MapOwner:
         layer = self.backend.objects
         self.last_objects = None
         if layer is not None and kf.id in m.keyframes:
-            res = layer.after_keyframe(kf, m, packet.depth_m, packet.objects)
+            res = self.last_objects = layer.after_keyframe(kf, m, packet.depth_m, packet.objects)
             active_changed, ran = bool(res.active_flags_changed), True
-            self.last_objects = res
+        if kf.id in m.keyframes and self.backend.system.keep_grid_scans:
+            self.backend.system.keep_grid_scan(m.keyframes[kf.id], packet.depth_m, packet.objects, self.last_objects)
         t2 = time.perf_counter()
         delta = diff(before, m)
         t3 = time.perf_counter()

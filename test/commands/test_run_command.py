@@ -38,6 +38,13 @@ def test_run_writes_every_output_and_meets_the_fr1_ate_bound(tmp_path) -> None:
     # Observations reference stored points and keyframes only.
     assert (arrays["m0_pt_obs"][:, 0] < int(arrays["m0_pt_size"])).all()
     assert np.isin(arrays["m0_pt_obs"][:, 1], arrays["m0_kf_ids"]).all()
+    # the occupancy grid, as Nav2's map_server reads it
+    from changing_slam_ros.io.nav2_map import read_nav2_map
+
+    grid = read_nav2_map(out / "grid.yaml")
+    assert grid.occupancy.shape == (metrics["grid"]["height"], metrics["grid"]["width"])
+    assert (grid.occupancy == 0).sum() == metrics["grid"]["free_cells"] > 0
+    assert (grid.occupancy == 100).sum() == metrics["grid"]["occupied_cells"] > 0
 
 
 @pytest.mark.slow

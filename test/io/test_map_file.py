@@ -112,8 +112,10 @@ def _rewrite(path: Path, out: Path, change) -> Path:  # noqa: ANN001 - test help
     (lambda a: a.__setitem__("current_map_id", np.array(7)), "current_map_id: 7 is not one of"),
     (lambda a: a.__setitem__("m0_objects_json", np.array("{not json")), "m0_objects_json: not valid JSON"),
     (lambda a: a.__setitem__("m0_parent", np.array([[10**6, 0]])), "m0_parent: unknown keyframe ids"),
-    (lambda a: a.__setitem__("format_version", np.array(1)), "version 1, expected one of .2, 3. .written before multi-session"),
+    (lambda a: a.__setitem__("format_version", np.array(1)), "version 1, expected one of .2, 3, 4. .written before multi-session"),
     (lambda a: a.__setitem__("m0_obj_thumbs", a["m0_obj_thumbs"][:, :10]), "m0_obj_thumbs: expected shape"),
+    (lambda a: a.__setitem__("m0_gs_kf_ids", a["m0_gs_kf_ids"] + 10**6), "m0_gs_kf_ids: unknown or repeated"),
+    (lambda a: a.__setitem__("m0_gs_dynamic", a["m0_gs_dynamic"][1:]), "m0_gs_dynamic: expected shape"),
 ])
 def test_damaged_fields_are_named(mapped: tuple[SlamSystem, Path], tmp_path: Path, change, message) -> None:  # noqa: ANN001
     _, path = mapped
@@ -213,3 +215,27 @@ def test_a_version_2_map_still_loads_without_evidence(mapped: tuple[SlamSystem, 
     assert old.objects[0].thumbnails == {}
     assert [o.belief_history for o in old.objects[0].objects] == [[] for _ in new.objects[0].objects]
     assert [(o.id, o.belief) for o in old.objects[0].objects] == [(o.id, o.belief) for o in new.objects[0].objects]
+
+
+def test_grid_scans_round_trip_and_a_version_3_map_loads_without_them(mapped: tuple[SlamSystem, Path],
+                                                                         tmp_path: Path) -> None:
+    system, path = mapped
+    m0 = system.atlas.maps[0]
+    kept = {k: kf.grid_scan for k, kf in m0.keyframes.items() if kf.grid_scan is not None}
+    assert set(kept) == set(m0.keyframes) and all(len(s) > 1000 for s in kept.values())
+    back = load_map(path).atlas.maps[0]
+    for k, scan in kept.items():
+        got = back.keyframes[k].grid_scan
+        assert got is not None
+        np.testing.assert_array_equal(got.points_cam, scan.points_cam)
+        np.testing.assert_array_equal(got.dynamic, scan.dynamic)
+        np.testing.assert_array_equal(got.object_ids, scan.object_ids)
+
+    def to_v3(a: dict) -> None:  # noqa: ANN001
+        a["format_version"] = np.array(3)
+        for key in [k for k in a if k.startswith("m0_gs_")]:
+            a.pop(key)
+
+    old = load_map(_rewrite(path, tmp_path / "v3.npz", to_v3)).atlas.maps[0]
+    assert sorted(old.keyframes) == sorted(m0.keyframes)
+    assert all(kf.grid_scan is None for kf in old.keyframes.values())

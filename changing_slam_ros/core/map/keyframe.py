@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.grid_scan import GridScan
 
 
 class KeypointClass(enum.IntEnum):
@@ -30,7 +31,8 @@ class Keyframe:
     - `depths_m` (N,) float32, 0 where there is no valid depth;
     - `point_ids` (N,) int64 map point id or -1; `kp_classes` (N,) int8 `KeypointClass`;
     - `object_ids` (N,) int64 MapObject id or -1.
-    `T_world_cam` is the camera-to-world pose (4, 4), optical frame.
+    `T_world_cam` is the camera-to-world pose (4, 4), optical frame. `grid_scan`: the depth samples the occupancy
+    grid is built from (`grid_scan.py`), kept by the map owner only (None: none kept; not in the message).
     """
 
     id: int
@@ -45,6 +47,7 @@ class Keyframe:
     kp_classes: npt.NDArray[np.int8] = field(default_factory=lambda: np.zeros(0, np.int8))
     object_ids: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     map_id: int = 0
+    grid_scan: GridScan | None = None
 
     def __post_init__(self) -> None:
         n = len(self.keypoints_px)
