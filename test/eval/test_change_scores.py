@@ -240,3 +240,25 @@ def test_the_bench_prints_and_writes_each_seeds_verdicts_and_the_change_summary(
     assert "change-report targets (P and R >= 0.9, moves within 0.2 m): moved no, removed no" in text
     doc = json_.loads(json_.dumps([r.to_dict() for r in results]))
     assert doc[0]["sessions"]["score"]["reported"][1]["verdict"] == "false"
+
+
+@pytest.mark.slow
+def test_bench_changing_with_sessions_runs_and_scores_a_small_seed(tmp_path, capsys) -> None:
+    """Seed 2 at 320x240, its first 190 frames, no control: session 1 gets the 173 frames before the chair moves,
+    session 2 the other 17 from its map; the JSON and the printed lines carry the sessions (about 3 minutes)."""
+    import json as json_
+
+    from changing_slam_ros.cli import main
+
+    out = tmp_path / "bench"
+    assert main(["bench", "changing", "--seeds", "2", "--frames", "190", "--width", "320", "--height", "240",
+                 "--no-control", "--sessions", "--out", str(out), "--cache", str(tmp_path / "cache")]) == 0
+    doc = json_.loads((out / "changing_bench.json").read_text())
+    sessions = doc["per_seed"][0]["sessions"]
+    assert doc["sessions"] is True and (sessions["split_frame"], sessions["frames"]) == (173, 190)
+    assert sessions["error"] == "" and sessions["relocalised"] is True
+    assert [t["truth_kind"] for t in sessions["score"]["truths"]] == ["moved_long"]
+    assert doc["summary"]["changes"]["kinds"]["moved"]["truths"] == 1
+    s2 = json_.loads((out / "runs" / "s2_session2" / "metrics.json").read_text())
+    assert s2["frames"] == 17 and "changes" in s2
+    assert "seed    2  sessions 173+17 frames  relocalised  truth: moved_long chair" in capsys.readouterr().out
