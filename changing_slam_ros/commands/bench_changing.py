@@ -100,7 +100,8 @@ def format_sessions(r: SessionResult) -> str:
     if r.score is None:
         return f"{head}  failed: {r.error}"
     s = r.score
-    head += "  relocalised" if r.relocalised else "  NOT relocalised"
+    if r.relocalised is not None:
+        head += "  relocalised" if r.relocalised else "  NOT relocalised in session 1's map"
     verdicts = []
     for i, t in enumerate(s.truths):
         j = s.truth_match[i]

@@ -46,6 +46,8 @@ PLACE_RADIUS_M = 0.3
 DISPLACEMENT_TOLERANCE_M = 0.2
 PRECISION_TARGET = RECALL_TARGET = 0.9
 MISS_REASONS = ("not_mapped_before", "not_mapped_after", "other_kind", "not_reported")
+COUNTS = ("truths", "matched", "mapped_before", "matched_mapped_before", "mapped_both", "matched_mapped_both",
+          "reported", "correct")  # `ChangeScore.counts`
 
 
 @dataclass(frozen=True)
@@ -300,7 +302,7 @@ def _ratio(a: int, b: int) -> float:
 
 @dataclass
 class _Pool:
-    counts: dict[str, int] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(COUNTS, 0))
 
     def add(self, c: dict[str, int]) -> None:
         for k, v in c.items():
@@ -308,10 +310,10 @@ class _Pool:
 
     def figures(self) -> dict[str, Any]:
         c = self.counts
-        return {**c, "recall": _ratio(c.get("matched", 0), c.get("truths", 0)),
-                "recall_mapped_before": _ratio(c.get("matched_mapped_before", 0), c.get("mapped_before", 0)),
-                "recall_mapped_both": _ratio(c.get("matched_mapped_both", 0), c.get("mapped_both", 0)),
-                "precision": _ratio(c.get("correct", 0), c.get("reported", 0))}
+        return {**c, "recall": _ratio(c["matched"], c["truths"]),
+                "recall_mapped_before": _ratio(c["matched_mapped_before"], c["mapped_before"]),
+                "recall_mapped_both": _ratio(c["matched_mapped_both"], c["mapped_both"]),
+                "precision": _ratio(c["correct"], c["reported"])}
 
 
 def summarise_change_scores(scores: Sequence[ChangeScore]) -> dict[str, Any]:

@@ -262,3 +262,9 @@ def test_bench_changing_with_sessions_runs_and_scores_a_small_seed(tmp_path, cap
     s2 = json_.loads((out / "runs" / "s2_session2" / "metrics.json").read_text())
     assert s2["frames"] == 17 and "changes" in s2
     assert "seed    2  sessions 173+17 frames  relocalised  truth: moved_long chair" in capsys.readouterr().out
+
+
+def test_a_summary_of_no_scored_seed_has_every_count_at_zero() -> None:
+    s = summarise_change_scores([])
+    assert s["kinds"]["all"]["truths"] == 0 and math.isnan(s["kinds"]["all"]["recall"])
+    assert all(v is None for v in s["targets_met"].values())
