@@ -17,9 +17,13 @@ new position to the true one; both are held to `DISPLACEMENT_TOLERANCE_M`.
 
 A change can only be reported when the map holds its objects: the earlier object in session 1's map, the
 later one in session 2's. Each truth says whether it was `mapped_before` (a present session-1 object of its
-class within reach of its old place; vacuous for an addition) and `mapped_after` (likewise in session 2's map at
-its new place), so recall comes over all truths, over those mapped before, and over those mapped on both sides:
-the last separates what the change logic got wrong from what the detector never named. A reported addition of
+class within twice the radius of its old place, `mapped_reach`: an object mapped but misplaced is mapped, and
+its miss is the map's, not the detector's; vacuous for an addition) and `mapped_after` (likewise in session 2's
+map at its new place), so recall comes over all truths, over those mapped before, and over those mapped on both
+sides: the last separates what the change logic and the map's accuracy got wrong from what the detector never
+named. A missed truth's reason (MISS_REASONS, first that applies): not mapped before, not mapped after, `off`
+(a report of its kind and classes within the mapped reach but beyond the radius), `other_kind` (an unmatched
+report of another kind with an object of its class within the mapped reach), else not reported. A reported addition of
 an object that was in the room all along but that session 1 never mapped (the first lap's frames before the
 split show part of the room only, and the detector misses some views) is `first_seen`: right from the map's
 point of view, a change of the room only in the truth's, so it counts for neither precision nor recall.
@@ -45,7 +49,7 @@ TRUTH_KINDS = {"moved_short": "moved", "moved_long": "moved", "swapped": "moved"
 PLACE_RADIUS_M = 0.3
 DISPLACEMENT_TOLERANCE_M = 0.2
 PRECISION_TARGET = RECALL_TARGET = 0.9
-MISS_REASONS = ("not_mapped_before", "not_mapped_after", "other_kind", "not_reported")
+MISS_REASONS = ("not_mapped_before", "not_mapped_after", "off", "other_kind", "not_reported")
 COUNTS = ("truths", "matched", "mapped_before", "matched_mapped_before", "mapped_both", "matched_mapped_both",
           "reported", "correct")  # `ChangeScore.counts`
 
@@ -255,8 +259,9 @@ def score_changes(reported: Sequence[ReportedChange], truths: Sequence[TruthChan
         if match[i] is None and j not in used:
             match[i] = j
             used.add(j)
-    before = [t.before is None or _near(t.before, mapped_before, radius_m) for t in truths]
-    after = [t.after is None or _near(t.after, mapped_after, radius_m) for t in truths]
+    reach = 2.0 * radius_m  # mapped_reach
+    before = [t.before is None or _near(t.before, mapped_before, reach) for t in truths]
+    after = [t.after is None or _near(t.after, mapped_after, reach) for t in truths]
     reasons = []
     for i, t in enumerate(truths):
         if match[i] is not None:
@@ -265,7 +270,9 @@ def score_changes(reported: Sequence[ReportedChange], truths: Sequence[TruthChan
             reasons.append("not_mapped_before")
         elif not after[i]:
             reasons.append("not_mapped_after")
-        elif any(j not in used and r.kind != t.kind and _touches(t, r, radius_m) for j, r in enumerate(reported)):
+        elif any(j not in used and _agreement(t, r, reach) is not None for j, r in enumerate(reported)):
+            reasons.append("off")
+        elif any(j not in used and r.kind != t.kind and _touches(t, r, reach) for j, r in enumerate(reported)):
             reasons.append("other_kind")
         else:
             reasons.append("not_reported")
@@ -274,7 +281,7 @@ def score_changes(reported: Sequence[ReportedChange], truths: Sequence[TruthChan
     there = list(present_at_split) + [t.after for i, t in enumerate(truths) if t.after is not None and not before[i]]
     first_seen = tuple(j for j, r in enumerate(reported) if j not in used and r.kind == "added"
                        and r.after is not None and _near(r.after, there, radius_m)
-                       and not _near(r.after, mapped_before, radius_m))
+                       and not _near(r.after, mapped_before, reach))
     moves = []
     for i, t in enumerate(truths):
         j = match[i]

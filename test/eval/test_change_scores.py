@@ -121,7 +121,17 @@ def test_a_wrong_class_or_a_place_beyond_the_radius_is_no_match() -> None:
     s = score_changes([ReportedChange("moved", b[0], far, 2.3), ReportedChange("removed", _s("3", 39, (0, 2, 0.35)),
                                                                                None)], truths, b, a)
     assert s.truth_match[:2] == (None, None)
+    assert s.miss_reasons[:2] == ("off", "not_reported")  # the move within twice the radius; the removal's class
     assert s.counts()["correct"] == 0 and s.counts()["reported"] == 2
+
+
+def test_an_object_mapped_within_twice_the_radius_counts_as_mapped() -> None:
+    """Session 1 mapped suitcase_c 0.5 m off and session 2 the tv 0.7 m off: mapped before, not mapped after."""
+    b = [_s("3", 28, (0.5, 2, 0.35))]
+    a = [_s("9", 62, (3, 0.7, 1.0))]
+    s = score_changes([], truth_changes(_truth())[1:3], b, a)
+    assert s.mapped_before == (True, True) and s.mapped_after == (True, False)
+    assert s.miss_reasons == ("not_reported", "not_mapped_after")
 
 
 def test_recall_is_split_by_what_the_maps_held_and_misses_say_why() -> None:
@@ -141,7 +151,7 @@ def test_recall_is_split_by_what_the_maps_held_and_misses_say_why() -> None:
     assert (c["mapped_both"], c["matched_mapped_both"]) == (4, 2)
     f = summarise_change_scores([s])["kinds"]["all"]
     assert (f["recall"], f["recall_mapped_before"], f["recall_mapped_both"]) == pytest.approx((2 / 6, 2 / 5, 2 / 4))
-    assert summarise_change_scores([s])["miss_reasons"] == {"not_mapped_before": 1, "not_mapped_after": 1,
+    assert summarise_change_scores([s])["miss_reasons"] == {"not_mapped_before": 1, "not_mapped_after": 1, "off": 0,
                                                             "other_kind": 1, "not_reported": 1}
 
 
