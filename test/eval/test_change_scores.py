@@ -255,7 +255,8 @@ def test_the_bench_prints_and_writes_each_seeds_verdicts_and_the_change_summary(
 @pytest.mark.slow
 def test_bench_changing_with_sessions_runs_and_scores_a_small_seed(tmp_path, capsys) -> None:
     """Seed 2 at 320x240, its first 190 frames, no control: session 1 gets the 173 frames before the chair moves,
-    session 2 the other 17 from its map; the JSON and the printed lines carry the sessions (about 3 minutes)."""
+    session 2 the other 17 from its map; the JSON and the printed lines carry the sessions (a render and three
+    runs: 90 s on two busy cores)."""
     import json as json_
 
     from changing_slam_ros.cli import main
