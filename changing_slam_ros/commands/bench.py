@@ -3,7 +3,7 @@
     changing-slam bench dynamic --seeds 100-129 [--jobs J] [--out DIR] [--cache DIR] [--frames N]
         [--width W --height H] [--timing-seeds K] [--reuse-runs] [--full-args "--config sim"]
     changing-slam bench changing --seeds 200-229 [--jobs J] [--out DIR] [--cache DIR] [--reuse-runs]
-        [--full-args "--config sim"] [--no-control] [--match-on centroid|box_center]
+        [--full-args "--config sim"] [--no-control] [--match-on centroid|box_center] [--sessions]
 
 `dynamic` is the `random_dynamic` family (`sim/random_dynamic.py`) with its control. Seeds 0-9 are for
 tuning, 100-129 for evaluation. Prints per seed and in summary ATE, lost frames, ratios, CPU ms per frame
@@ -12,6 +12,7 @@ The work lives in `eval/seed_bench.py`.
 `changing` is the `random_changing` family (`sim/random_changing.py`) with its control: the default pipeline on
 both, the semantic map scored against the last lap (`commands/bench_changing.py`, `eval/changing_bench.py`);
 seeds 0-9 for tuning, 200-229 for evaluation; writes DIR/changing_bench.json and DIR/changing_bench.png.
+With `--sessions` it also scores the "what changed" report of each seed run as two sessions.
 """
 
 from __future__ import annotations
@@ -47,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-control", action="store_true", help="changing: skip the control (no ATE ratio)")
     parser.add_argument("--match-on", choices=("centroid", "box_center"), default="centroid",
                         help="changing: the estimate's position matched to ground truth (default centroid)")
+    parser.add_argument("--sessions", action="store_true",
+                        help="changing: also run each seed as two sessions cut before its first change and score "
+                             "the second session's change report against the truth's changes")
 
 
 def main(args: argparse.Namespace) -> int:

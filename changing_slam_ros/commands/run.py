@@ -1,6 +1,7 @@
 """`changing-slam run SOURCE --out DIR [--config YAML]`: the SLAM pipeline offline, every frame processed.
 
-    changing-slam run SOURCE --out DIR [--config NAME|FILE] [--max-frames N] [--no-loop] [--no-plot] [--quiet]
+    changing-slam run SOURCE --out DIR [--config NAME|FILE] [--start-frame N] [--max-frames N] [--no-loop]
+        [--no-plot] [--quiet]
         [--map-in PREVIOUS/map.npz] [--detections none|model|oracle] [--detections-file FILE] [--no-dynamic]
         [--strict] [--serial] [ablation switches]
 (dynamic-scene options: see `commands/dynamic_options.py`).
@@ -10,6 +11,8 @@ receives the trajectories, keyframes, the map (`map.npz`), metrics and timing (s
 `--map-in PREVIOUS/map.npz` the run continues a saved map (multi-session; see `multi_session_summary`). With the object layer
 on, a `--map-in` run ends with the "what changed" report against the loaded map (`changes.json`,
 `changes.png`; `commands/changes.py`), one printed line per change and its counts in metrics.json `changes`.
+`--start-frame N` skips the source's first N frames and numbers the rest from 0, as a later session's own
+recording would be: with `--map-in` a recording cut in two replays as two sessions.
 The run is deterministic for a given config (single-threaded OpenCV, seeded RNG, frames in order, each frame
 tracked with its own detections whether the detector runs ahead on its own thread or, `--serial`, in turn).
 """
@@ -17,6 +20,7 @@ tracked with its own detections whether the detector runs ahead on its own threa
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -36,6 +40,7 @@ from changing_slam_ros.commands.objects_options import (
 from changing_slam_ros.config import load_config, section
 from changing_slam_ros.core.slam.local_mapping import MappingConfig
 from changing_slam_ros.core.features.orb_features import FeatureConfig
+from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.core.slam.tracking import TrackingConfig
 from changing_slam_ros.core.slam.localization import Mode
@@ -60,6 +65,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", metavar="SOURCE", help="TUM-layout folder, ROS 1/2 bag or mcap file")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     parser.add_argument("--config", metavar="NAME|FILE", help="config YAML (sections camera, dataset, features, tracking, mapping, loop)")
+    parser.add_argument("--start-frame", type=int, default=0, metavar="N", help="skip the first N frames of "
+                        "SOURCE (0 = none); the frames read are numbered from 0, like a recording of their own")
     parser.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N frames (0 = all)")
     parser.add_argument("--no-loop", action="store_true", help="disable loop closing")
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
@@ -117,9 +124,13 @@ def main(args: argparse.Namespace) -> int:
     config = system_config_from_mapping(data, where)
     if args.localization and not args.map_in:
         raise ConfigError("--localization needs --map-in: the map to localise in")
+    if args.start_frame < 0:
+        raise ConfigError(f"--start-frame {args.start_frame}: expected a frame count >= 0")
     loaded = load_map(args.map_in) if args.map_in else None  # a bad map fails before any frame is read
     skips = SkipLog()
     source = open_dataset(args.source, settings, strict=args.strict, on_skip=skips.add)
+    if args.start_frame >= len(source):
+        raise ConfigError(f"--start-frame {args.start_frame}: {args.source} has {len(source)} frames")
     out_dir = OutputDir.prepare(args.out, "--out")  # checked (and staged) before the first frame
     mismatches = camera_mismatches(source, loaded, args.map_in)
     for mismatch in mismatches:  # said before the first frame, recorded in metrics.json at the end
@@ -177,11 +188,13 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
                               Mode.LOCALIZATION if args.localization else Mode.MAPPING)
     loops = LoopLog()
 
-    n_total = len(source) if not args.max_frames else min(args.max_frames, len(source))
+    n_left = len(source) - args.start_frame
+    n_total = n_left if not args.max_frames else min(args.max_frames, n_left)
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # every thread of this process: the reader, OpenCV, the detector's
     overlap = not args.serial and dynamic.detector is not None
-    with FramePipeline(source, n_total, dynamic.detections_for, overlap=overlap) as frames:
+    with FramePipeline(frames_from(source, args.start_frame), n_total, dynamic.detections_for,
+                       overlap=overlap) as frames:
         for rgbd, detections in _progress(frames, n_total, args.quiet):
             if system.process(rgbd, detections).loop_corrected:
                 loops.record(closing, system)
@@ -370,6 +383,21 @@ def _loop_closing(data: dict[str, Any], where: str) -> Any:
     if not cfg.enabled:
         return None
     return SlamMapLoopClosing(LoopCloser(cfg, Vocabulary.load()))
+
+
+def frames_from(source: Any, start: int) -> Iterator[RgbdFrame]:
+    """The frames of `source` from index `start` on, renumbered from 0 (tracking counts frames by index: a
+    keyframe's age, the frame before). A source that reads frames by index (`frame(i)`, a TUM folder) skips
+    the first ones unread; a bag is read through and its earlier frames dropped by their own index, so a
+    skipped malformed message does not shift the cut."""
+    if start == 0:
+        yield from source
+        return
+    by_index = getattr(source, "frame", None)
+    frames = (by_index(i) for i in range(start, len(source))) if callable(by_index) else iter(source)
+    for frame in frames:
+        if frame.index >= start:
+            yield dataclasses.replace(frame, index=frame.index - start)
 
 
 def _progress(frames: Iterable[T], total: int, quiet: bool) -> Iterator[T]:

@@ -5,7 +5,8 @@ object-placing alignment of `changing-slam run`), turned into the semantic map t
 `semantic_min_belief`: the active objects a subscriber sees), and matched one to one to the objects present
 at the end of the last lap (`score_semantic_map`: recall, precision, stale and spurious objects). Camera ATE
 comes from the run's metrics.json, against the control run's (the seed rendered without changes). Each
-missed object gets a reason (`missed_reasons`).
+missed object gets a reason (`missed_reasons`). With the two-session mode a seed also carries the score of its
+change report (`eval/change_sessions.py`, `eval/change_scores.py`), summarised under `changes`.
 """
 
 from __future__ import annotations
@@ -15,13 +16,17 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig
 from changing_slam_ros.core.objects.semantic_map import SemanticObject
 from changing_slam_ros.errors import EvalError
+
+if TYPE_CHECKING:
+    from changing_slam_ros.eval.change_sessions import SessionResult
 
 F64 = npt.NDArray[np.float64]
 MAX_DISTANCE_M = 0.3
@@ -251,15 +256,18 @@ class SeedResult:
     changes: tuple[str, ...] = ()
     error: str = ""
     missed_reasons: tuple[tuple[str, str], ...] = ()  # (ground-truth name, reason), see `missed_reasons`
+    sessions: SessionResult | None = None  # the change report of the two-session runs, when they ran
 
     @property
     def ate_ratio(self) -> float:
         return self.ate_m / self.control_ate_m if self.control_ate_m > 0 else math.nan
 
     def to_dict(self) -> dict[str, Any]:
-        d = {k: v for k, v in asdict(self).items() if k != "score"}
+        d = {k: v for k, v in asdict(self).items() if k not in ("score", "sessions")}
         d["ate_ratio"] = self.ate_ratio
         d["score"] = None if self.score is None else self.score.to_dict()
+        if self.sessions is not None:
+            d["sessions"] = self.sessions.to_dict()
         return d
 
 
@@ -274,7 +282,7 @@ def summarise(results: Sequence[SeedResult]) -> dict[str, Any]:
     s = [r.score for r in scored if r.score is not None]
     present = sum(x.n_present for x in s)
     active = sum(x.n_active for x in s)
-    return {
+    out = {
         "seeds": len(results), "scored": len(scored), "failed": [r.seed for r in results if r.score is None],
         "recall_mean": mean([x.recall for x in s]), "precision_mean": mean([x.precision for x in s]),
         "recall_pooled": sum(x.n_matched_present for x in s) / present if present else math.nan,
@@ -296,6 +304,14 @@ def summarise(results: Sequence[SeedResult]) -> dict[str, Any]:
             "no_wrong_loop": sum(r.wrong_loops == 0 for r in results),
         },
     }
+    sessions = [r.sessions for r in results if r.sessions is not None]
+    if sessions:
+        from changing_slam_ros.eval.change_scores import summarise_change_scores
+
+        out["changes"] = summarise_change_scores([x.score for x in sessions if x.score is not None])
+        out["changes"]["failed"] = [x.seed for x in sessions if x.score is None]
+        out["changes"]["not_relocalised"] = [x.seed for x in sessions if x.relocalised is False]
+    return out
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -308,22 +324,28 @@ def _read_json(path: Path) -> dict[str, Any]:
     return doc
 
 
+def run_association_config(run_dir: Path) -> ObjectMapConfig:
+    """The object-association settings of the config a run used (metrics.json `config`; the defaults when it
+    used none): the semantic map's belief and point thresholds."""
+    from changing_slam_ros.config import find_config, load_yaml
+    from changing_slam_ros.core.objects.object_layer import object_layer_config
+
+    config = str(_read_json(run_dir / "metrics.json").get("config", "defaults"))
+    data = {} if config == "defaults" else load_yaml(find_config(config))
+    return object_layer_config(data.get("objects"), f"{config}: objects").association
+
+
 def run_semantic_map(scene_dir: Path, run_dir: Path, include_inactive: bool = False) -> list[SemanticObject]:
     """The run's semantic map in the ground-truth frame: its MapObjects moved by the run's object-placing
     trajectory alignment, selected and boxed with the object-map settings of the run's config (with
     `include_inactive`, also the objects whose belief keeps them out of it)."""
     from changing_slam_ros.eval.object_alignment import aligned_objects, aligned_planes, trajectory_alignment
-    from changing_slam_ros.config import find_config, load_yaml
-    from changing_slam_ros.core.objects.object_layer import object_layer_config
     from changing_slam_ros.core.objects.semantic_map import build_semantic_map
     from changing_slam_ros.errors import SlamError
     from changing_slam_ros.io.semantic_map_file import read_object_map_file
     from changing_slam_ros.io.tum_trajectory import read_tum_trajectory
 
-    metrics = _read_json(run_dir / "metrics.json")
-    config = str(metrics.get("config", "defaults"))
-    data = {} if config == "defaults" else load_yaml(find_config(config))
-    cfg = object_layer_config(data.get("objects"), f"{config}: objects").association
+    cfg = run_association_config(run_dir)
     try:
         gt = read_tum_trajectory(scene_dir / "groundtruth.txt")
         est = read_tum_trajectory(run_dir / "trajectory.txt")
