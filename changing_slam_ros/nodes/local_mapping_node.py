@@ -9,6 +9,18 @@ published the same way, so tracking's and loop closing's replicas follow this ma
 and loads whole maps (`map_out`, `map_file`, ~/save_map, ~/load_map: `nodes/map_load.py`) and gets the map
 back from tracking after a restart (`nodes/map_resync.py`).
 Topics, services, parameters and the ordering rules: docs/nodes.md#local_mapping.
+
+With `wait_for_loop_results` every mapped keyframe gets loop closing's verdict before the next is mapped, also
+when loop_closing restarts: its replica then comes from tracking's, which may hold the awaited keyframe
+already, and the update that asked for the verdict went to the process that died (or out before the new one
+subscribed). A loop_closing announces on the latched /loop_closing/ready when its map is in place; while a
+verdict is awaited, each announcement makes this node send that keyframe's update again on
+~/verdict_requests, once a second until the verdict comes (a request may go out before the new process's
+subscription is matched; loop_closing answers a keyframe once and drops repeats). The new process decides the
+keyframe on its restored map (see nodes/loop_closing_node.py), so the verdict is a real loop check, and
+neither the mapping of the next keyframe nor the stop waits for a verdict that would never come. Without
+`wait_for_loop_results` (real time) nothing is awaited, and keyframes a restarted loop_closing restored go
+unchecked.
 """
 
 from __future__ import annotations
@@ -27,6 +39,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
+from std_msgs.msg import Header
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_msgs.msg import LoopCorrection, MapObjectArray, MapUpdate, ObjectStateArray
@@ -112,6 +125,8 @@ class LocalMappingNode(Node):
         # meanwhile: real time, MapOwner.on_merge)
         self.merges_skipped = 0
         self.awaiting_loop_for = -1  # keyframe id whose loop verdict the next keyframe waits for
+        self._awaited_update: MapUpdate | None = None  # its update, sent again to a restarted loop_closing
+        self.verdict_requests = 0  # updates sent again on ~/verdict_requests (see the module doc)
         self.queue: deque[KeyframePacket] = deque()
         self.process_ms: list[float] = []
         self.process_cpu_ms: list[float] = []  # process CPU time per keyframe (load-independent)
@@ -130,7 +145,9 @@ class LocalMappingNode(Node):
         self.loop_sub = self.create_subscription(LoopCorrection, "/loop_closing/loop_corrections",
                                                  self.on_loop_correction, keyframe_qos)  # fmt: skip
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
+        self.create_subscription(Header, "/loop_closing/ready", self.on_loop_closing_ready, LATCHED)
         self.update_pub = self.create_publisher(MapUpdate, "~/map_updates", keyframe_qos)
+        self.verdict_request_pub = self.create_publisher(MapUpdate, "~/verdict_requests", keyframe_qos)
         self.semantic_pub = self.create_publisher(MapObjectArray, "~/semantic_map", LATCHED)
         self.candidate_pub = self.create_publisher(MapObjectArray, "~/object_candidates", output_qos)
         self.cloud_pub = self.create_publisher(PointCloud2, "~/map_cloud", output_qos)
@@ -145,6 +162,9 @@ class LocalMappingNode(Node):
         # Retries a queue that cannot be mapped yet (map resync, update subscribers); armed only while the queue
         # holds something: every executor wake-up costs ~0.5-1 ms of CPU, and 10 a second for nothing add up.
         self._drain_timer = self.create_timer(0.1, self._drain, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # Repeats a verdict request until the verdict comes; armed only then (see the module doc).
+        self._request_timer = self.create_timer(1.0, self._request_verdict, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._request_timer.cancel()
         self.create_service(SaveMap, "~/save_map", self.on_save_map)
         self.create_service(LoadMap, "~/load_map", self.on_load_map)
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
@@ -219,8 +239,30 @@ class LocalMappingNode(Node):
             return
         self.apply_loop(result, msg.header.stamp)
         if result.query_kf_id == self.awaiting_loop_for:
-            self.awaiting_loop_for = -1
+            self._stop_awaiting()
         self._drain()
+
+    def on_loop_closing_ready(self, msg: Header) -> None:
+        """A loop_closing has its map: if a verdict is awaited, its update goes to it again (see the module doc)."""
+        if self.awaiting_loop_for < 0 or self._awaited_update is None:
+            return
+        self.get_logger().info(f"local_mapping: {msg.frame_id or 'loop_closing'} is ready; asking it for the "
+                               f"verdict on keyframe {self.awaiting_loop_for}")  # fmt: skip
+        self._request_verdict()
+        if self._request_timer.is_canceled():
+            self._request_timer.reset()
+
+    def _request_verdict(self) -> None:
+        if self.awaiting_loop_for < 0 or self._awaited_update is None:
+            self._request_timer.cancel()
+            return
+        self.verdict_requests += 1
+        self.verdict_request_pub.publish(self._awaited_update)
+
+    def _stop_awaiting(self) -> None:
+        self.awaiting_loop_for = -1
+        self._awaited_update = None
+        self._request_timer.cancel()
 
     def on_object_states(self, msg: ObjectStateArray) -> None:
         pass  # beliefs and active flags are the object layer's, which runs here (see the module doc)
@@ -279,7 +321,7 @@ class LocalMappingNode(Node):
         self.owner = owner
         self._set_ba_stop()
         self.queue.clear()  # keyframes of the replaced map
-        self.awaiting_loop_for = -1
+        self._stop_awaiting()
         if not self.resync.ready:
             self.resync.skip()
         marker = LoadMarker(max(time.time_ns(), self.epochs.epoch_ns + 1), str(path))
@@ -344,9 +386,11 @@ class LocalMappingNode(Node):
             return
         th1 = time.thread_time()
         frame = self.params["map_frame"]
-        self.update_pub.publish(update_to_msg(update, kf.stamp_ns, frame))
+        update_msg = update_to_msg(update, kf.stamp_ns, frame)
+        self.update_pub.publish(update_msg)
         if self.params["wait_for_loop_results"]:
             self.awaiting_loop_for = kf.id
+            self._awaited_update = update_msg
         if update.objects_ran:
             self._publish_semantic_map(kf.stamp_ns)
         self._publish_cloud(kf.stamp_ns)
@@ -410,6 +454,7 @@ class LocalMappingNode(Node):
             "map_points": int(self.owner.atlas.current.points.usable().sum()),
             "keyframes_in_map": self.owner.atlas.n_keyframes, "restored_keyframes": self.resync.restored_keyframes,
             "map_loads": self.loads, "dropped_before_load": self.epochs.dropped, "ba_stopped_early": self.ba_stops,
+            "verdict_requests": self.verdict_requests,
         }  # fmt: skip
         out.update(self.grid.stats())
         out.update(summarise_ms(self.process_ms, "keyframe"))

@@ -37,9 +37,10 @@ SNAPSHOT_QOS = QoSProfile(depth=1000)  # reliable: a snapshot is every keyframe 
 
 class ResyncClient:
     def __init__(self, node: Node, on_restore: Callable[[list[Keyframe], MapDelta], None], period_s: float = 1.0,
-                 give_up_s: float = 20.0) -> None:  # fmt: skip
+                 give_up_s: float = 20.0, on_ready: Callable[[], None] | None = None) -> None:  # fmt: skip
         self.node = node
         self.on_restore = on_restore
+        self.on_ready = on_ready  # called once, when `ready` turns True (restored, started empty or skipped)
         self.ready = False
         self.restored_keyframes = 0
         self.restored_maps = 0
@@ -66,9 +67,13 @@ class ResyncClient:
         self._finish()
 
     def _finish(self) -> None:
+        if self.ready:
+            return
         self.ready = True
         self._timer.cancel()
         self._keyframes.clear()
+        if self.on_ready is not None:
+            self.on_ready()
 
     def _on_keyframe(self, msg: KeyframeMsg) -> None:
         if self.ready:

@@ -546,6 +546,14 @@ class LoopSide:
             return LoopResult(kf.id, False)
         return self._close(kf, m)
 
+    def decide_restored(self, kf_id: int) -> LoopResult:
+        """The verdict on a keyframe that came in a restore instead of through its update: `restore` put it in the
+        database as its update would have, so loop closing runs on it as `on_update` would."""
+        for m in self.atlas.maps:
+            if kf_id in m.keyframes:
+                return self._close(m.keyframes[kf_id], m)
+        return LoopResult(kf_id, False)  # culled since: answered as `on_update` answers one
+
     def _apply_merge(self, update: MapUpdate) -> None:
         """The owner's merged map; keyframes inserted here whose update has not come (real time: the owner maps
         their late packets in the merged map, moved the same way) go into it again, expressed in it."""

@@ -52,14 +52,15 @@ class ReplicaInputs:
 
     def _resend_unmapped(self, asker: str) -> None:
         """After a map snapshot: keyframes sent but not mapped (local_mapping was down) go out again. A restarted
-        loop_closing has the keyframe whose verdict the held ack waits for in its snapshot, and checks no loop for
-        a keyframe it restored: that verdict will not come, and the ack goes without it (its loop check skipped)."""
+        loop_closing has the keyframe whose verdict the held ack waits for in its snapshot, and decides a restored
+        keyframe only when local_mapping asks for it (`wait_for_loop_results`, nodes/local_mapping_node.py), which
+        tracking cannot tell: the ack goes without that verdict, which reaches the map when it comes."""
         for packet in self.split.resend():
             self._send_packet(packet, resend=True)
         a = self._awaiting
         if asker == "loop_closing" and a is not None and not a["verdict"]:
             self.get_logger().warning(f"tracking: keyframe {a['kf']} went to loop_closing in its map snapshot; "
-                                      "no loop check of it")  # fmt: skip
+                                      "its frame is acknowledged without the loop verdict")  # fmt: skip
             self._settle(verdict=a["kf"])
 
     def on_loop_correction(self, msg: LoopCorrection) -> None:
