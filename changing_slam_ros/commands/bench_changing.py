@@ -8,9 +8,9 @@ against the last lap (`eval/changing_bench.py`). A line per seed and a summary a
 is rewritten after every finished seed and OUT/changing_bench.png plots the figures. Tuning seeds 0-9,
 evaluation seeds 200-229.
 
-With `--sessions` the seed's render is also cut before its first change and run as two sessions (session 1:
-`--max-frames K` into s<seed>_session1; session 2: `--start-frame K --map-in` session 1's map into
-s<seed>_session2), and session 2's change report is scored against the truth's changes
+With `--sessions` the seed's render is also cut before its first change and run as two sessions (the first session:
+`--max-frames K` into s<seed>_session1; the second session: `--start-frame K --map-in` the first session's map into
+s<seed>_session2), and the second session's change report is scored against the truth's changes
 (`eval/change_sessions.py`): one more line per seed with each verdict against the truth, and the change-report
 figures in the summary. It is an option because it adds two runs that together cover the render once (about
 half the benchmark's time again, the control included); the single-run figures do not depend on it.
@@ -62,7 +62,7 @@ def bench_seed(args: argparse.Namespace, seed: int, cache: Path) -> SeedResult:
 
 
 def bench_sessions(seed: int, scene: Path, runs: Path, extra: tuple[str, ...], reuse: bool) -> SessionResult:
-    """Run the render as two sessions cut before its first change and score session 2's change report."""
+    """Run the render as two sessions cut before its first change and score the second session's change report."""
     from changing_slam_ros.eval.seed_bench import run_slam
 
     split, frames = 0, 0
@@ -101,7 +101,7 @@ def format_sessions(r: SessionResult) -> str:
         return f"{head}  failed: {r.error}"
     s = r.score
     if r.relocalised is not None:
-        head += "  relocalised" if r.relocalised else "  NOT relocalised in session 1's map"
+        head += "  relocalised" if r.relocalised else "  NOT relocalised in the first session's map"
     verdicts = []
     for i, t in enumerate(s.truths):
         j = s.truth_match[i]

@@ -1,11 +1,11 @@
 """Scoring a "what changed" report against the changing-room ground truth's list of changes.
 
-Two sessions of one render: session 1 ends before the first change (`session_split`), session 2 continues its
-map over the remaining frames, and the report compares session 1's objects with session 2's. The ground truth's
-changes become the verdicts a report should state (`truth_changes`): `moved_short` and `moved_long` one move,
-`swapped` two moves (one per object, as `compare_maps` reports a swap of two classes), `removed` and `added`
-one each, `replaced` one replacement (the removed object's class and place, the new object's class and place).
-Places are box centres in the ground-truth frame: at the start for the earlier side (no change happens before
+Two sessions of one render: the first session ends before the first change (`session_split`), the second session
+continues its map over the remaining frames, and the report compares the first session's objects with the second
+session's. The ground truth's changes become the verdicts a report should state (`truth_changes`): `moved_short` and
+`moved_long` one move, `swapped` two moves (one per object, as `compare_maps` reports a swap of two classes), `removed`
+and `added` one each, `replaced` one replacement (the removed object's class and place, the new object's class and
+place). Places are box centres in the ground-truth frame: at the start for the earlier side (no change happens before
 the split), at the end of the last lap for the later side (an object changes at most once).
 
 `score_changes` matches reported changes to these, per kind, one to one and nearest first: the same kind, and
@@ -15,16 +15,16 @@ biased towards the camera by up to half the object's depth) of the truth's place
 displacement error is |reported distance - true distance|, and the place error the distance from the reported
 new position to the true one; both are held to `DISPLACEMENT_TOLERANCE_M`.
 
-A change can only be reported when the map holds its objects: the earlier object in session 1's map, the
-later one in session 2's. Each truth says whether it was `mapped_before` (a present session-1 object of its
+A change can only be reported when the map holds its objects: the earlier object in the first session's map, the
+later one in the second session's. Each truth says whether it was `mapped_before` (a present session-1 object of its
 class within twice the radius of its old place, `mapped_reach`: an object mapped but misplaced is mapped, and
-its miss is the map's, not the detector's; vacuous for an addition) and `mapped_after` (likewise in session 2's
+its miss is the map's, not the detector's; vacuous for an addition) and `mapped_after` (likewise in the second session's
 map at its new place), so recall comes over all truths, over those mapped before, and over those mapped on both
 sides: the last separates what the change logic and the map's accuracy got wrong from what the detector never
 named. A missed truth's reason (MISS_REASONS, first that applies): not mapped before, not mapped after, `off`
 (a report of its kind and classes within the mapped reach but beyond the radius), `other_kind` (an unmatched
 report of another kind with an object of its class within the mapped reach), else not reported. A reported addition of
-an object that was in the room all along but that session 1 never mapped (the first lap's frames before the
+an object that was in the room all along but that the first session never mapped (the first lap's frames before the
 split show part of the room only, and the detector misses some views) is `first_seen`: right from the map's
 point of view, a change of the room only in the truth's, so it counts for neither precision nor recall.
 """
@@ -157,7 +157,7 @@ def truth_changes(truth: ChangingTruth, until_s: float = math.inf) -> list[Truth
 
 
 def session_split(change_times_s: Sequence[float], frame_times_s: Sequence[float]) -> int:
-    """How many frames session 1 gets: those before the first change (frame times from the first frame, s).
+    """How many frames the first session gets: those before the first change (frame times from the first frame, s).
 
     EvalError when there is no change, no frame before the first change, or no frame after it (a render cut
     before the first change)."""
@@ -174,9 +174,9 @@ def session_split(change_times_s: Sequence[float], frame_times_s: Sequence[float
 @dataclass(frozen=True)
 class ChangeScore:
     """One seed's report against its truths. `truth_match[i]`: the index of the report matched to truth i (None:
-    missed) and `miss_reasons[i]` why (MISS_REASONS, "" when matched); `mapped_before` / `mapped_after[i]`: whether
-    the maps held truth i's objects; `first_seen`: indices of reported additions of objects that were there all
-    along but not in session 1's map; `moves`: per matched move (truth index, displacement error m, place error m)."""
+    missed) and `miss_reasons[i]` why (MISS_REASONS, "" when matched); `mapped_before` / `mapped_after[i]`: whether the
+    maps held truth i's objects; `first_seen`: indices of reported additions of objects that were there all along but
+    not in the first session's map; `moves`: per matched move (truth index, displacement error m, place error m)."""
 
     truths: tuple[TruthChange, ...]
     reported: tuple[ReportedChange, ...]
@@ -249,8 +249,8 @@ def score_changes(reported: Sequence[ReportedChange], truths: Sequence[TruthChan
                   mapped_after: Sequence[Side], present_at_split: Sequence[Side] = (),
                   radius_m: float = PLACE_RADIUS_M) -> ChangeScore:
     """Match `reported` to `truths` (see the module doc). `mapped_before` / `mapped_after`: the present objects of
-    session 1's and session 2's maps (ground-truth frame); `present_at_split`: the truth objects in the room at the
-    split and left unchanged, each at its place (for first-seen additions)."""
+    the first and the second session's maps (ground-truth frame); `present_at_split`: the truth objects in the room
+    at the split and left unchanged, each at its place (for first-seen additions)."""
     pairs = sorted((d, i, j) for i, t in enumerate(truths) for j, r in enumerate(reported)
                    if (d := _agreement(t, r, radius_m)) is not None)
     match: list[int | None] = [None] * len(truths)
@@ -276,7 +276,7 @@ def score_changes(reported: Sequence[ReportedChange], truths: Sequence[TruthChan
             reasons.append("other_kind")
         else:
             reasons.append("not_reported")
-    # An unmatched addition where an object stood all along (unchanged, or a truth whose earlier side session 1
+    # An unmatched addition where an object stood all along (unchanged, or a truth whose earlier side the first session
     # never mapped) is the map seeing it for the first time.
     there = list(present_at_split) + [t.after for i, t in enumerate(truths) if t.after is not None and not before[i]]
     first_seen = tuple(j for j, r in enumerate(reported) if j not in used and r.kind == "added"

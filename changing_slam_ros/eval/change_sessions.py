@@ -1,12 +1,13 @@
-"""One seed's two sessions read back and scored: where the render is cut, the report session 2 wrote, and the
+"""One seed's two sessions read back and scored: where the render is cut, the report the second session wrote, and the
 objects each session's map holds, all moved into the ground-truth frame for `change_scores.score_changes`.
 
-Session 1 runs the frames before the first change (`changing-slam run --max-frames K`), session 2 the rest
-from session 1's map (`--start-frame K --map-in S1/map.npz`) and ends with the run's own change report
-(`changes.json`: session 1's objects as loaded against session 2's). Each side of a reported change is moved
-into the ground-truth frame by the alignment of the session that mapped it: the earlier object by session 1's
-trajectory, the later by session 2's (which is in session 1's map frame once it relocalised, and follows any
-correction session 2 made to that map). The reported distance stays the report's own, measured in the map.
+The first session runs the frames before the first change (`changing-slam run --max-frames K`), the second session the
+rest from the first session's map (`--start-frame K --map-in S1/map.npz`) and ends with the run's own change report
+(`changes.json`: the first session's objects as loaded against the second session's). Each side of a reported change is
+moved into the ground-truth frame by the alignment of the session that mapped it: the earlier object by the first
+session's trajectory, the later by the second session's (which is in the first session's map frame once it relocalised,
+and follows any correction the second session made to that map). The reported distance stays the report's own, measured
+in the map.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ F64 = npt.NDArray[np.float64]
 
 @dataclass(frozen=True)
 class SessionResult:
-    """One seed's sessions: the cut (`split_frame` of `frames`), whether session 2 relocalised in session 1's map
-    (None when unknown), the score (None when a session failed: `error`)."""
+    """One seed's sessions: the cut (`split_frame` of `frames`), whether the second session relocalised in the first
+    session's map (None when unknown), the score (None when a session failed: `error`)."""
 
     seed: int
     split_frame: int
@@ -58,7 +59,7 @@ def frame_times_s(scene_dir: Path) -> list[float]:
 
 
 def split_of(scene_dir: Path) -> tuple[int, int, ChangingTruth]:
-    """(frames of session 1, frames of the render, the truth) of a render with changes."""
+    """(frames of the first session, frames of the render, the truth) of a render with changes."""
     truth = load_changing_truth(Path(scene_dir) / "changing_truth.json")
     times = frame_times_s(scene_dir)
     return session_split([float(c["t_s"]) for c in truth.changes], times), len(times), truth
@@ -120,7 +121,7 @@ def present_objects(run_dir: Path, T: F64) -> list[Side]:
 
 def score_sessions(seed: int, scene_dir: Path, first: Path, second: Path,
                    radius_m: float = PLACE_RADIUS_M) -> SessionResult:
-    """Score session 2's change report (`second`/changes.json) against the truth's changes in the render."""
+    """Score the second session's change report (`second`/changes.json) against the truth's changes in the render."""
     split, n_frames, truth = split_of(scene_dir)
     metrics = json.loads((Path(second) / "metrics.json").read_text())
     relocalised = metrics.get("multi_session", {}).get("relocalised")

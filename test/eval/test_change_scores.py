@@ -84,7 +84,7 @@ def test_one_report_of_each_kind_scores_exact_precision_recall_and_move_errors()
         ReportedChange("moved", b[1], a[1], 3.9),     # the swap: plant_b, 10 cm short
         ReportedChange("moved", b[4], a[4], 4.35),    # and chair_f: 35 cm long, new place 25 cm off
         ReportedChange("removed", b[5], None),        # the couch never left: false
-        ReportedChange("added", None, a[5]),          # suitcase_g, there all along, unseen by session 1
+        ReportedChange("added", None, a[5]),          # suitcase_g, there all along, unseen by the first session
         ReportedChange("added", None, _s("12", 56, (0, -2, 0.5))),  # nothing there: false
     ]
     s = score_changes(reported, truth_changes(_truth()), b, a, _unchanged())
@@ -126,7 +126,7 @@ def test_a_wrong_class_or_a_place_beyond_the_radius_is_no_match() -> None:
 
 
 def test_an_object_mapped_within_twice_the_radius_counts_as_mapped() -> None:
-    """Session 1 mapped suitcase_c 0.5 m off and session 2 the tv 0.7 m off: mapped before, not mapped after."""
+    """The first session mapped suitcase_c 0.5 m off and the second the tv 0.7 m off: mapped before, not after."""
     b = [_s("3", 28, (0.5, 2, 0.35))]
     a = [_s("9", 62, (3, 0.7, 1.0))]
     s = score_changes([], truth_changes(_truth())[1:3], b, a)
@@ -135,7 +135,7 @@ def test_an_object_mapped_within_twice_the_radius_counts_as_mapped() -> None:
 
 
 def test_recall_is_split_by_what_the_maps_held_and_misses_say_why() -> None:
-    """suitcase_c never mapped by session 1; plant_b not mapped at its new place; chair_a reported as a removal
+    """suitcase_c never mapped by the first session; plant_b not mapped at its new place; chair_a reported as a removal
     and an addition; the tv mapped but not reported. chair_a's move is all the change logic could have got."""
     b = [o for o in _mapped_before() if o.label != "3"]
     a = [o for o in _mapped_after() if o.label != "2"]
@@ -207,7 +207,7 @@ def test_a_written_report_reads_back_with_each_side_in_its_sessions_frame(tmp_pa
 
 
 def test_a_family_seeds_truth_splits_before_its_change_and_lists_the_move(tmp_path) -> None:
-    """Seed 2: one chair moved 1.2-4.5 m at 34.5 s (5 frames per second): session 1 gets frames 0-172."""
+    """Seed 2: one chair moved 1.2-4.5 m at 34.5 s (5 frames per second): the first session gets 0-172."""
     from changing_slam_ros.eval.changing_bench import load_changing_truth
     from changing_slam_ros.sim.random_changing import random_changing
 
@@ -235,13 +235,13 @@ def test_the_bench_prints_and_writes_each_seeds_verdicts_and_the_change_summary(
     results = [SeedResult(1, None, 0, 0, math.nan, math.nan, 0, 0, error="x",
                           sessions=SessionResult(1, 150, 400, True, score)),
                SeedResult(2, None, 0, 0, math.nan, math.nan, 0, 0, error="y",
-                          sessions=failed_sessions(2, "session 2: exit 1", 100, 300))]
+                          sessions=failed_sessions(2, "second session: exit 1", 100, 300))]
     lines = format_seed(results[0]).splitlines()
     assert lines[1].startswith("seed    1  sessions 150+250 frames  relocalised  truth: moved_long chair chair_a 2.00 m: "
                                "ok (distance off 0.05 m, place off 0.10 m); removed suitcase suitcase_c: missed "
                                "(not_reported);")
     assert lines[1].endswith("other reports: removed couch #7 (false)")
-    assert format_seed(results[1]).splitlines()[1] == "seed    2  sessions 100+200 frames  failed: session 2: exit 1"
+    assert format_seed(results[1]).splitlines()[1] == "seed    2  sessions 100+200 frames  failed: second session: exit 1"
     s = summarise(results)
     assert s["changes"]["seeds"] == 1 and s["changes"]["failed"] == [2]
     assert s["changes"]["kinds"]["moved"]["recall"] == pytest.approx(1 / 3)
@@ -254,8 +254,8 @@ def test_the_bench_prints_and_writes_each_seeds_verdicts_and_the_change_summary(
 
 @pytest.mark.slow
 def test_bench_changing_with_sessions_runs_and_scores_a_small_seed(tmp_path, capsys) -> None:
-    """Seed 2 at 320x240, its first 190 frames, no control: session 1 gets the 173 frames before the chair moves,
-    session 2 the other 17 from its map; the JSON and the printed lines carry the sessions (a render and three
+    """Seed 2 at 320x240, its first 190 frames, no control: the first session gets the 173 frames before the chair
+    moves, the second the other 17 from its map; the JSON and the printed lines carry the sessions (a render and three
     runs: 90 s on two busy cores)."""
     import json as json_
 
@@ -266,7 +266,7 @@ def test_bench_changing_with_sessions_runs_and_scores_a_small_seed(tmp_path, cap
                  "--no-control", "--sessions", "--out", str(out), "--cache", str(tmp_path / "cache")]) == 0
     doc = json_.loads((out / "changing_bench.json").read_text())
     sessions = doc["per_seed"][0]["sessions"]
-    assert doc["sessions"] is True and (sessions["split_frame"], sessions["frames"]) == (173, 190)
+    assert doc["sessions"] is True and [sessions["split_frame"], sessions["frames"]] == [173, 190]
     assert sessions["error"] == "" and sessions["relocalised"] is True
     assert [t["truth_kind"] for t in sessions["score"]["truths"]] == ["moved_long"]
     assert doc["summary"]["changes"]["kinds"]["moved"]["truths"] == 1
