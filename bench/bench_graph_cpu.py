@@ -53,11 +53,9 @@ def _children(pid: int) -> dict[str, int]:
     return out
 
 
-def run_graph(tree: Path, bag: str, out: Path, config: str, lossless: bool, extra: tuple[str, ...] = ()) -> dict:
-    """One graph run from `tree` (`extra`: more `graph` options); returns its graph_summary.json plus
-    `play_cpu_s` (node -> CPU s)."""
-    argv = [sys.executable, "-m", "changing_slam_ros", "graph", bag, "--out", str(out), "--config", config]
-    argv += (["--lossless"] if lossless else []) + list(extra)
+def start_graph(argv: list[str], tree: Path) -> tuple[subprocess.Popen, threading.Event, list[str], threading.Thread]:
+    """Start `changing-slam graph` (`argv`) from `tree`; a thread collects its output lines into the returned list
+    and sets the event once the graph says it is up and playing."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     proc = subprocess.Popen(argv, cwd=tree, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     playing = threading.Event()
@@ -72,6 +70,15 @@ def run_graph(tree: Path, bag: str, out: Path, config: str, lossless: bool, extr
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
+    return proc, playing, log, reader
+
+
+def run_graph(tree: Path, bag: str, out: Path, config: str, lossless: bool, extra: tuple[str, ...] = ()) -> dict:
+    """One graph run from `tree` (`extra`: more `graph` options); returns its graph_summary.json plus
+    `play_cpu_s` (node -> CPU s)."""
+    argv = [sys.executable, "-m", "changing_slam_ros", "graph", bag, "--out", str(out), "--config", config]
+    argv += (["--lossless"] if lossless else []) + list(extra)
+    proc, playing, log, reader = start_graph(argv, tree)
     at_play: dict[str, float] = {}
     last: dict[str, float] = {}
     player_seen = player_done = False

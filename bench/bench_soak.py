@@ -18,15 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
-from bench_graph_cpu import _children
+from bench_graph_cpu import _children, start_graph
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -47,20 +44,7 @@ def run_soak(bag: str, config: str, passes: int, rate: float, out: Path, sample_
     """The graph run: its exit code, the memory samples (seconds since playback began, node -> MiB), its output."""
     argv = [sys.executable, "-m", "changing_slam_ros", "graph", bag, "--out", str(out), "--config", config,
             "--loop", str(passes), "--rate", str(rate), "--timeout", str(timeout_s)]  # fmt: skip
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen(argv, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    playing = threading.Event()
-    log: list[str] = []
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            log.append(line)
-            if "up after" in line and "playing" in line:
-                playing.set()
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    proc, playing, log, reader = start_graph(argv, REPO)
     samples: list[tuple[float, dict[str, float]]] = []
     t_play: float | None = None
     next_s = 0.0
