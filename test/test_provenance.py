@@ -96,11 +96,11 @@ def test_run_metrics_record_version_commit_and_resolved_config(tmp_path):
 
 def test_graph_summary_provenance_is_the_nodes_config_resolved(tmp_path):
     pytest.importorskip("rclpy")
-    from changing_slam_ros.commands.graph import Graph
+    from changing_slam_ros.commands.graph_outputs import graph_provenance
 
     config = str(REPO / "config" / "tum_fr1.yaml")
-    record = Graph._provenance(SimpleNamespace(config=config, args=SimpleNamespace(bag="b.mcap", rate=1.0)))
+    record = graph_provenance(config, SimpleNamespace(bag="b.mcap", rate=1.0))
     assert record["config_path"] == config and record["config"]["camera"]["fy"] == 516.5
     assert record["options"] == {"bag": "b.mcap", "rate": 1.0}
-    defaults = Graph._provenance(SimpleNamespace(config="", args=SimpleNamespace()))
+    defaults = graph_provenance("", SimpleNamespace())
     assert defaults["config_path"] == "defaults" and defaults["config"]["camera"] is None
