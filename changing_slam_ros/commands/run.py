@@ -335,7 +335,9 @@ class SessionChanges:
     def finish(self, layer: ObjectLayer, out: Path, names: tuple[str, str], no_plot: bool) -> dict[str, int]:
         """Write `changes.json` / `changes.png` to `out` and print the changes; returns the counts."""
         after = layer.objects(self.map_id)
-        report = compare_maps(self.before, [evidence_of(o, _evidence_config(layer)) for o in after])
+        # `after` is every object the continued map holds, of any belief: one missing was withdrawn, not removed
+        report = compare_maps(self.before, [evidence_of(o, _evidence_config(layer)) for o in after],
+                              absent_is_withdrawn=True)
         write_change_outputs(out, report, map_up(after), self.thumbnails, layer.saved_objects(self.map_id).thumbnails,
                              names, not no_plot)
         for line in summary_lines(report):

@@ -5,7 +5,8 @@ Layout (version 1):
     counts: {moved, removed, added, replaced, unchanged},
     changes: [{kind, class_name, from_m: [x, y, z] | null, to_m | null, distance_m | null,
                before, after, before_later: <object> | null}, ...],
-    unchanged: [{before_id, after_id, class_name, distance_m}, ...]
+    unchanged: [{before_id, after_id, class_name, distance_m}, ...],
+    withdrawn: [{before_id, class_name}, ...] (earlier objects the continued map dropped: pictures, merged)
 An <object> is {id, class_id, class_name, centroid_m, box_size_m, belief, n_points, present, first_keyframe,
 last_seen_keyframe, belief_history: [[keyframe id, belief, reason], ...], seen_keyframes: [...]}, map frame,
 metres. `read_report_objects` reads the objects of a map file (`map.npz`, with thumbnails), of an object-map
@@ -101,8 +102,9 @@ def change_report_to_dict(report: ChangeReport, before: str = "", after: str = "
     unchanged = [{"before_id": b.id, "after_id": a.id, "class_name": b.class_name,
                   "distance_m": float(np.linalg.norm(np.subtract(a.centroid_w, b.centroid_w)))}
                  for b, a in report.unchanged]
+    withdrawn = [{"before_id": b.id, "class_name": b.class_name} for b in report.withdrawn]
     return {"format": FORMAT, "version": VERSION, "before": before, "after": after, "counts": report.counts(),
-            "changes": changes, "unchanged": unchanged}
+            "changes": changes, "unchanged": unchanged, "withdrawn": withdrawn}
 
 
 def write_change_report(path: str | Path, report: ChangeReport, before: str = "", after: str = "") -> None:

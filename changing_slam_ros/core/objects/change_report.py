@@ -9,7 +9,10 @@ is the object mapped twice); (4) gone and new objects of one class pair up neare
 different classes swapped are two moves); (5) a gone object and a new one of another class within
 `replace_radius_m`: replaced; (6) the rest: removed, added. Every change carries the records it rests on: the
 earlier object, the later one, and for a gone object its own record in the later map when that map continued
-it (its belief history shows the misses that took it out).
+it (its belief history shows the misses that took it out). With `absent_is_withdrawn` (the later map continued
+the earlier and lists every object it holds, of any belief) an earlier object with no record in the later map was
+withdrawn by the map itself (found to be a picture on a wall, or merged into another), which says nothing of the
+room: it is listed as withdrawn, not removed.
 """
 
 from __future__ import annotations
@@ -64,11 +67,12 @@ class Change:
 
 @dataclass(frozen=True)
 class ChangeReport:
-    """The changes (moved, removed, added, replaced, each ordered by the earlier then the later object id) and the
-    unchanged pairs (earlier, later)."""
+    """The changes (moved, removed, added, replaced, each ordered by the earlier then the later object id), the
+    unchanged pairs (earlier, later) and the earlier objects the later map withdrew (see the module doc)."""
 
     changes: tuple[Change, ...]
     unchanged: tuple[tuple[ObjectEvidence, ObjectEvidence], ...]
+    withdrawn: tuple[ObjectEvidence, ...] = ()
 
     def of_kind(self, kind: ChangeKind) -> list[Change]:
         return [c for c in self.changes if c.kind == kind]
@@ -101,7 +105,7 @@ def _pairs(left: Sequence[ObjectEvidence], right: Sequence[ObjectEvidence], same
 
 
 def compare_maps(before: Sequence[ObjectEvidence], after: Sequence[ObjectEvidence],
-                 config: ChangeReportConfig = ChangeReportConfig()) -> ChangeReport:
+                 config: ChangeReportConfig = ChangeReportConfig(), absent_is_withdrawn: bool = False) -> ChangeReport:
     """The change report from the earlier map's objects to the later map's (see the module doc)."""
     later_of = {(a.id, a.class_id, a.first_keyframe): a for a in after}
     after_present = [a for a in after if a.present]
@@ -110,9 +114,12 @@ def compare_maps(before: Sequence[ObjectEvidence], after: Sequence[ObjectEvidenc
     gone: list[tuple[ObjectEvidence, ObjectEvidence | None]] = []  # (earlier object, its own later record)
     used: set[int] = set()  # id() of the later objects taken
     unresolved = []
+    withdrawn = []
     for b in sorted((b for b in before if b.present), key=lambda o: o.id):  # 1. the same object, continued
         twin = later_of.get((b.id, b.class_id, b.first_keyframe))
-        if twin is None:
+        if twin is None and absent_is_withdrawn:
+            withdrawn.append(b)
+        elif twin is None:
             unresolved.append(b)
         elif twin.present:
             used.add(id(twin))
@@ -156,7 +163,7 @@ def compare_maps(before: Sequence[ObjectEvidence], after: Sequence[ObjectEvidenc
     order = {k: i for i, k in enumerate(ChangeKind)}
     changes.sort(key=lambda c: (order[c.kind], -1 if c.before is None else c.before.id,
                                 -1 if c.after is None else c.after.id))
-    return ChangeReport(tuple(changes), tuple(sorted(unchanged, key=lambda p: p[0].id)))
+    return ChangeReport(tuple(changes), tuple(sorted(unchanged, key=lambda p: p[0].id)), tuple(withdrawn))
 
 
 def compare_object_maps(before: Sequence[MapObject], after: Sequence[MapObject],

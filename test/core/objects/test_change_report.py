@@ -43,6 +43,19 @@ def test_swapped_objects_of_two_classes_are_two_moves_and_a_duplicate_is_no_addi
     assert sorted((c.before.id, c.after.id) for c in report.changes) == [(0, 3), (1, 2)]
 
 
+def test_an_object_the_continued_map_withdrew_is_not_removed() -> None:
+    """A flat "plant" on a wall the second session's picture check dropped: the continued map has no record of it,
+    which says nothing about the room. Compared as independent maps, the same absence is a removal."""
+    before = [_obj(0, CHAIR, [0.0, 0.0, 2.0], 0.7), _obj(2, PLANT, [1.0, 0.0, 3.0], 0.5)]
+    after = [_obj(0, CHAIR, [0.0, 0.0, 2.0], 0.8)]
+    continued = compare_maps([evidence_of(o) for o in before], [evidence_of(o) for o in after],
+                             absent_is_withdrawn=True)
+    assert continued.counts()["removed"] == 0 and [o.id for o in continued.withdrawn] == [2]
+    assert len(continued.unchanged) == 1
+    independent = compare_maps([evidence_of(o) for o in before], [evidence_of(o) for o in after])
+    assert independent.counts()["removed"] == 1 and independent.withdrawn == ()
+
+
 def test_maps_of_separate_runs_are_matched_by_place() -> None:
     before = [_obj(0, CHAIR, [0.0, 0.0, 2.0], 0.7), _obj(1, CUP, [1.0, 0.0, 2.0], 0.7)]
     after = [_obj(7, CHAIR, [0.1, 0.0, 2.0], 0.5, 3), _obj(8, CUP, [1.0, 0.0, 3.0], 0.5, 4)]  # ids of another run
