@@ -21,13 +21,12 @@ import numpy as np
 from nav_msgs.msg import OccupancyGrid as OccupancyGridMsg
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from changing_slam_ros.core.map.occupancy_grid import GridConfig, OccupancyGrid
 from changing_slam_ros.nodes.conversions import make_header, matrix_to_pose
 from changing_slam_ros.nodes.node_help import ParamSpec
+from changing_slam_ros.nodes.qos_profiles import LATCHED
 
-GRID_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 FROM_CONFIG = -1.0
 
 GRID_PARAMETERS: tuple[ParamSpec, ...] = (
@@ -68,7 +67,7 @@ class GridOutput:
         self.period_s = float(params["grid_period_s"])
         self.frame_id = frame_id
         self.params = params
-        self.pub = node.create_publisher(OccupancyGridMsg, "~/grid", GRID_QOS)
+        self.pub = node.create_publisher(OccupancyGridMsg, "~/grid", LATCHED)
         self._last_s = -1e9
         self._stamp_ns = 0  # of the last change: the grid's header stamp
         self.pending = False  # the map changed since the last grid went out

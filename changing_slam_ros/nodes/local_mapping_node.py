@@ -37,7 +37,7 @@ import numpy as np
 from rclpy._rclpy_pybind11 import RCLError  # a publish after the context shut down
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
@@ -52,11 +52,11 @@ from changing_slam_ros.nodes.grid_output import GRID_PARAMETERS, GridOutput
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, marker_of, update_marker
 from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+from changing_slam_ros.nodes.qos_profiles import LATCHED
 from changing_slam_ros.nodes.replication_conversions import loop_result_from_msg, packet_from_msg, update_to_msg
 
 PROFILE_ENV = "CHANGING_SLAM_PROFILE_LOCAL_MAPPING"  # a path: cProfile the node's process into it (pstats file)
 KEYFRAME_QOS = QoSProfile(depth=100)  # reliable, volatile: every keyframe counts
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def points_to_cloud(positions_w: np.ndarray, stamp_ns: int, frame_id: str) -> PointCloud2:

@@ -30,7 +30,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from std_msgs.msg import Header
 
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
@@ -42,11 +42,10 @@ from changing_slam_ros.nodes.diagnostics import NodeDiagnostics, summarise_ms
 from changing_slam_ros.nodes.map_load import LoadEpochs, LoadMarker, loop_marker, marker_of
 from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+from changing_slam_ros.nodes.qos_profiles import LATCHED
 from changing_slam_ros.nodes.replication_conversions import loop_result_to_msg, packet_from_msg, update_from_msg
 
 KEYFRAME_QOS = QoSProfile(depth=100)
-# ~/ready: latched, so that a local_mapping that matches after the announcement still gets it
-READY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 LOOP_CLOSING_PARAMETERS: tuple[ParamSpec, ...] = (
@@ -94,7 +93,7 @@ class LoopClosingNode(Node):
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
         self.create_subscription(MapUpdate, "/local_mapping/verdict_requests", self.on_verdict_request, keyframe_qos)
         self.correction_pub = self.create_publisher(LoopCorrectionMsg, "~/loop_corrections", keyframe_qos)
-        self.ready_pub = self.create_publisher(Header, "~/ready", READY_QOS)
+        self.ready_pub = self.create_publisher(Header, "~/ready", LATCHED)
         self._started_ns = time.time_ns()  # names this process in the announcement
         from changing_slam_ros.nodes.map_resync import ResyncClient
 

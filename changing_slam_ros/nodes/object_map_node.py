@@ -22,7 +22,7 @@ from typing import Any
 
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from std_msgs.msg import ColorRGBA, Header, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
@@ -36,8 +36,8 @@ from changing_slam_ros.errors import SlamError
 from changing_slam_ros.nodes.change_markers import change_markers
 from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
+from changing_slam_ros.nodes.qos_profiles import LATCHED
 
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def query_objects(objects: Iterable[Any], request: Any, belief_threshold: float) -> list[Any]:

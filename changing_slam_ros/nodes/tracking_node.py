@@ -23,7 +23,7 @@ from rclpy._rclpy_pybind11 import RCLError  # a publish after the context shut d
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 
@@ -50,6 +50,7 @@ from changing_slam_ros.nodes.map_load import LoadEpochs
 from changing_slam_ros.nodes.node_help import NodeHelp, first_line
 from changing_slam_ros.nodes.node_runner import declare_parameters, run_node
 from changing_slam_ros.nodes.qos_events import QuietQosEvents
+from changing_slam_ros.nodes.qos_profiles import LATCHED
 from changing_slam_ros.nodes.stamp_sync import ApproximatePairer
 from changing_slam_ros.nodes.tracking_outputs import MoverOutputs, PoseOutputs, debug_image
 from changing_slam_ros.nodes.tracking_initial_pose import InitialPoseInput
@@ -60,7 +61,6 @@ from changing_slam_ros.nodes.tracking_params import TRACKING_PARAMETERS
 from changing_slam_ros.nodes.tracking_replica import ReplicaInputs
 from changing_slam_ros.nodes.tracking_stats import TrackingStats, _warn_if
 
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents, Node):

@@ -18,7 +18,8 @@ from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 
 from changing_slam_msgs.msg import MapObject, MapObjectArray  # noqa: E402
-from changing_slam_ros.nodes.object_map_node import LATCHED, ObjectMapNode  # noqa: E402
+from changing_slam_ros.nodes.object_map_node import ObjectMapNode  # noqa: E402
+from changing_slam_ros.nodes.qos_profiles import LATCHED  # noqa: E402
 from helpers import REPO, spin_until  # noqa: E402
 
 

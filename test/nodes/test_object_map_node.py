@@ -20,7 +20,8 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from changing_slam_msgs.msg import MapObject, MapObjectArray, ObjectStateArray  # noqa: E402
 from changing_slam_msgs.srv import LoadMap, QueryObjects, SaveMap  # noqa: E402
-from changing_slam_ros.nodes.object_map_node import LATCHED, ObjectMapNode  # noqa: E402
+from changing_slam_ros.nodes.object_map_node import ObjectMapNode  # noqa: E402
+from changing_slam_ros.nodes.qos_profiles import LATCHED  # noqa: E402
 from helpers import spin_until  # noqa: E402
 
 
