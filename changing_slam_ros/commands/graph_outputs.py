@@ -184,8 +184,10 @@ def lossless_gaps(player_log: str, stats: dict[str, Any], mapping: dict[str, Any
         gaps.append(f"tracking went on without {stats['map_update_waits_timed_out']} map updates / loop verdicts")
     if stats.get("keyframes_without_map_update"):
         gaps.append(f"{stats['keyframes_without_map_update']} keyframes sent never came back as a map update")
-    if mapping and mapping.get("keyframes_mapped") != mapping.get("keyframes_received"):
-        gaps.append(f"local_mapping received {mapping.get('keyframes_received')} keyframes and mapped "
+    # a keyframe tracking sent again after a resync answer was mapped already: counted as a duplicate, not a gap
+    distinct = (mapping or {}).get("keyframes_received", 0) - (mapping or {}).get("keyframes_duplicate", 0)
+    if mapping and mapping.get("keyframes_mapped") != distinct:
+        gaps.append(f"local_mapping received {distinct} distinct keyframes and mapped "
                     f"{mapping.get('keyframes_mapped')}")  # fmt: skip
     if not stats:
         gaps.append("tracking wrote no tracking_stats.json")

@@ -120,11 +120,14 @@ def test_lossless_gaps_name_what_a_lossless_run_did_not_finish():
     complete = {"map_update_waits_timed_out": 0, "keyframes_without_map_update": 0}
     player = "[INFO] bag_player: finished: 87 messages in 9.1 s (CPU 0.4 s), 0 ack timeouts"
     assert lossless_gaps(player, complete, {"keyframes_received": 21, "keyframes_mapped": 21}) == []
+    # keyframe 0 sent again after local_mapping's start-up resync answer: a duplicate, mapped once, no gap
+    resent = {"keyframes_received": 22, "keyframes_duplicate": 1, "keyframes_mapped": 21}
+    assert lossless_gaps(player, complete, resent) == []
     timed_out = {"map_update_waits_timed_out": 1, "keyframes_without_map_update": 2}
     lost = {"keyframes_received": 23, "keyframes_mapped": 21}
     gaps = lossless_gaps(player.replace("0 ack", "2 ack"), timed_out, lost)
     assert gaps == ["2 frames went out without tracking's ack (ack timeout)",
                     "tracking went on without 1 map updates / loop verdicts",
                     "2 keyframes sent never came back as a map update",
-                    "local_mapping received 23 keyframes and mapped 21"]  # fmt: skip
+                    "local_mapping received 23 distinct keyframes and mapped 21"]  # fmt: skip
     assert lossless_gaps(player, {}, None) == ["tracking wrote no tracking_stats.json"]
