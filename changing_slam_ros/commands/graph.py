@@ -225,12 +225,16 @@ class Graph:
                        "update_subscribers": 2, "map_out": str(self.out / "map.npz"),
                        "map_dir": str(self.out / MAPS_DIR),
                        "ba_solver": "" if solver == "config" else solver}  # fmt: skip
+            # Started with tracking, they have nothing to take from it (a resync answer racing tracking's first
+            # keyframe would make runs differ); restarted, they ask.
+            first, restart = {"resync": False, "map_file": self.map_in}, {"resync": True, "map_file": ""}
             self.nodes["local_mapping"] = NodeProcess(
-                "local_mapping", node_argv("local_mapping_node", {**mapping, "map_file": self.map_in}), self.logs,
-                restart_argv=node_argv("local_mapping_node", {**mapping, "map_file": ""}))  # fmt: skip
+                "local_mapping", node_argv("local_mapping_node", {**mapping, **first}), self.logs,
+                restart_argv=node_argv("local_mapping_node", {**mapping, **restart}))  # fmt: skip
+            loop = {"config": self.config}
             self.nodes["loop_closing"] = NodeProcess(
-                "loop_closing", node_argv("loop_closing_node", {"config": self.config, "map_file": self.map_in}),
-                self.logs, restart_argv=node_argv("loop_closing_node", {"config": self.config, "map_file": ""}))  # fmt: skip
+                "loop_closing", node_argv("loop_closing_node", {**loop, **first}), self.logs,
+                restart_argv=node_argv("loop_closing_node", {**loop, **restart}))  # fmt: skip
         if self.detection:
             sensor_remaps, reliable = self._sensor_inputs()
             remaps = {"image": sensor_remaps.get("/camera/rgb/image_color", "/camera/rgb/image_color"),

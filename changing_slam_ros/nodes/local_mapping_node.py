@@ -81,6 +81,8 @@ LOCAL_MAPPING_PARAMETERS: tuple[ParamSpec, ...] = (
                     "path of ~/save_map"),
     ("map_dir", "", "folder the paths of ~/save_map and ~/load_map requests must lie in (names ending .npz; "
                     "an existing file is replaced only when it is a map file); empty = request paths refused"),
+    ("resync", True, "at start, ask tracking for its map (a node restarted beside a running tracking); false: "
+                     "start empty (started together with tracking, as `changing-slam graph` does at first)"),
     ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
     ("update_subscribers", 0, "map a keyframe only once ~/map_updates has this many subscribers (graph: "
                               "tracking and loop_closing), so that a (re)started node loses no update"),
@@ -155,9 +157,9 @@ class LocalMappingNode(Node):
         from changing_slam_ros.nodes.map_resync import ResyncClient
 
         # After a restart the map comes back from tracking's replica; keyframes wait for it (see map_resync).
-        self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"])
-        if p["map_file"]:  # the map comes from the file, not from tracking's replica of it (see map_file)
-            self.resync.skip()
+        # (not with a map file: the map comes from the file, not from tracking's replica of it; see map_file)
+        self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"],
+                                   ask=p["resync"] and not p["map_file"])  # fmt: skip
         self._started_s = time.monotonic()
         # Retries a queue that cannot be mapped yet (map resync, update subscribers); armed only while the queue
         # holds something: every executor wake-up costs ~0.5-1 ms of CPU, and 10 a second for nothing add up.

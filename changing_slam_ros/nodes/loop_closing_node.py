@@ -52,6 +52,8 @@ LOOP_CLOSING_PARAMETERS: tuple[ParamSpec, ...] = (
     ("config", "tum_fr1", "config name or YAML path (loop section: verification, pose graph)"),
     ("map_frame", "map", "frame of the corrected poses"),
     ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
+    ("resync", True, "at start, ask tracking for its map (a node restarted beside a running tracking); false: "
+                     "start empty (started together with tracking, as `changing-slam graph` does at first)"),
     ("resync_timeout_s", 20.0, "at start, how long to wait for tracking's map snapshot (a restart)"),
     ("map_file", "", "multi-session: start from this map file of `changing-slam run` (DIR/map.npz; "
                      "tracking and local_mapping load the same file; a node restarted in a running graph is started "
@@ -97,9 +99,10 @@ class LoopClosingNode(Node):
         self._started_ns = time.time_ns()  # names this process in the announcement
         from changing_slam_ros.nodes.map_resync import ResyncClient
 
-        self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"], on_ready=self._announce)
-        if self.side is None or p["map_file"]:  # nothing to map, or the map comes from the file (see map_file)
-            self.resync.skip()
+        # not with nothing to map, or when the map comes from the file (see map_file)
+        ask = p["resync"] and self.side is not None and not p["map_file"]
+        self.resync = ResyncClient(self, self._restore, give_up_s=p["resync_timeout_s"], on_ready=self._announce,
+                                   ask=ask)  # fmt: skip
         self.diagnostics = NodeDiagnostics(self, p["diagnostics_period_s"])
         self.diagnostics.set_source(self.stats)
         state = "on" if self.side is not None else "OFF (the config's loop.enabled is false): every keyframe answered 'no loop'"

@@ -37,7 +37,10 @@ SNAPSHOT_QOS = QoSProfile(depth=1000)  # reliable: a snapshot is every keyframe 
 
 class ResyncClient:
     def __init__(self, node: Node, on_restore: Callable[[list[Keyframe], MapDelta], None], period_s: float = 1.0,
-                 give_up_s: float = 20.0, on_ready: Callable[[], None] | None = None) -> None:  # fmt: skip
+                 give_up_s: float = 20.0, on_ready: Callable[[], None] | None = None, ask: bool = True) -> None:  # fmt: skip
+        """`ask` False: the node has its map already or starts with tracking (nothing to restore), so it is ready
+        at once and never asks: an answer racing tracking's first keyframe would restore that keyframe from tracking's
+        replica instead of mapping it, and runs would differ by timing."""
         self.node = node
         self.on_restore = on_restore
         self.on_ready = on_ready  # called once, when `ready` turns True (restored, started empty or skipped)
@@ -51,7 +54,10 @@ class ResyncClient:
         node.create_subscription(KeyframeMsg, KEYFRAMES_TOPIC, self._on_keyframe, SNAPSHOT_QOS)
         node.create_subscription(MapUpdate, MAP_TOPIC, self._on_map, SNAPSHOT_QOS)
         self._timer = node.create_timer(period_s, self._ask, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._ask()
+        if ask:
+            self._ask()
+        else:
+            self._finish()
 
     def _ask(self) -> None:
         if self.ready:

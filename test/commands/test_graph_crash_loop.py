@@ -120,7 +120,7 @@ def test_lossless_gaps_name_what_a_lossless_run_did_not_finish():
     complete = {"map_update_waits_timed_out": 0, "keyframes_without_map_update": 0}
     player = "[INFO] bag_player: finished: 87 messages in 9.1 s (CPU 0.4 s), 0 ack timeouts"
     assert lossless_gaps(player, complete, {"keyframes_received": 21, "keyframes_mapped": 21}) == []
-    # keyframe 0 sent again after local_mapping's start-up resync answer: a duplicate, mapped once, no gap
+    # keyframe 0 sent again after a restarted local_mapping's resync answer: a duplicate, mapped once, no gap
     resent = {"keyframes_received": 22, "keyframes_duplicate": 1, "keyframes_mapped": 21}
     assert lossless_gaps(player, complete, resent) == []
     timed_out = {"map_update_waits_timed_out": 1, "keyframes_without_map_update": 2}

@@ -32,8 +32,14 @@ def test_lossless_sample_runs_repeat_the_same_keyframes_and_trajectory(tmp_path)
         s = json.loads((out / "graph_summary.json").read_text())
         lm = s["local_mapping"]
         assert s["lossless_incomplete"] == [], s["lossless_incomplete"]
-        assert lm["keyframes_mapped"] == lm["keyframes_received"] - lm["keyframes_duplicate"], lm
+        # no start-up map resync (it raced tracking's first keyframe: a keyframe restored from tracking's replica
+        # instead of mapped), no wait given up on
+        assert (lm["keyframes_duplicate"], lm["restored_keyframes"]) == (0, 0), lm
+        assert lm["keyframes_mapped"] == lm["keyframes_received"], lm
         seen.append((s["poses_published"], s["keyframes"], lm["keyframes_mapped"],
-                     (out / "trajectory.txt").read_bytes(), (out / "keyframes.txt").read_bytes()))  # fmt: skip
-    assert all(run == seen[0] for run in seen[1:]), [run[:3] for run in seen]
+                     (out / "trajectory.txt").read_text(), (out / "keyframes.txt").read_text()))  # fmt: skip
+    for i, run in enumerate(seen[1:], 1):
+        for name, a, b in (("trajectory.txt", seen[0][3], run[3]), ("keyframes.txt", seen[0][4], run[4])):
+            first = next((k for k, (x, y) in enumerate(zip(a.splitlines(), b.splitlines())) if x != y), None)
+            assert a == b, f"run {i}: {name} differs from run 0 at line {first}: {[r[:3] for r in seen]}"
     assert seen[0][0] == 225

@@ -292,3 +292,27 @@ def test_a_restarted_local_mapping_node_gets_its_map_back_from_tracking(ros_cont
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
+
+
+def test_a_local_mapping_node_started_with_tracking_asks_for_no_map(ros_context):
+    """`resync:=false` (the graph's first start): the node is ready at once and sends no snapshot request, so
+    tracking never answers one with a keyframe local_mapping should map itself."""
+    from std_msgs.msg import Header
+
+    from changing_slam_ros.nodes.map_resync import REQUEST_TOPIC
+
+    probe = Node("tracking", context=ros_context)
+    requests: list[str] = []
+    probe.create_subscription(Header, REQUEST_TOPIC, lambda m: requests.append(m.frame_id), 10)
+    node = LocalMappingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="7scenes"), Parameter("objects", value="off"), Parameter("resync", value=False),
+        Parameter("resync_timeout_s", value=30.0)])  # fmt: skip
+    assert node.resync.ready
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    spin_until(executor, lambda: bool(requests), 2.5)  # the default asks at once and every second
+    assert requests == [] and node.resync.restored_keyframes == 0
+    executor.shutdown()
+    node.destroy_node()
+    probe.destroy_node()
