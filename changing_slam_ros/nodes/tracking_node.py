@@ -89,6 +89,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         # a colour / depth stamp not newer than the newest received: a player re-sending after a restart
         self.duplicates = {"colour": 0, "depth": 0}
         self._newest_ns = {"colour": -1, "depth": -1}
+        self._warned_backward = {"colour": False, "depth": False}  # a jump back is warned about once
         self.latency_ms: list[float] = []
         self.process_ms: list[float] = []
         self.process_cpu_ms: list[float] = []  # process CPU time per processed frame (load-independent)

@@ -9,6 +9,10 @@ from typing import Any
 
 import numpy as np
 
+# A stamp further than this behind its stream's newest is not a resumed player's overlap but a bag played again or
+# a clock reset: warned about once per jump (frames are dropped either way).
+BACKWARD_JUMP_S = 1.0
+
 
 class TrackingStats:
     """Methods of `TrackingNode` (see the module docstring)."""
@@ -89,11 +93,22 @@ class TrackingStats:
         """Whether a colour or depth message is not newer than the newest of its stream (then counted, and the
         caller drops it): a bag player restarted mid-run resumes a little before where it stopped, and the pairer
         and the map take each stamp once, in order."""
-        if stamp_ns <= self._newest_ns[stream]:
+        newest = self._newest_ns[stream]
+        if stamp_ns <= newest:
             self.duplicates[stream] += 1
-            self.get_logger().info(f"tracking: {stream} at {stamp_ns * 1e-9:.6f} s received again; dropped",
-                                   throttle_duration_sec=5.0)  # fmt: skip
+            back_s = (newest - stamp_ns) * 1e-9
+            if back_s > BACKWARD_JUMP_S and not self._warned_backward.get(stream):
+                # not a resumed player's overlap: a bag started again, or a clock reset; the map keeps its order
+                self._warned_backward[stream] = True
+                self.get_logger().warning(
+                    f"tracking: {stream} stamps went back {back_s:.1f} s (a bag played again into a running graph?); "
+                    "every frame not newer than the newest tracked one is dropped; restart tracking for a new "
+                    "sequence, or replay with the player's loop option (it moves the stamps on)")  # fmt: skip
+            else:
+                self.get_logger().info(f"tracking: {stream} at {stamp_ns * 1e-9:.6f} s received again; dropped",
+                                       throttle_duration_sec=5.0)  # fmt: skip
             return True
+        self._warned_backward[stream] = False
         self._newest_ns[stream] = stamp_ns
         return False
 

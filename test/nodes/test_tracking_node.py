@@ -507,3 +507,51 @@ def test_frames_still_queued_at_shutdown_are_tracked_and_written_when_publishing
     node.destroy_node()
     traj = read_tum_trajectory(tmp_path / "trajectory.txt")
     np.testing.assert_allclose(traj.stamps_s, [f.stamp_ns / 1e9 for f in frames], atol=1e-6, rtol=0)
+
+
+
+class _Log:
+    """A logger that keeps the warnings and drops everything else."""
+
+    def __init__(self) -> None:
+        self.warnings: list[str] = []
+
+    def warning(self, msg: str, **_kw) -> None:
+        self.warnings.append(msg)
+
+    def __getattr__(self, _name: str):
+        return lambda *_a, **_kw: None
+
+
+def test_frames_from_a_bag_played_again_are_dropped_with_one_warning(ros_context):
+    """A bag played again into a running tracking sends stamps tens of seconds older than the newest: the frames are
+    dropped (the map takes each stamp once, in order) and one warning per stream names the jump; a player's short
+    resume overlap is no such jump."""
+    import itertools
+
+    from helpers import FR1_XYZ_10, require
+
+    src = open_dataset(require(FR1_XYZ_10), "tum_fr1")
+    frames = list(itertools.islice(iter(src), 4))
+    node = TrackingNode(context=ros_context, parameter_overrides=[
+        Parameter("config", value="tum_fr1"), Parameter("in_process_backend", value=True),
+        Parameter("debug_image", value=False)])  # fmt: skip
+    log = _Log()
+    node.get_logger = lambda: log
+
+    def send(f, shift_ns: int = 0) -> None:
+        node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns + shift_ns, "camera"))
+        node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns + shift_ns, "camera"))
+
+    later = 60 * 10**9
+    for f in frames[2:]:
+        send(f, later)
+    send(frames[3], later)  # the player resumed a frame early: a duplicate, no warning
+    assert node.duplicates == {"colour": 1, "depth": 1} and log.warnings == []
+    for f in frames[:2]:  # the bag again from its start, a minute earlier
+        send(f)
+    assert node.duplicates == {"colour": 3, "depth": 3}
+    assert [w.split(" stamps went back ")[0] for w in log.warnings] == ["tracking: colour", "tracking: depth"]
+    assert all(" went back 60." in w for w in log.warnings), log.warnings
+    assert node.published_poses == 2
+    node.destroy_node()
