@@ -29,6 +29,7 @@ from changing_slam_ros.core.dynamic.detector import Detection
 from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
 from changing_slam_ros.core.movers.edge_test import edge_test_segment, match_nearby
+from changing_slam_ros.core.movers.free_space_check import FreeSpaceConfig, free_space_violations, near_surface
 from changing_slam_ros.core.movers.mover_tracking import MoverConfig, MoverTracker
 from changing_slam_ros.core.features.orb_features import Features
 from changing_slam_ros.core.movers.point_correlation import CorrelationWindow, SegmentationConfig, segment
@@ -97,6 +98,10 @@ class DynamicConfig:
       Needs `ekf_doc`. `min_kept_keypoints: 0` and `keep_undecided: false` = the paper.
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
+    - `free_space_check` / `free_space_gap_frames`: keypoints that lie where the frame this many frames earlier
+      measured empty space (in front of its depth surface) are moving, whatever their class
+      (`movers/free_space_check.py`, DynaSLAM's multi-view depth check on the keypoints); `free_space` holds its
+      window, tolerances and neighbour support.
     - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
       eq. 12 merging; `core/movers/mover_tracking.py`); its moving keypoints are dropped too. Off by default.
     """
@@ -125,6 +130,9 @@ class DynamicConfig:
     keep_undecided: bool = False
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
+    free_space_check: bool = False
+    free_space_gap_frames: int = 10
+    free_space: FreeSpaceConfig = field(default_factory=FreeSpaceConfig)
     movers: MoverConfig = field(default_factory=MoverConfig)
 
     def __post_init__(self) -> None:
@@ -137,6 +145,8 @@ class DynamicConfig:
         if min(self.segmentation_long_gap_frames, self.segmentation_carry_frames) < 0 or self.segmentation_long_every < 1:
             raise ConfigError("dynamic: segmentation_long_gap_frames and segmentation_carry_frames must be >= 0, "
                               "segmentation_long_every >= 1")
+        if self.free_space_gap_frames < 1:
+            raise ConfigError(f"dynamic.free_space_gap_frames: expected >= 1, got {self.free_space_gap_frames}")
         if self.segmentation_min_matches < 5:
             raise ConfigError(f"dynamic.segmentation_min_matches: expected >= 5, got {self.segmentation_min_matches}")
 
@@ -180,6 +190,7 @@ class _Past:
     depths_m: F64
     T_world_cam: F64 | None
     flag_age: npt.NDArray[np.int64]  # (N,) frames since the segmentation flagged the keypoint (NEVER: not)
+    near_surface: npt.NDArray[np.float32] | None = None  # the free-space check's min-filtered depth (when on)
 
 
 class DynamicFilter:
@@ -190,7 +201,8 @@ class DynamicFilter:
         self._tracker: DynamicObjectTracker | None = None
         self._camera: CameraIntrinsics | None = None
         self._history: deque[_Past] = deque(
-            maxlen=max(self.config.segmentation_gap_frames, self.config.segmentation_long_gap_frames, 1)
+            maxlen=max(self.config.segmentation_gap_frames, self.config.segmentation_long_gap_frames,
+                       self.config.free_space_gap_frames if self.config.free_space_check else 1, 1)
         )
         self._n_frames = 0
         self._pending_age: npt.NDArray[np.int64] | None = None
@@ -202,8 +214,10 @@ class DynamicFilter:
         self.n_kept = 0
         self.frames_ms: list[float] = []
         self.segmentation_cpu_ms: list[float] = []  # thread CPU of each frame's segmentation (matching included)
+        self.free_space_cpu_ms: list[float] = []  # thread CPU of each frame's free-space check (its filter included)
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
         self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
+        self._near: npt.NDArray[np.float32] | None = None  # this frame's min-filtered depth (free-space check)
 
     @property
     def movers(self) -> MoverTracker | None:
@@ -238,13 +252,17 @@ class DynamicFilter:
                 c0 = time.thread_time()
                 moving = self._segment(features, rgbd.camera)
                 self.segmentation_cpu_ms.append((time.thread_time() - c0) * 1e3)
+            if cfg.free_space_check:
+                c0 = time.thread_time()
+                moving |= self._free_space(rgbd, features)
+                self.free_space_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if self._movers is not None:
                 moving |= self._movers.before_tracking(rgbd.stamp_ns, features, rgbd.camera)
             if cfg.detection_filtering:
                 tracker = self._tracker_for(rgbd.camera)
                 res = tracker.classify(
                     rgbd.stamp_ns, features.raw_px, rgbd.depth_m, self._with_held(self._movable(detections)),
-                    moving_mask=moving if cfg.segmentation or self._movers is not None else None,
+                    moving_mask=moving if cfg.segmentation or cfg.free_space_check or self._movers is not None else None,
                 )
                 self._classified = True
                 keep = res.use_for_tracking.copy()
@@ -257,7 +275,8 @@ class DynamicFilter:
                 undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
-        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age)
+        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age,
+                              self._near if cfg.enabled and cfg.free_space_check else None)  # fmt: skip
         self._pending_age = None
         self._n_frames += 1
         ms = (time.perf_counter() - t0) * 1e3
@@ -318,6 +337,21 @@ class DynamicFilter:
         if len(self._poses) < 2:
             return last
         return last @ (invert(self._poses[0]) @ last)  # constant velocity
+
+    def _free_space(self, rgbd: RgbdFrame, features: Features) -> BoolArr:
+        """(N,) keypoints in space the frame `free_space_gap_frames` back saw empty (`movers/free_space_check`);
+        none before that frame exists with a pose, or without a predicted pose now."""
+        cfg = self.config
+        self._near = near_surface(rgbd.depth_m, 640, cfg.free_space.window_px)
+        gap = cfg.free_space_gap_frames
+        T_now = self._predicted_pose()
+        if len(self._history) < gap or T_now is None:
+            return np.zeros(len(features), dtype=bool)
+        past = self._history[-gap]
+        if past.T_world_cam is None or past.near_surface is None or past.near_surface.shape != self._near.shape:
+            return np.zeros(len(features), dtype=bool)
+        return free_space_violations(features.keypoints_px, features.depths_m, T_now, past.near_surface,
+                                     past.T_world_cam, rgbd.camera, cfg.free_space)  # fmt: skip
 
     def _segment(self, features: Features, camera: CameraIntrinsics) -> BoolArr:
         """(N,) keypoints of the frame that the two-frame segmentation puts on an object target.
