@@ -278,6 +278,9 @@ class SlamSystem:
         result = merge_maps(self.atlas, merge, self.mapper.scales, self.config.features.bf_m_px,
                             self.config.mapping.merge, self.mapper.ba_config())
         self.mapper.points_moved(result.from_map_id, result.into_map_id, result.point_id_offset)
+        if self.object_layer is not None:  # the merged-away map's objects move with its keyframes
+            self.object_layer.maps_merged(result.from_map_id, result.into_map_id, result.T_into_from,
+                                          result.point_id_offset, self.atlas.maps[result.into_map_id].points)
         self.atlas.maps[result.into_map_id].order_spanning_tree()  # the order replicas rebuild
         return result
 

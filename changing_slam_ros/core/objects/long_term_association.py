@@ -130,6 +130,11 @@ class LongTermAssociation:
         self.objects[obj.id] = obj
         self._next_id = max(self._next_id, obj.id + 1)
 
+    @property
+    def next_id(self) -> int:
+        """The id the next new object gets."""
+        return self._next_id
+
     def new_session(self, first_keyframe_id: int) -> None:
         """Start a session on a loaded map (multi-session): keyframe ids may restart, and time has passed, so
         every object counts as unseen for more than N keyframes; its first sighting or expected miss in the

@@ -34,6 +34,7 @@ from changing_slam_ros.core.objects.box_depth import (  # noqa: F401 - re-export
 )
 from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig, object_map_config
 from changing_slam_ros.core.objects.object_box_completion import gravity_up
+from changing_slam_ros.core.objects.object_map_merge import join, moved_object, remap_point_ids, same_object
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
 from changing_slam_ros.core.objects.picture_check import is_picture, plane_extent_m
 from changing_slam_ros.core.geometry.se3 import invert
@@ -271,6 +272,41 @@ class ObjectLayer:
             mo.anchors.add(int(kf_id), saved.anchor_ids[sel], saved.anchor_points_cam[sel])
         mo.lta.new_session(first_keyframe_id)
         self._maps[map_id] = mo
+
+    def maps_merged(self, from_map_id: int, into_map_id: int, T_into_from: F64, point_id_offset: int,
+                    points: PointStore) -> None:
+        """Map `from_map_id` was welded into `into_map_id` (`core.slam.map_merging`): its objects, anchors and
+        thumbnails move into the target's object map (`object_map_merge`) and the labels of its map points,
+        now rows of the target's `points`, name the objects' new ids."""
+        src = self._maps.pop(from_map_id, None)
+        if src is None or not self.config.enabled:
+            return
+        dst = self._for(into_map_id)
+        shift = dst.next_sample_id + 2  # the source's first sample id (-2) lands on the target's next one
+        ids, kfs, pts = src.anchors.arrays()
+        moved_ids = remap_point_ids(ids, point_id_offset, shift)
+        for kf_id in np.unique(kfs).tolist():
+            dst.anchors.add(int(kf_id), moved_ids[kfs == kf_id], pts[kfs == kf_id])
+        dst.next_sample_id = min(dst.next_sample_id, src.next_sample_id + shift)
+        targets = list(dst.lta.objects.values())
+        new_id: dict[int, int] = {}
+        for oid, obj in sorted(src.lta.objects.items()):
+            moved = moved_object(obj, dst.lta.next_id, T_into_from, point_id_offset, shift)
+            same = same_object(moved, targets, self.config.association)
+            if same is not None:
+                join(same, moved)
+            else:
+                dst.lta.add_object(moved)
+            new_id[oid] = moved.id if same is None else same.id
+        rows = np.arange(point_id_offset, points.size)
+        labels = points.object_id[rows].copy()
+        for old, new in new_id.items():
+            sel = rows[labels == old]
+            points.object_id[sel] = new
+            points.active[sel] = dst.lta.objects[new].active  # a joined object's flag may differ from the moved one's
+        dst.thumbnails.update(src.thumbnails)
+        R, t = T_into_from[:3, :3], T_into_from[:3, 3]
+        dst.places = (dst.places + [(k, R @ c + t) for k, c in src.places])[-MAX_PLACES:]
 
     # --- per keyframe ---
     def after_keyframe(self, kf: Keyframe, slam_map: SlamMap, depth_m: npt.NDArray[np.floating] | None,

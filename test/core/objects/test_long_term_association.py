@@ -18,8 +18,9 @@ from changing_slam_ros.core.objects.object_visibility import Visibility
 from changing_slam_ros.core.objects.persistence_filter import update_missed, update_seen
 
 CAM = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
+# cut views skipped (`truncated_views` off): Algorithm 1 as the paper gives it; CFG_CUT turns them on (the default)
 CFG = ObjectMapConfig(ltda_threshold_m=0.5, n_keyframes_unseen=5, belief_threshold=0.6, p_detect=0.8,
-                      p_false=0.1, min_points=5, min_projected_area_px=40.0)
+                      p_false=0.1, min_points=5, min_projected_area_px=40.0, truncated_views=False)
 LOOK_Z = np.eye(4)  # camera at the origin looking down world +z
 LOOK_AWAY = np.diag([-1.0, 1.0, -1.0, 1.0])  # looking down -z
 WALL = np.full((CAM.height, CAM.width), 5.0, np.float32)
@@ -118,7 +119,7 @@ def test_expected_but_missed_object_loses_belief_once_per_n_keyframes_and_turns_
 
 
 def test_a_same_class_box_over_the_object_explains_a_miss_and_truncated_candidates_do_not_associate() -> None:
-    cfg = ObjectMapConfig(n_keyframes_unseen=2, min_projected_area_px=40.0)
+    cfg = ObjectMapConfig(n_keyframes_unseen=2, min_projected_area_px=40.0, truncated_views=False)
     lta = LongTermAssociation(cfg)
     lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
     # kf 10: the object projects to (79.5, 59.5); a truncated chair box covers it: no miss, no merge
@@ -264,7 +265,7 @@ def test_truncated_candidates_give_their_points_to_an_object_without_updating_it
     assert (points.object_id[200:220] == 0).all() and not points.active[200:220].any() and points.active[:200].all()
     res = lta.process_keyframe(10, [_cand([0.1, 0.0, 1.0], 300)], LOOK_Z, CAM, WALL)  # a whole view merges
     assert res.merged_object_ids == (0,) and lta.objects[0].n_points == 40
-    off = LongTermAssociation(CFG)  # the default: cut views are skipped
+    off = LongTermAssociation(CFG)  # cut views skipped
     res = off.process_keyframe(0, [cut], LOOK_Z, CAM, WALL)
     assert res.assignments == (-1,) and not off.objects and res.deactivated_point_ids.size == 0
     off.process_keyframe(1, [_cand([0.0, 0.0, 1.0], 400)], LOOK_Z, CAM, WALL)

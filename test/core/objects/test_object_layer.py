@@ -254,6 +254,28 @@ def test_a_cut_box_gives_depth_samples_to_an_object_known_only_from_cut_views() 
     assert obj.n_points == n_points and len(on.saved_objects(0).anchor_ids) == n_anchors
 
 
+def test_an_object_seen_only_cut_by_the_image_bottom_is_mapped_by_default() -> None:
+    """A floor-standing object near a robot-height camera has its lower part below the image in every view: its
+    box touches the image bottom each time and its EKF gets no measurement (verdict UNKNOWN, no map point). With
+    the default configuration it is mapped from the boxes' depth samples and is in the semantic map; with cut
+    views skipped it is not mapped at all."""
+    cut_box = (120.0, 150.0, 200.0, 240.0)
+    depth = np.full((240, 320), 4.0, np.float32)
+    depth[150:240, 120:200] = 1.5
+    default = ObjectLayer()
+    skipped = ObjectLayer(object_layer_config({"truncated_views": False}))
+    for layer in (default, skipped):
+        m, kf = _map_with_keyframe(0, np.eye(4), n_obj=0)
+        layer.after_keyframe(kf, m, depth, [_state(ObjectMotion.UNKNOWN, cut_box)])
+        kf1 = _map_with_keyframe(1, np.eye(4), n_obj=0)[1]
+        m.add_keyframe(kf1)
+        layer.after_keyframe(kf1, m, depth, [_state(ObjectMotion.UNKNOWN, cut_box)])
+    assert skipped.objects() == [] and skipped.semantic_map(0).objects == ()
+    (obj,) = default.objects(0)
+    assert obj.n_observations == 0 and abs(obj.centroid_w[2] - 1.5) < 1e-6
+    assert [o.id for o in default.semantic_map(0).objects] == [obj.id]
+
+
 def test_a_sliver_cut_by_the_border_gives_no_depth_samples() -> None:
     """`cut_min_side_m`: a cut box 3 px wide (2.3 cm at 2 m) holds mostly what lies behind the object; it makes
     no object, while the same box 20 px wide (15 cm) does."""
