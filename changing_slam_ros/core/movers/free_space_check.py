@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
@@ -76,7 +77,7 @@ def free_space_violations(keypoints_px: F64, depths_m: F64, T_world_now: F64, ne
     valid = np.flatnonzero(np.isfinite(depths_m) & (depths_m > 0))
     if len(valid) == 0:
         return flagged
-    T_then_now = np.linalg.inv(T_world_then) @ T_world_now
+    T_then_now = invert(T_world_then) @ T_world_now
     pts = camera.backproject(keypoints_px[valid], depths_m[valid]) @ T_then_now[:3, :3].T + T_then_now[:3, 3]
     z = pts[:, 2]
     front = z > 1e-3
