@@ -220,7 +220,6 @@ class DynamicFilter:
         self.free_space_cpu_ms: list[float] = []  # thread CPU of each frame's free-space check (its filter included)
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
         self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
-        self._near: npt.NDArray[np.float32] | None = None  # this frame's min-filtered depth (free-space check)
 
     @property
     def movers(self) -> MoverTracker | None:
@@ -244,6 +243,7 @@ class DynamicFilter:
         t0 = time.perf_counter()
         cfg = self.config
         n = len(features)
+        near: npt.NDArray[np.float32] | None = None  # the free-space check's min-filtered depth, kept in the history
         keep = np.ones(n, dtype=bool)
         classes = np.full(n, KeypointClass.STATIC, dtype=np.int8)
         object_ids = np.full(n, -1, dtype=np.int64)
@@ -257,7 +257,8 @@ class DynamicFilter:
                 self.segmentation_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if cfg.free_space_check:
                 c0 = time.thread_time()
-                moving |= self._free_space(rgbd, features)
+                near = near_surface(rgbd.depth_m, 640, cfg.free_space.window_px)
+                moving |= self._free_space(rgbd, features, near)
                 self.free_space_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if self._movers is not None:
                 moving |= self._movers.before_tracking(rgbd.stamp_ns, features, rgbd.camera)
@@ -278,8 +279,7 @@ class DynamicFilter:
                 undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
-        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age,
-                              self._near if cfg.enabled and cfg.free_space_check else None)  # fmt: skip
+        self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age, near)
         self._pending_age = None
         self._n_frames += 1
         ms = (time.perf_counter() - t0) * 1e3
@@ -341,17 +341,17 @@ class DynamicFilter:
             return last
         return last @ (invert(self._poses[0]) @ last)  # constant velocity
 
-    def _free_space(self, rgbd: RgbdFrame, features: Features) -> BoolArr:
+    def _free_space(self, rgbd: RgbdFrame, features: Features, near: npt.NDArray[np.float32]) -> BoolArr:
         """(N,) keypoints in space the frame `free_space_gap_frames` back saw empty (`movers/free_space_check`);
-        none before that frame exists with a pose, or without a predicted pose now."""
+        none before that frame exists with a pose, or without a predicted pose now. `near`: this frame's own
+        min-filtered depth (compared with the earlier frame's shape)."""
         cfg = self.config
-        self._near = near_surface(rgbd.depth_m, 640, cfg.free_space.window_px)
         gap = cfg.free_space_gap_frames
         T_now = self._predicted_pose()
         if len(self._history) < gap or T_now is None:
             return np.zeros(len(features), dtype=bool)
         past = self._history[-gap]
-        if past.T_world_cam is None or past.near_surface is None or past.near_surface.shape != self._near.shape:
+        if past.T_world_cam is None or past.near_surface is None or past.near_surface.shape != near.shape:
             return np.zeros(len(features), dtype=bool)
         return free_space_violations(features.keypoints_px, features.depths_m, T_now, past.near_surface,
                                      past.T_world_cam, rgbd.camera, cfg.free_space)  # fmt: skip
