@@ -253,7 +253,9 @@ class Graph:
             self.nodes["detection"] = NodeProcess("detection", node_argv("detection_node", {
                 "config": self.config, "compressed": info.compressed, "reliable_images": reliable,
                 "intra_op_threads": int(threads), "model": "" if model == "config" else model,
-                "max_rate_hz": float(max_hz)}, remaps), self.logs)  # fmt: skip
+                "max_rate_hz": float(max_hz),
+                "output_wait_s": 120.0,  # tracking (starting beside it) subscribes first: no detection is lost
+            }, remaps), self.logs)  # fmt: skip
         sensor_remaps, reliable = self._sensor_inputs()
         self.nodes["tracking"] = NodeProcess("tracking", node_argv("tracking_node", {
             "config": self.config, "output_dir": str(self.out), "compressed": info.compressed,

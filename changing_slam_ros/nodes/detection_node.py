@@ -50,6 +50,8 @@ DETECTION_PARAMETERS: tuple[ParamSpec, ...] = (
     ("autostart", True, "configure and activate at start (main() only)"),
     ("reliable_images", False, "reliable image subscription (keep last 1) instead of sensor-data best effort"),
     ("diagnostics_period_s", 5.0, "seconds between /diagnostics reports (0 = off)"),
+    ("output_wait_s", 5.0, "on activation, wait up to this long for a subscriber of ~/detections before taking "
+                           "images (detections published before discovery matched it are lost); 0 = take at once"),
 )  # fmt: skip
 
 
@@ -72,6 +74,8 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         self._pub: Any = None
         self._skipped_pub: Any = None
         self._sub: Any = None
+        self._wait_timer: Any = None
+        self._wait_started_s = 0.0
         self.frames = 0
         self.images_in = 0
         self.images_skipped_rate = 0  # skipped by max_rate_hz
@@ -136,14 +140,43 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
             self.get_logger().error(f"detection: {err}")
             return TransitionCallbackReturn.FAILURE
         result = super().on_activate(state)
+        if self.params["output_wait_s"] > 0.0 and self._pub.get_subscription_count() == 0:
+            self._wait_started_s = time.monotonic()
+            self._wait_timer = self.create_timer(0.05, self._check_output_matched)
+        else:
+            self._start_taking_images()
+        return result
+
+    def _check_output_matched(self) -> None:
+        """Images are taken once `~/detections` has a subscriber (or `output_wait_s` has passed): a lossless player
+        waits for this node's image subscription, so the first frames' detections then reach their subscriber."""
+        waited = time.monotonic() - self._wait_started_s
+        matched = self._pub is not None and self._pub.get_subscription_count() > 0
+        if not matched and waited < self.params["output_wait_s"]:
+            return
+        self._cancel_wait()
+        if not matched:
+            self.get_logger().warning(
+                f"detection: no subscriber on {self._pub.topic_name} after {waited:.1f} s; detecting anyway")
+        self._start_taking_images()
+
+    def _cancel_wait(self) -> None:
+        if self._wait_timer is not None:
+            self._wait_timer.cancel()
+            self.destroy_timer(self._wait_timer)
+            self._wait_timer = None
+
+    def _start_taking_images(self) -> None:
+        if self.detector is None or self._sub is not None:
+            return
         self._subscribe_images()
         self.get_logger().info(
             f"detection: active, model {self.detector.model_path.name} ({self.detector.layout}) on "
             f"{', '.join(self.detector.providers)}, images on {self._sub.topic_name}, publishing {self._pub.topic_name}"
         )
-        return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._cancel_wait()
         self._unsubscribe_images()
         if self.detector is not None:
             self.detector.close()
@@ -151,6 +184,7 @@ class DetectionNode(QuietQosEvents, LifecycleNode):
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._cancel_wait()
         self._unsubscribe_images()
         if self._pub is not None:
             self.destroy_lifecycle_publisher(self._pub)

@@ -79,6 +79,8 @@ class NodeSpec:
     activate: bool = False  # and trigger_activate() (detection's image subscription exists only while active)
     # parameters whose reference value is not the built node's (bag_player is built with the sample bag)
     defaults: dict[str, Any] = field(default_factory=dict)
+    # parameter overrides of every build (detection takes images at once instead of waiting for a subscriber)
+    built_with: dict[str, Any] = field(default_factory=dict)
 
 
 def _movers_config(tmp: Path) -> str:
@@ -99,6 +101,7 @@ def node_specs(tmp: Path) -> list[NodeSpec]:
                  variants=[("`lossless:=true` with `ack_topics` or `confirm_topics`",
                             {"lossless": True, "ack_topics": ["/camera/rgb/image_color"]})]),
         NodeSpec("detection", "detection_node", "DetectionNode", configure=True, activate=True,
+                 built_with={"output_wait_s": 0.0}, defaults={"output_wait_s": 5.0},
                  variants=[("`compressed:=true`", {"compressed": True})]),
         NodeSpec("tracking", "tracking_node", "TrackingNode", variants=[
             ("`compressed:=true`", {"compressed": True}),
@@ -237,12 +240,12 @@ def _table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def render_node(spec: NodeSpec, context: Any) -> str:
     """One node's section: its hand-written introduction, then the tables read from the built node."""
-    with _built(spec, context, {}) as node:
+    with _built(spec, context, dict(spec.built_with)) as node:
         skip = _bag_topics(node)
         facts = read_node(node, skip, spec.defaults)
     variant_facts = []
     for label, overrides in spec.variants:
-        with _built(spec, context, overrides) as node:
+        with _built(spec, context, {**spec.built_with, **overrides}) as node:
             variant_facts.append((label, read_node(node, skip | _bag_topics(node))))
     intro = (INTROS / f"{spec.name}.md").read_text().strip()
     out = [f"## {spec.name}\n", intro + "\n"]
@@ -281,7 +284,7 @@ def undescribed_parameters(context: Any) -> list[str]:
     missing = []
     with tempfile.TemporaryDirectory() as tmp:
         for spec in node_specs(Path(tmp)):
-            with _built(spec, context, {}) as node:
+            with _built(spec, context, dict(spec.built_with)) as node:
                 missing += [f"{spec.name}.{n}" for n, _, _, text in read_node(node).parameters if not text.strip()]
     return missing
 

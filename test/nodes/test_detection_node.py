@@ -67,6 +67,42 @@ def test_detection_publishes_the_people_of_a_walking_frame_with_the_image_stamp(
     peer.destroy_node()
 
 
+def test_images_are_taken_only_once_the_detections_have_a_subscriber_or_the_wait_is_over(ros_context):
+    """A detection published before discovery matched its subscriber is lost; a lossless player waits for this
+    node's image subscription, so the node makes it only once ~/detections has a subscriber (or after
+    output_wait_s, with a warning)."""
+    node = DetectionNode(context=ros_context, parameter_overrides=[
+        Parameter("intra_op_threads", value=1), Parameter("output_wait_s", value=1.5)])
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+
+    def spin_until(done, seconds):  # noqa: ANN001, ANN202
+        deadline = time.monotonic() + seconds
+        while not done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        return done()
+
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    t0 = time.monotonic()
+    assert not spin_until(lambda: node._sub is not None, 0.3), "images taken with nobody to receive detections"
+    peer = Node("consumer", context=ros_context)
+    peer.create_subscription(DetectionArray, "/detection/detections", lambda msg: None, 10)
+    assert spin_until(lambda: node._sub is not None, 10.0), "no image subscription after a subscriber came"
+    assert time.monotonic() - t0 < 1.5 or node._pub.get_subscription_count() > 0
+    assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS and node._sub is None
+    peer.destroy_node()
+    assert spin_until(lambda: node._pub.get_subscription_count() == 0, 10.0)
+
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS  # nobody listens: taken after the wait
+    t0 = time.monotonic()
+    assert spin_until(lambda: node._sub is not None, 10.0)
+    assert time.monotonic() - t0 >= 1.4
+    assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
+    executor.shutdown()
+    node.destroy_node()
+
+
 def test_the_model_parameter_picks_a_shipped_detector_and_model_path_still_wins(ros_context, tmp_path):
     node = DetectionNode(context=ros_context, parameter_overrides=[Parameter("model", value="ssd_mobilenet_v2_coco_int8")])
     assert node.detector_config.model == "ssd_mobilenet_v2_coco_int8" and node.detector_config.model_path == ""

@@ -111,10 +111,7 @@ def test_graph_on_the_simulated_changing_scene_builds_the_semantic_map(tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     s = json.loads((out / "graph_summary.json").read_text())
     assert (s["poses_published"], s["drops"]) == (225, 0)
-    # Known race, open: the first frame's detections can go out before detection's publisher has matched
-    # tracking's subscription (discovery is slower on a loaded machine); tracking then waits its 10 s and tracks
-    # that frame without them. One frame at most; seen in 1 of 2 full-suite runs.
-    assert s["frames_without_detections"] <= 1, s["frames_without_detections"]
+    assert s["frames_without_detections"] == 0, s["frames_without_detections"]
     # Measured on the re-rendered sample (articulated people the detector finds): 1.64 cm, as `changing-slam run
     # --config sim` on the bag (the old flat-photo walker gave 13.6 cm); the bound leaves room for core changes.
     assert s["ate_rmse_m"] < 0.04
