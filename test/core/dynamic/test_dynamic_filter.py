@@ -164,11 +164,36 @@ def test_a_person_box_the_detector_misses_is_held_for_the_configured_frames() ->
         flt.after_tracking(np.eye(4))
         kept_person.append(bool(res.keep[r["person"]].any()))
     assert kept_person == [False, False, False, False, True, True]
-    # Off (the default): the person's keypoints are used as soon as the box is missing.
-    plain = DynamicFilter(DynamicConfig())
+    # Off (the paper's behaviour): the person's keypoints are used as soon as the box is missing.
+    plain = DynamicFilter(DynamicConfig(detection_hold_frames=0))
     plain.before_tracking(rgbd, feats, DETS)
     plain.after_tracking(np.eye(4))
     assert plain.before_tracking(dataclasses.replace(rgbd, stamp_ns=FRAME_NS), feats, ()).keep[r["person"]].all()
+
+
+def test_a_close_person_the_detector_names_chair_every_other_frame_is_never_movable_by_default() -> None:
+    """The shipped SSD names a person filling half the view "person" and "chair" in turn (random_dynamic seed 6).
+    Without the hold the "chair" frames make the person's keypoints movable, which the EKF may find static and
+    tracking then uses; with the default hold the held person box keeps them out (dynamic, or unused where
+    the two boxes cover each other)."""
+    person, chair = DETS[0], Detection(DETS[0].box_xyxy, CHAIR_CLASS_ID, 0.7)
+    for cfg, movable_frames in ((DynamicConfig(), []), (DynamicConfig(detection_hold_frames=0), [1, 3, 5, 7])):
+        flt = DynamicFilter(cfg)
+        rgbd, feats, r = _scene()
+        movable = []
+        for k in range(8):
+            res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), feats,
+                                      (person if k % 2 == 0 else chair, DETS[1]))
+            flt.after_tracking(np.eye(4))
+            classes = res.kp_classes[r["person"]]
+            if k % 2 == 0:
+                assert (classes == KeypointClass.DYNAMIC).all()
+            if (classes == KeypointClass.MOVABLE).all():
+                movable.append(k)
+            else:
+                assert np.isin(classes, (KeypointClass.DYNAMIC, KeypointClass.UNUSED)).all()
+                assert not res.keep[r["person"]].any()
+        assert movable == movable_frames, (cfg.detection_hold_frames, movable)
 
 
 def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_similar_depth() -> None:
