@@ -30,7 +30,7 @@ from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.io.detections_file import DetectionsFile, find_detections_file, read_detections_file
 
 DETECTION_SOURCES = ("none", "model", "oracle")
-SWITCHES = ("detection_filtering", "repopulation", "ekf_doc", "segmentation", "free_space_check", "flag_regions")
+SWITCHES = ("detection_filtering", "repopulation", "ekf_doc", "segmentation", "free_space_check")
 
 
 def add_dynamic_arguments(parser: argparse.ArgumentParser) -> None:
@@ -79,8 +79,7 @@ class DynamicSetup:
         out["filter_ms_median"] = float(np.median(f.frames_ms)) if f.frames_ms else 0.0
         if self.detection_ms:
             out["detection_ms_median"] = float(np.median(self.detection_ms))
-        for name, values in (("segmentation", f.segmentation_cpu_ms), ("free_space", f.free_space_cpu_ms),
-                             ("flag_region", f.flag_region_cpu_ms)):
+        for name, values in (("segmentation", f.segmentation_cpu_ms), ("free_space", f.free_space_cpu_ms)):
             if values:  # thread CPU of the class-agnostic cues
                 out[f"{name}_cpu_ms_median"] = float(np.median(values))
         return out

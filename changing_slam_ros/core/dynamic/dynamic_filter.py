@@ -30,7 +30,6 @@ from changing_slam_ros.core.dynamic.detector import Detection
 from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
 from changing_slam_ros.core.movers.edge_test import edge_test_segment, match_nearby
-from changing_slam_ros.core.movers.flag_regions import FlagRegionConfig, grow_flags
 from changing_slam_ros.core.movers.free_space_check import FreeSpaceConfig, free_space_violations, near_surface
 from changing_slam_ros.core.movers.mover_tracking import MoverConfig, MoverTracker
 from changing_slam_ros.core.features.orb_features import Features
@@ -110,9 +109,6 @@ class DynamicConfig:
       window, tolerances and neighbour support. On by default: on the randomised dynamic family it took the
       class-agnostic cues from 0.76 / 0.12 to 0.90 / 0.35 precision / recall of moving keypoints and the p90 ATE
       from 31 to 17 cm (evaluation seeds, settings fixed before measuring), for under 1 ms per frame.
-    - `flag_regions`: the class-agnostic flags (segmentation, free space) are completed into regions: each group
-      of flagged keypoints close in the image and in depth spans a box and a depth range, and every keypoint in
-      both is flagged too (`movers/flag_regions.py`, settings in `flag_region`). Off by default.
     - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
       eq. 12 merging; `core/movers/mover_tracking.py`); its moving keypoints are dropped too. Off by default.
     """
@@ -144,8 +140,6 @@ class DynamicConfig:
     free_space_check: bool = True
     free_space_gap_frames: int = 10
     free_space: FreeSpaceConfig = field(default_factory=FreeSpaceConfig)
-    flag_regions: bool = False
-    flag_region: FlagRegionConfig = field(default_factory=FlagRegionConfig)
     movers: MoverConfig = field(default_factory=MoverConfig)
 
     def __post_init__(self) -> None:
@@ -228,7 +222,6 @@ class DynamicFilter:
         self.frames_ms: list[float] = []
         self.segmentation_cpu_ms: list[float] = []  # thread CPU of each frame's segmentation (matching included)
         self.free_space_cpu_ms: list[float] = []  # thread CPU of each frame's free-space check (its filter included)
-        self.flag_region_cpu_ms: list[float] = []  # thread CPU of each frame's flag regions
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
         self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
 
@@ -273,11 +266,6 @@ class DynamicFilter:
                 self.free_space_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if self._movers is not None:
                 moving |= self._movers.before_tracking(rgbd.stamp_ns, features, rgbd.camera)
-            if cfg.flag_regions and moving.any():
-                c0 = time.thread_time()
-                moving = grow_flags(moving, features.keypoints_px, features.depths_m, rgbd.depth_m.shape[1],
-                                    cfg.flag_region)
-                self.flag_region_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if cfg.detection_filtering:
                 tracker = self._tracker_for(rgbd.camera)
                 res = tracker.classify(
