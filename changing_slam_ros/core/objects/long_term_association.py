@@ -21,6 +21,7 @@ from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.map.map_point import PointStore
 from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig
+from changing_slam_ros.core.objects.object_fusion import fuse_duplicates
 from changing_slam_ros.core.objects.object_point_weights import Plane
 from changing_slam_ros.core.objects.object_visibility import Visibility, check_visibility
 from changing_slam_ros.core.objects.persistence_filter import BeliefUpdate, likelihood_seen, update_missed, update_seen
@@ -98,7 +99,9 @@ class AssociationResult:
     """What one keyframe changed. `assignments[i]` is the map object id candidate i went to (new or
     merged; for a truncated candidate: the object its points are labelled with), -1 if it was skipped (truncated
     with `truncated_views` off, fewer than `min_points` points, or a picture: its index is then in `pictures`).
-    `visibility`: the verdict of the vicinity search for every mapped object that no candidate matched."""
+    `visibility`: the verdict of the vicinity search for every mapped object that no candidate matched.
+    `fused`: objects that left the map as duplicates of another (`object_fusion`), absorbed id -> survivor id;
+    the assignments, new and merged ids already name the survivor."""
 
     keyframe_id: int
     assignments: tuple[int, ...]
@@ -109,6 +112,7 @@ class AssociationResult:
     deactivated_point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
     visibility: dict[int, Visibility] = field(default_factory=dict)
     pictures: tuple[int, ...] = ()
+    fused: dict[int, int] = field(default_factory=dict)
 
 
 class LongTermAssociation:
@@ -193,6 +197,10 @@ class LongTermAssociation:
            candidate's 3D centroid (a partial view of a large table) did not associate. The same holds for the
            same-class `detected_boxes` (the dynamic stage flagged them dynamic in this keyframe, which happens
            for a frame or two while the robot turns fast).
+
+        6. duplicates (ours, `object_fusion.py`): two same-class objects, one at least known only from cut views,
+           whose 3D boxes overlap by `fuse_min_overlap` of the smaller one are one large object seen cut from
+           far-apart places, and fuse.
 
         Objects created in this keyframe are not candidates for merging within the same keyframe, so two
         same-class detections of one image never fuse.
@@ -281,13 +289,24 @@ class LongTermAssociation:
             assignments.append(target.id)
         boxes = [(c.class_id, c.box_xyxy) for c in candidates] + [(int(k), b) for k, b in detected_boxes]
         visibility = self._vicinity_search(keyframe_id, existing, seen, boxes, T_world_cam, camera, depth_m, changes)
+        held = {oid: obj.point_ids for oid, obj in self.objects.items()}
+        fused = fuse_duplicates(self.objects, cfg, [a for a in assignments if a >= 0])
+        if fused:  # the survivor's id everywhere; the absorbed points take its flag
+            assignments = [fused.get(a, a) for a in assignments]
+            new_ids = [i for i in new_ids if i not in fused]
+            merged_ids = list(dict.fromkeys(fused.get(i, i) for i in merged_ids))
+            for gone_id, keep_id in fused.items():
+                (attached_on if self.objects[keep_id].active else attached_off).append(held[gone_id])
+            gone = set(fused)
+            changes = [c for c in changes if c.object_id not in gone]
+            visibility = {k: v for k, v in visibility.items() if k not in gone}
         activated, deactivated = self._point_flag_changes(before)
         if attached_on:
             activated = np.unique(np.concatenate([activated, *attached_on]))
         if attached_off:
             deactivated = np.unique(np.concatenate([deactivated, *attached_off]))
         return AssociationResult(keyframe_id, tuple(assignments), tuple(new_ids), tuple(merged_ids), tuple(changes),
-                                 activated, deactivated, visibility, tuple(pictures))
+                                 activated, deactivated, visibility, tuple(pictures), fused)
 
     def _nearest_same_class(self, pool: list[MapObject], class_id: int, centroid_w: F64) -> MapObject | None:
         """The nearest mapped object of the class within `ltda_threshold_m` (lines 3-6) that may take a candidate
@@ -373,7 +392,10 @@ def point_lookup(points: PointStore) -> PointLookup:
 
 def apply_to_point_store(points: PointStore, candidates: Sequence[ObjectCandidate], result: AssociationResult) -> None:
     """Write one keyframe's outcome into the map points: each associated candidate's points get the map
-    object's id and class (§4.2), and the active flags follow the objects' beliefs (§4.7)."""
+    object's id and class (§4.2), the points of a fused duplicate its survivor's id, and the active flags follow
+    the objects' beliefs (§4.7)."""
+    for gone_id, keep_id in result.fused.items():  # duplicates fused (`object_fusion`): their points are the survivor's
+        points.object_id[np.flatnonzero(points.object_id[:points.size] == gone_id)] = keep_id
     for cand, oid in zip(candidates, result.assignments):
         if oid < 0:
             continue

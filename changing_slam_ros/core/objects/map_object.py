@@ -162,6 +162,14 @@ class ObjectMapConfig:
       of `persistence_filter` below 1, i.e. farther than about 2 centroid sigmas): the class seen at a new place
       is a new object (moved, re-found), not evidence for the old place; close to the old place it merges and
       the object is back.
+    Duplicates of cut views (ours, `object_fusion.py`):
+    - `fuse_cut_duplicates`: after each keyframe, two same-class objects, one at least known only from cut views
+      and neither lost, whose 3D boxes share at least `fuse_min_overlap` of the smaller box's volume and that no
+      keyframe saw together, are one object: a view cut by the image border has its centroid anywhere inside a
+      large object (a couch), so two cut views from far-apart places lie farther apart than `ltda_threshold_m`.
+      The object with whole views survives (else the older); its belief stays. Off: each stays an object.
+    - `fuse_min_overlap`: intersection over the smaller box's volume, in (0, 1]; two chairs side by side share a
+      sliver of their boxes, two cut views of one couch most of the smaller one.
     Semantic map (§4.8):
     - `min_points`: objects with fewer points are left out of the semantic map and never merged into.
     - `semantic_min_belief`: the semantic map holds the objects with belief >= this (0.5: every object seen
@@ -211,6 +219,8 @@ class ObjectMapConfig:
     wall_min_extent_m: float = 1.0
     flat_classes: tuple[int, ...] = FLAT_CLASSES
     relocation: bool = True
+    fuse_cut_duplicates: bool = True
+    fuse_min_overlap: float = 0.5
 
     def __post_init__(self) -> None:
         where = "objects"
@@ -224,6 +234,8 @@ class ObjectMapConfig:
                               f"got {self.picture_plane_dist_m} / {self.picture_min_fraction}")
         if not 0.0 <= self.wall_min_tilt_deg <= 90.0:
             raise ConfigError(f"{where}.wall_min_tilt_deg: expected within [0, 90], got {self.wall_min_tilt_deg}")
+        if not 0.0 < self.fuse_min_overlap <= 1.0:
+            raise ConfigError(f"{where}.fuse_min_overlap: expected within (0, 1], got {self.fuse_min_overlap}")
         if self.ltda_threshold_m <= 0.0:
             raise ConfigError(f"{where}.ltda_threshold_m: expected > 0, got {self.ltda_threshold_m}")
         if self.n_keyframes_unseen < 0:

@@ -15,7 +15,7 @@ every map point stays active, as in the plain engine; this is the "what the laye
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -363,7 +363,7 @@ class ObjectLayer:
             n_freed = self._drop_pictures(mo, slam_map, refit_up if refit_up is not None else walls_up)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         self._settle_shared(mo, slam_map, res)
-        self._flip_labelled(mo, slam_map, was_active)
+        self._flip_labelled(mo, slam_map, was_active, res.fused.values())
         self._keep_thumbnail(mo, kf.id, thumbnail)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
@@ -485,10 +485,14 @@ class ObjectLayer:
         pts.active[ids[known]] = [objects[int(o)].active for o in owner[known].tolist()]
 
     @staticmethod
-    def _flip_labelled(mo: _MapObjects, slam_map: SlamMap, was_active: dict[int, bool]) -> None:
-        """Every live map point labelled with an object that changed state takes its flag, also the points of its
-        cut views that are not in its point set (`long_term_association`: truncated candidates)."""
-        flipped = [oid for oid, obj in mo.lta.objects.items() if oid in was_active and was_active[oid] != obj.active]
+    def _flip_labelled(mo: _MapObjects, slam_map: SlamMap, was_active: dict[int, bool],
+                       survivors: Iterable[int] = ()) -> None:
+        """Every live map point labelled with an object that changed state, or that absorbed a duplicate
+        (`survivors`), takes its flag, also the points of its cut views that are not in its point set
+        (`long_term_association`: truncated candidates)."""
+        keep = set(survivors)
+        flipped = [oid for oid, obj in mo.lta.objects.items()
+                   if (oid in was_active and was_active[oid] != obj.active) or oid in keep]
         if not flipped:
             return
         pts = slam_map.points
