@@ -49,6 +49,8 @@ def test_tracking_pairs_every_bag_frame_and_acks_it_for_a_lossless_bag_player(ro
     executor = SingleThreadedExecutor(context=ros_context)
     for node in (tracking, player, probe):
         executor.add_node(node)
+    # the probe must hear the first ack: an ack published before discovery matched it would be lost
+    assert spin_until(executor, lambda: tracking.ack_pub.get_subscription_count() >= 2, 10.0)
     result = player.play(executor)
     spin_until(executor, lambda: len(acks) >= len(bag.rgb_stamps_ns), 2.0)
     # Each colour frame's depth frame was recorded 15-20 ms after it: acknowledging a colour frame needs the

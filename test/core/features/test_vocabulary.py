@@ -99,16 +99,17 @@ def test_a_frame_scores_much_higher_with_a_perturbed_copy_than_with_unrelated_im
     assert same > 3.0 * max(unrelated)  # measured ~0.02 - 0.03
 
 
-def test_transform_of_1000_descriptors_takes_a_few_milliseconds(vocab):
+def test_transform_of_1000_descriptors_takes_a_few_milliseconds_of_cpu(vocab):
+    """Thread CPU time, not wall time: other processes on a loaded machine do not count."""
     desc = np.random.default_rng(4).integers(0, 256, (1000, 32), dtype=np.uint8)
     vocab.transform(desc)
     times = []
     for _ in range(7):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         q = vocab.transform(desc)
-        times.append(time.perf_counter() - t0)
+        times.append(time.thread_time() - t0)
     assert len(q.word_of_descriptor) == 1000 and np.all(q.word_of_descriptor >= 0)
-    print(f"transform 1000 descriptors: median {1e3 * np.median(times):.2f} ms")
+    print(f"transform 1000 descriptors: median {1e3 * np.median(times):.2f} ms CPU")
     assert np.median(times) < 0.025  # ~3 ms measured on the shared 2-core machine
 
 
