@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -37,6 +38,9 @@ class NodeProcess:
 
             def before_exec() -> None:
                 _stop_with_parent()
+                # SIGINT asks a node to write its outputs and stop: a graph started in the background of a shell
+                # (where SIGINT is ignored and the ignore is inherited) must still be able to send it
+                signal.signal(signal.SIGINT, signal.SIG_DFL)
                 if increment:
                     os.nice(increment)
 

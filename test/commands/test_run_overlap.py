@@ -101,7 +101,10 @@ def test_ctrl_c_during_an_overlapped_run_exits_promptly(tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     cmd = [sys.executable, "-m", "changing_slam_ros.cli", "run", str(SAMPLE), "--out", str(tmp_path / "out"),
            "--config", "sim", "--no-plot"]  # fmt: skip
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # SIGINT as a terminal's Ctrl-C delivers it, also when the suite itself runs in the background of a shell
+    # (which starts its children with SIGINT ignored)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     err = bytearray()
 
     def read_stderr() -> None:  # tqdm's progress goes to stderr, updated in place with \r
