@@ -3,8 +3,9 @@ cart of no COCO class pushed across its view at 1 m, among three other movers; e
 the cart fills most of the image. With the detector's boxes as the paper uses them (no held person boxes), tracking
 follows it without the gate: the camera appears to move 12 cm per frame (3.6 m/s, against the robot's 0.3 m/s)
 and the trajectory ends ~20 cm off. With the gate on (it is off by default) those poses are refused and tracking
-carries on from the static background. The default's held person boxes also keep tracking off the cart here (the
-detector names it "person" in some frames)."""
+carries on from the static background. The default's held person boxes also keep tracking off the cart here: a person
+box the detector reports at the left image border in frame 98, held and grown over the next frames, covers the
+cart's keypoints while it comes in."""
 
 from __future__ import annotations
 
