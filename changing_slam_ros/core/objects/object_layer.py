@@ -15,7 +15,7 @@ every map point stays active, as in the plain engine; this is the "what the laye
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,6 +37,7 @@ from changing_slam_ros.core.objects.object_box_completion import gravity_up
 from changing_slam_ros.core.objects.object_map_merge import join, moved_object, remap_point_ids, same_object
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
 from changing_slam_ros.core.objects.picture_check import is_picture, plane_extent_m
+from changing_slam_ros.core.objects.point_flags import flip_labelled, keep_enough_active, settle_shared
 from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.core.objects.semantic_map import SemanticMap, build_semantic_map
 from changing_slam_ros.core.map.slam_map import SlamMap
@@ -74,6 +75,13 @@ class ObjectLayerConfig:
       fraction of the way back to 0.5 (0 = keep, 1 = forget): time has passed and the room may have changed, so
       what the last session saw counts less than what this one sees (a one-step stand-in for a survival-time
       prior). An object that falls below `belief_threshold` starts the session inactive.
+    - `min_active_points`: a keyframe keeps at least this many usable map points. The points of a new object
+      start inactive (§4.7) until its belief passes `belief_threshold`; where that would leave the keyframe with
+      fewer, the points of its undecided objects (belief not below 0.5: nothing says they moved) stay active,
+      largest objects first, so tracking is never left without a map: a detector that names most of the view
+      one object (a wall photo taken for a "clock" box over 90 % of the image) made the first keyframe keep 50
+      of its 793 points, and the next 29 frames were lost. Objects with evidence of a change stay inactive.
+      The same floor as the dynamic filter's `min_kept_keypoints`, for the same reason; 0 = the paper's rule.
     """
 
     enabled: bool = True
@@ -84,6 +92,7 @@ class ObjectLayerConfig:
     session_belief_decay: float = 0.5
     cut_min_side_m: float = 0.1
     new_object_keyframes: bool = False
+    min_active_points: int = 300
     association: ObjectMapConfig = field(default_factory=ObjectMapConfig)
 
     def __post_init__(self) -> None:
@@ -98,11 +107,13 @@ class ObjectLayerConfig:
             raise ConfigError(f"objects.cut_min_side_m: expected >= 0, got {self.cut_min_side_m}")
         if not 0.0 <= self.session_belief_decay <= 1.0:
             raise ConfigError(f"objects.session_belief_decay: expected within [0, 1], got {self.session_belief_decay}")
+        if self.min_active_points < 0:
+            raise ConfigError(f"objects.min_active_points: expected >= 0, got {self.min_active_points}")
 
 
 _OWN_KEYS = {"enabled": bool, "depth_samples": int, "depth_band_m": float, "depth_band_near_quantile": float,
              "band_map_points": bool, "new_object_keyframes": bool,
-             "session_belief_decay": float, "cut_min_side_m": float}
+             "session_belief_decay": float, "cut_min_side_m": float, "min_active_points": int}
 
 
 def object_layer_config(data: dict[str, Any] | None, where: str = "objects") -> ObjectLayerConfig:
@@ -362,13 +373,14 @@ class ObjectLayer:
             refit_up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])
             n_freed = self._drop_pictures(mo, slam_map, refit_up if refit_up is not None else walls_up)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
-        self._settle_shared(mo, slam_map, res)
-        self._flip_labelled(mo, slam_map, was_active, res.fused.values())
+        settle_shared(mo.lta.objects, slam_map.points, res)
+        flip_labelled(mo.lta.objects, slam_map.points, was_active, res.fused.values())
+        n_kept = keep_enough_active(mo.lta.objects, kf, slam_map.points, self.config.min_active_points)
         self._keep_thumbnail(mo, kf.id, thumbnail)
         ms = (time.perf_counter() - t0) * 1e3
         self.keyframe_ms.append(ms)
         return ObjectLayerResult(slam_map.id, res, tuple(c for c, _ in cands),
-                                 int((res.activated_point_ids >= 0).sum()) + n_freed,
+                                 int((res.activated_point_ids >= 0).sum()) + n_freed + n_kept,
                                  int((res.deactivated_point_ids >= 0).sum()), ms)
 
     def _candidates(self, mo: _MapObjects, kf: Keyframe, slam_map: SlamMap,
@@ -468,38 +480,6 @@ class ObjectLayer:
             pts.active[sel] = True
             freed += len(sel)
         return freed
-
-    @staticmethod
-    def _settle_shared(mo: _MapObjects, slam_map: SlamMap, res: AssociationResult) -> None:
-        """A map point seen inside the boxes of two objects (a wall point behind both places of a moved chair)
-        belongs to both; its flag follows the object it was last associated with (`PointStore.object_id`),
-        not whichever object changed state last."""
-        ids = np.concatenate([res.activated_point_ids, res.deactivated_point_ids])
-        pts = slam_map.points
-        ids = ids[(ids >= 0) & (ids < pts.size)]
-        if len(ids) == 0:
-            return
-        owner = pts.object_id[ids]
-        objects = mo.lta.objects
-        known = np.array([int(o) in objects for o in owner.tolist()], bool)
-        pts.active[ids[known]] = [objects[int(o)].active for o in owner[known].tolist()]
-
-    @staticmethod
-    def _flip_labelled(mo: _MapObjects, slam_map: SlamMap, was_active: dict[int, bool],
-                       survivors: Iterable[int] = ()) -> None:
-        """Every live map point labelled with an object that changed state, or that absorbed a duplicate
-        (`survivors`), takes its flag, also the points of its cut views that are not in its point set
-        (`long_term_association`: truncated candidates)."""
-        keep = set(survivors)
-        flipped = [oid for oid, obj in mo.lta.objects.items()
-                   if (oid in was_active and was_active[oid] != obj.active) or oid in keep]
-        if not flipped:
-            return
-        pts = slam_map.points
-        n = pts.size
-        for oid in flipped:
-            sel = np.flatnonzero((pts.object_id[:n] == oid) & ~pts.bad[:n])
-            pts.active[sel] = mo.lta.objects[oid].active
 
     @staticmethod
     def _anchor(mo: _MapObjects, kf: Keyframe, cands: Sequence[tuple[ObjectCandidate, F64]],
