@@ -9,6 +9,7 @@ from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.dynamic.dynamic_objects import ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+from changing_slam_ros.core.objects.point_flags import keep_enough_active
 from changing_slam_ros.core.objects.object_layer import (
     ObjectLayer, ObjectLayerConfig, box_depth_band, box_depth_samples, object_layer_config,
 )
@@ -34,17 +35,18 @@ def _state(motion: ObjectMotion = ObjectMotion.STATIC, box: tuple[float, float, 
     return ObjectState(7, CHAIR, box, nan3, nan3, 0.0, motion, 3, False)
 
 
-def _map_with_keyframe(kf_id: int, T_world_cam: np.ndarray, n_obj: int = 12) -> tuple[SlamMap, Keyframe]:
-    """A map with one keyframe: n_obj keypoints on the object (short-term id 7) with map points at 2 m, 8 on the background."""
+def _map_with_keyframe(kf_id: int, T_world_cam: np.ndarray, n_obj: int = 12, n_bg: int = 320) -> tuple[SlamMap, Keyframe]:
+    """A map with one keyframe: n_obj keypoints on the object (short-term id 7) with map points at 2 m, n_bg on
+    the background (at least the layer's `min_active_points`, as in a keyframe tracking can go on from)."""
     rng = np.random.default_rng(kf_id)
     px_obj = np.c_[rng.uniform(105, 165, n_obj), rng.uniform(65, 175, n_obj)]
-    px_bg = np.c_[rng.uniform(0, 90, 8), rng.uniform(0, 240, 8)]
+    px_bg = np.c_[rng.uniform(0, 90, n_bg), rng.uniform(0, 240, n_bg)]
     px = np.vstack([px_obj, px_bg])
-    depth = np.r_[np.full(n_obj, 2.0), np.full(8, 4.0)]
+    depth = np.r_[np.full(n_obj, 2.0), np.full(n_bg, 4.0)]
     n = len(px)
     kf = Keyframe(kf_id, kf_id * 10**9, T_world_cam, CAM, px.astype(np.float32), np.zeros(n, np.int8),
                   np.zeros((n, 32), np.uint8), depth.astype(np.float32), np.full(n, -1, np.int64),
-                  object_ids=np.r_[np.full(n_obj, 7), np.full(8, -1)].astype(np.int64))
+                  object_ids=np.r_[np.full(n_obj, 7), np.full(n_bg, -1)].astype(np.int64))
     m = SlamMap(0)
     pts_c = CAM.backproject(px, depth)
     pts_w = pts_c @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
@@ -78,6 +80,34 @@ def test_new_object_is_created_inactive_and_its_map_points_leave_tracking() -> N
     assert not usable[:12].any() and usable[12:].all()  # object points inactive, background untouched
     assert (m.points.object_id[:12] == obj.id).all() and (m.points.class_id[:12] == CHAIR).all()
     assert out.n_deactivated == 12 and out.active_flags_changed
+
+
+def test_a_keyframe_new_objects_would_leave_without_a_map_keeps_their_points_active() -> None:
+    # 12 chair points and 8 of the background: the chair would take the keyframe below `min_active_points`
+    m, kf = _map_with_keyframe(0, np.eye(4), n_bg=8)
+    layer = ObjectLayer()
+    out = layer.after_keyframe(kf, m, _depth(), [_state()])
+    (obj,) = layer.objects(0)
+    assert obj.belief == 0.5 and not obj.active  # the object itself is still undecided
+    assert m.points.usable().all() and out.n_activated == 12
+    # the paper's rule (no floor): the chair's points leave tracking
+    m, kf = _map_with_keyframe(0, np.eye(4), n_bg=8)
+    paper = ObjectLayer(ObjectLayerConfig(min_active_points=0))
+    paper.after_keyframe(kf, m, _depth(), [_state()])
+    assert not m.points.usable()[:12].any() and m.points.usable()[12:].all()
+    # an object with evidence that it moved (belief below 0.5) stays out, floor or not
+    m, kf = _map_with_keyframe(0, np.eye(4), n_bg=8)
+    layer = ObjectLayer(ObjectLayerConfig(min_active_points=0))
+    layer.after_keyframe(kf, m, _depth(), [_state()])
+    (obj,) = layer.objects(0)
+    obj.belief = 0.3
+    assert keep_enough_active(layer.association(0).objects, kf, m.points, 300) == 0
+    assert not m.points.usable()[:12].any()
+    obj.belief = 0.5
+    assert keep_enough_active(layer.association(0).objects, kf, m.points, 300) == 12
+    assert m.points.usable().all()
+    with pytest.raises(ConfigError, match="objects.min_active_points"):
+        object_layer_config({"min_active_points": -1})
 
 
 def test_dynamic_objects_are_ignored_and_switch_off_keeps_every_point_active() -> None:
@@ -206,7 +236,7 @@ def test_the_near_quantile_changes_nothing_where_the_object_fills_its_box() -> N
 def test_map_points_of_the_wall_seen_past_the_object_stay_out_of_it() -> None:
     """Keypoints inside the box on the wall 2 m behind the object (the monitor in front of the wall) are not the
     object's: with `band_map_points` they are left out, without it they drag the centroid back by 2 m * 4/16."""
-    m, kf = _map_with_keyframe(0, np.eye(4))
+    m, kf = _map_with_keyframe(0, np.eye(4), n_bg=8)  # too few to fit the wall's plane
     # move 4 of the 12 object keypoints onto the wall behind (4 m), still inside the box
     pids = kf.point_ids[:4]
     px = kf.keypoints_px[:4].astype(float)
@@ -216,7 +246,7 @@ def test_map_points_of_the_wall_seen_past_the_object_stay_out_of_it() -> None:
     (obj,) = banded.objects(0)
     assert set(obj.point_ids[obj.point_ids >= 0].tolist()) == set(kf.point_ids[4:12].tolist())
     assert abs(obj.centroid_w[2] - 2.0) < 1e-6 and obj.box_size_m[2] < 0.01
-    m2, kf2 = _map_with_keyframe(0, np.eye(4))
+    m2, kf2 = _map_with_keyframe(0, np.eye(4), n_bg=8)
     m2.points.positions[kf2.point_ids[:4]] = CAM.backproject(px, np.full(4, 4.0))
     loose = ObjectLayer(ObjectLayerConfig(band_map_points=False))
     loose.after_keyframe(kf2, m2, _depth(), [_state()])
