@@ -63,13 +63,13 @@ def keep_enough_active(objects: Mapping[int, MapObject], kf: Keyframe, pts: Poin
         return 0
     idle = ids[~pts.active[ids]]
     owner = pts.object_id[idle]
-    undecided = [oid for oid in np.unique(owner[owner >= 0]).tolist()
-                 if oid in objects and objects[oid].belief >= 0.5]
+    held, counts = np.unique(owner[owner >= 0], return_counts=True)
     freed = 0
-    for oid in sorted(undecided, key=lambda o: -int((owner == o).sum())):
-        sel = idle[owner == oid]
-        pts.active[sel] = True
-        freed += len(sel)
+    for oid, count in sorted(zip(held.tolist(), counts.tolist()), key=lambda oc: -oc[1]):
+        if oid not in objects or objects[oid].belief < 0.5:
+            continue
+        pts.active[idle[owner == oid]] = True
+        freed += count
         if freed >= short:
             break
     return freed
