@@ -30,6 +30,8 @@ from changing_slam_ros.core.movers.correlation_window import SegmentationConfig
 from changing_slam_ros.core.movers.delaunay_graph import hull_volume_m3
 
 F64 = npt.NDArray[np.float64]
+CHI2_3_MEDIAN = 2.366  # median of chi2 with 3 degrees of freedom
+MIN_EDGES_FOR_NOISE = 30  # fewer edges: the model's noise as it is
 I64 = npt.NDArray[np.int64]
 BoolArr = npt.NDArray[np.bool_]
 U8 = npt.NDArray[np.uint8]
@@ -138,6 +140,10 @@ def edge_test_segment(
     cov_p, cov_q = _point_covariances(p, camera, cfg), _point_covariances(q, camera, cfg)
     cov = cov_p[i] + cov_p[j] + R @ (cov_q[i] + cov_q[j]) @ R.T
     chi2 = np.einsum("ea,ea->e", e, np.linalg.solve(cov, e[:, :, None])[:, :, 0])
+    if cfg.noise_from_edges and len(chi2) >= MIN_EDGES_FOR_NOISE:
+        scale = max(1.0, float(np.median(chi2)) / CHI2_3_MEDIAN)  # the sensor's noise against the model's
+        chi2 = chi2 / scale
+        cov_p, cov_q = cov_p * scale, cov_q * scale
     consistent = chi2 <= 2.0 * cfg.outlier_chi2
     if cfg.min_supporting_triangles > 0:  # an edge of the 2D graph lies on at most two triangles
         on = np.bincount(tri_edges.ravel(), minlength=len(codes))
