@@ -137,6 +137,9 @@ class SlamSystem:
         self.n_loops = 0
         self.merges: list[MergeResult] = []
         refine = self.config.tracking.deferred_refinement
+        self.n_forgotten_points = 0
+        self.owns_map = True  # False on tracking's replica in the split graph: the map owner edits the map
+        self._flag_counts: dict[int, dict[int, int]] = {}  # map id -> point id -> frames its keypoint was flagged
         self.refinement: DeferredRefinement | None = None  # real time with late detections: final poses refined
         if refine.enabled and dynamic_filter is not None:
             self.refinement = DeferredRefinement(refine, dynamic_filter.config.tracker_config().classification)
@@ -208,10 +211,11 @@ class SlamSystem:
             dyn = self.dynamic_filter.before_tracking(rgbd, feats, detections)
             feats = feats.subset(dyn.keep)
             self.timings_ms["dynamic"].append(dyn.ms)
+            self._forget(dyn.moving_points)
         frame = Frame(rgbd.stamp_ns, len(self.records), rgbd.camera, feats)  # own counter: input order
         res: TrackResult = self.tracker.track(frame)
         if dyn is not None:
-            self._after_dynamic(dyn, res)
+            self._after_dynamic(dyn, res, frame)
             if (self.object_layer is not None and res.state == TrackingState.OK and res.new_keyframe is None
                     and self.object_layer.wants_keyframe(self.atlas.current.id, dyn.objects, res.T_world_cam, rgbd.camera)):
                 self.tracker.request_keyframe()  # an object the map has not seen: a keyframe soon, while in view
@@ -322,10 +326,35 @@ class SlamSystem:
         m = self.atlas.current if map_id is None else self.atlas.maps[map_id]
         return map_grid(m, self.config.grid, self.map_objects(m.id))
 
-    def _after_dynamic(self, dyn: DynamicFrame, res: TrackResult) -> None:
-        """The object EKFs get the tracked pose; a new keyframe keeps its keypoints' classes and object ids."""
+    def _forget(self, moving_points: tuple[tuple[int, npt.NDArray[np.int64]], ...]) -> None:
+        """Map points that earlier frames matched to keypoints found on a mover, in `forget_moving_points`
+        frames, leave the map (their observations too) before tracking could match them again."""
+        if not self.owns_map:
+            return
+        m = self.atlas.current
         assert self.dynamic_filter is not None
-        self.dynamic_filter.after_tracking(res.T_world_cam if res.state == TrackingState.OK else None)
+        need = self.dynamic_filter.config.forget_moving_points
+        for map_id, ids in moving_points:
+            if map_id != m.id:
+                continue
+            ids = np.unique(ids[ids < m.points.size])
+            counts = self._flag_counts.setdefault(map_id, {})
+            for pid in ids[~m.points.bad[ids]].tolist():
+                counts[pid] = counts.get(pid, 0) + 1
+                if counts[pid] >= need:
+                    m.erase_point(pid)
+                    self.n_forgotten_points += 1
+
+    def _after_dynamic(self, dyn: DynamicFrame, res: TrackResult, frame: Frame) -> None:
+        """The object EKFs get the tracked pose and the map points tracking matched (in the frame's full keypoint
+        order); a new keyframe keeps its keypoints' classes and object ids."""
+        assert self.dynamic_filter is not None
+        ok = res.state == TrackingState.OK
+        ids = None
+        if ok:
+            ids = np.full(len(dyn.keep), -1, np.int64)
+            ids[np.flatnonzero(dyn.keep)] = np.where(frame.outliers, -1, frame.point_ids)
+        self.dynamic_filter.after_tracking(res.T_world_cam if ok else None, ids, self.atlas.current.id)
         if res.new_keyframe is not None and len(res.new_keyframe) == int(dyn.keep.sum()):
             res.new_keyframe.kp_classes = dyn.kp_classes[dyn.keep]
             res.new_keyframe.object_ids = dyn.object_ids[dyn.keep]

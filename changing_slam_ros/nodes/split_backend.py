@@ -120,6 +120,7 @@ class TrackingSide:
         system = backend.system
         ship = ship or system.config.grid.enabled
         system.keep_grid_scans = False  # the map owner keeps them
+        system.owns_map = False  # nor does the replica forget points (`dynamic.forget_moving_points`)
         index = backend.loop_closing  # same class as the loop side's: relocalisation candidates only here
         system.loop_closer = None
         system.keyframe_index = None

@@ -16,3 +16,4 @@ def test_the_graphs_tracking_segments_movers_by_default(config: str, provisional
     assert flt is not None
     assert flt.config.segmentation and flt.config.segmentation_method == "edge_test"
     assert flt.config.min_kept_keypoints == 300
+    assert not side.system.owns_map  # the replica never forgets points itself (dynamic.forget_moving_points)

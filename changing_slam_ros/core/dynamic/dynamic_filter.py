@@ -109,6 +109,16 @@ class DynamicConfig:
       window, tolerances and neighbour support. On by default: on the randomised dynamic family it took the
       class-agnostic cues from 0.76 / 0.12 to 0.90 / 0.35 precision / recall of moving keypoints and the p90 ATE
       from 31 to 17 cm (evaluation seeds, settings fixed before measuring), for under 1 ms per frame.
+    - `forget_moving_points`: a map point that earlier frames matched to a keypoint the segmentation now puts
+      on a mover, this many times, leaves the map with its observations (0 = off, the default). A keypoint
+      left out of tracking passes its point's id on through the segmentation's own matches, so a point is
+      tested again while its keypoint is flagged. A slow mover of no COCO class that no cue flags in every
+      frame otherwise keeps its map points, local BA moves them with it, and tracking follows it (tuning
+      seed 10, a tripod camera and a pushed cart: 21.79 -> 2.20 cm with 2). On tuning seeds 0-29 with
+      `correlation.noise_from_edges` ATE median / p90 / worst 1.93 / 20.56 / 25.86 -> 2.14 / 16.36 / 25.17
+      cm (12 seeds better, 7 worse), controls about the same; not run on the evaluation seeds. Offline and
+      in the in-process backend only: in the split graph the map belongs to local_mapping, and tracking's
+      replica does not edit it.
     - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
       eq. 12 merging; `core/movers/mover_tracking.py`); its moving keypoints are dropped too. Off by default.
     """
@@ -135,6 +145,7 @@ class DynamicConfig:
     fixed_class_ids: tuple[int, ...] = (59, 60, 61, 69, 71, 72)
     min_kept_keypoints: int = 300
     keep_undecided: bool = False
+    forget_moving_points: int = 0
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
     free_space_check: bool = True
@@ -152,6 +163,8 @@ class DynamicConfig:
         if min(self.segmentation_long_gap_frames, self.segmentation_carry_frames) < 0 or self.segmentation_long_every < 1:
             raise ConfigError("dynamic: segmentation_long_gap_frames and segmentation_carry_frames must be >= 0, "
                               "segmentation_long_every >= 1")
+        if self.forget_moving_points < 0:
+            raise ConfigError(f"dynamic.forget_moving_points: expected >= 0 (0 = off), got {self.forget_moving_points}")
         if self.free_space_gap_frames < 1:
             raise ConfigError(f"dynamic.free_space_gap_frames: expected >= 1, got {self.free_space_gap_frames}")
         if self.segmentation_min_matches < 5:
@@ -175,7 +188,9 @@ class DynamicFrame:
     - `kp_classes` (N,) int8 `KeypointClass`; `object_ids` (N,) int64 MapObject id, -1 background;
     - `moving` (N,) bool: keypoints of a segmentation object target (all False when it is off);
     - `objects`: the detected objects' states in this frame (before this frame's EKF update);
-    - `ms`: milliseconds spent in the stage (classification, association, EKF, segmentation).
+    - `ms`: milliseconds spent in the stage (classification, association, EKF, segmentation);
+    - `moving_points`: (map id, map point ids) that earlier frames matched to keypoints the segmentation now
+      finds on a mover (`forget_moving_points`).
     """
 
     keep: BoolArr
@@ -184,6 +199,7 @@ class DynamicFrame:
     moving: BoolArr
     objects: tuple[ObjectState, ...]
     ms: float
+    moving_points: tuple[tuple[int, npt.NDArray[np.int64]], ...] = ()
 
     @property
     def kept_fraction(self) -> float:
@@ -198,6 +214,8 @@ class _Past:
     T_world_cam: F64 | None
     flag_age: npt.NDArray[np.int64]  # (N,) frames since the segmentation flagged the keypoint (NEVER: not)
     near_surface: npt.NDArray[np.float32] | None = None  # the free-space check's min-filtered depth (when on)
+    point_ids: npt.NDArray[np.int64] | None = None  # (N,) map point tracking matched to each keypoint, -1 none
+    map_id: int = -1  # the map those ids belong to
 
 
 class DynamicFilter:
@@ -215,6 +233,9 @@ class DynamicFilter:
         self._pending_age: npt.NDArray[np.int64] | None = None
         self._poses: deque[F64] = deque(maxlen=2)  # last two tracked poses, for the prediction
         self._pending: _Past | None = None
+        self._moving_points: list[tuple[int, npt.NDArray[np.int64]]] = []  # this frame's, for `DynamicFrame`
+        self._inherited: npt.NDArray[np.int64] | None = None
+        self._inherited_map = -1
         self._classified = False
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
         self.n_keypoints = 0
@@ -290,10 +311,13 @@ class DynamicFilter:
         self.n_keypoints += n
         self.n_kept += int(keep.sum())
         self.frames_ms.append(ms)
-        return DynamicFrame(keep, classes, object_ids, moving, objects, ms)
+        found, self._moving_points = tuple(self._moving_points), []
+        return DynamicFrame(keep, classes, object_ids, moving, objects, ms, found)
 
-    def after_tracking(self, T_world_cam: F64 | None) -> None:
-        """The frame's camera-to-world pose (4, 4) from tracking, None when tracking failed."""
+    def after_tracking(self, T_world_cam: F64 | None, point_ids: npt.NDArray[np.int64] | None = None,
+                       map_id: int = -1) -> None:
+        """The frame's camera-to-world pose (4, 4) from tracking, None when tracking failed; `point_ids` (N,) the
+        map point (of map `map_id`) tracking matched to each of the frame's N keypoints, -1 none."""
         if self._classified and T_world_cam is not None and self._tracker is not None:
             self._tracker.update_filters(T_world_cam)  # the frame's result is not needed: skip building it
         self._classified = False
@@ -301,8 +325,13 @@ class DynamicFilter:
             self._movers.after_tracking(T_world_cam)
         if self._pending is not None:
             self._pending.T_world_cam = None if T_world_cam is None else np.array(T_world_cam, dtype=np.float64)
+            if point_ids is not None and self._inherited is not None and self._inherited_map == map_id \
+                    and len(self._inherited) == len(point_ids):
+                point_ids = np.where(point_ids >= 0, point_ids, self._inherited)
+            self._pending.point_ids, self._pending.map_id = point_ids, map_id
             self._history.append(self._pending)
             self._pending = None
+        self._inherited = None
         if T_world_cam is None:
             self._poses.clear()
         else:
@@ -386,6 +415,14 @@ class DynamicFilter:
             past = self._history[-gap]
             q, t, flagged = self._segment_pair(features, past, T_now, camera)
             moving[q[flagged]] = True
+            if cfg.forget_moving_points > 0 and past.point_ids is not None:
+                ids = past.point_ids[t]
+                if flagged.any():
+                    self._moving_points.append((past.map_id, ids[flagged & (ids >= 0)]))
+                if gap == cfg.segmentation_gap_frames:  # a keypoint left out of tracking keeps its point's id
+                    self._inherited = np.full(n, -1, np.int64)
+                    self._inherited[q] = ids
+                    self._inherited_map = past.map_id
             if gap == cfg.segmentation_gap_frames and cfg.segmentation_carry_frames > 0:  # the earlier flags
                 carried = past.flag_age[t] + gap
                 fresh = carried <= cfg.segmentation_carry_frames

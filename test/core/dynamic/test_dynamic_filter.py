@@ -143,6 +143,42 @@ def test_segmentation_flags_a_group_that_moves_between_frames(method: str) -> No
     assert flt.kept_fraction() < 1.0
 
 
+def test_map_points_of_a_flagged_group_are_reported_while_their_keypoints_stay_out_of_tracking() -> None:
+    """The moving box above, with map point ids as tracking would give them (static points 0-399, the box's
+    1000-1039; a keypoint left out of tracking has none). With `forget_moving_points` the filter names the box's
+    points in every frame that flags the box, also after the box's keypoints have left tracking: the ids follow
+    the segmentation's own matches. Off, it names none."""
+    rng = np.random.default_rng(3)
+    static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
+    ray = static[:, :2] / static[:, 2:3] * 1.8
+    static = static[~((ray[:, 0] > 0.05) & (ray[:, 0] < 0.79) & (ray[:, 1] > -0.05) & (ray[:, 1] < 0.45))][:400]
+    box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (40, 3))
+    desc = rng.integers(0, 256, (440, 32), dtype=np.uint8)
+    ids = np.r_[np.arange(400), 1000 + np.arange(40)]
+    rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
+    for forget in (1, 0):
+        flt = DynamicFilter(DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
+                                          forget_moving_points=forget))
+        named = []
+        for k in range(6):
+            T_world_cam = np.eye(4)
+            T_world_cam[:3, 3] = [0.02 * k, 0.0, 0.0]
+            cam = transform_points(invert(T_world_cam), np.vstack([static, box0 + np.array([0.08 * k, 0.0, 0.0])]))
+            res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), _features(CAM.project(cam), cam[:, 2], desc), None)
+            named.append(set(np.concatenate([p for _, p in res.moving_points]).tolist()) if res.moving_points else set())
+            assert all(m == 0 for m, _ in res.moving_points)
+            flt.after_tracking(T_world_cam, np.where(res.keep, ids, -1), 0)
+        if forget:
+            for k in range(3, 6):  # the box's keypoints left tracking in frame 2 and after
+                box = {i for i in named[k] if i >= 1000}
+                assert len(box) >= 36, (k, len(box))
+                assert len(named[k] - box) <= 8
+        else:
+            assert not any(named)
+    with pytest.raises(ConfigError, match="forget_moving_points"):
+        DynamicConfig(forget_moving_points=-1)
+
+
 def test_dynamic_section_parses_nested_settings_and_rejects_unknown_keys() -> None:
     cfg = section(DynamicConfig, {"segmentation": True, "objects": {"min_updates": 2}}, "x.yaml: dynamic")
     assert cfg.segmentation and cfg.objects.min_updates == 2
