@@ -343,6 +343,7 @@ class SlamSystem:
                 counts[pid] = counts.get(pid, 0) + 1
                 if counts[pid] >= need:
                     m.erase_point(pid)
+                    del counts[pid]  # a bad point is never counted again
                     self.n_forgotten_points += 1
 
     def _after_dynamic(self, dyn: DynamicFrame, res: TrackResult, frame: Frame) -> None:
@@ -351,7 +352,7 @@ class SlamSystem:
         assert self.dynamic_filter is not None
         ok = res.state == TrackingState.OK
         ids = None
-        if ok:
+        if ok and self.dynamic_filter.config.forget_moving_points > 0:  # only forgetting reads them
             ids = np.full(len(dyn.keep), -1, np.int64)
             ids[np.flatnonzero(dyn.keep)] = np.where(frame.outliers, -1, frame.point_ids)
         self.dynamic_filter.after_tracking(res.T_world_cam if ok else None, ids, self.atlas.current.id)
