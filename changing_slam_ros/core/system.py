@@ -163,6 +163,19 @@ class SlamSystem:
             raise ConfigError("initial pose: no map to relocalise in (load a map or map first)")
         self.tracker.set_pose_hint(hint)
 
+    def set_first_pose(self, T_world_cam: F64) -> None:  # noqa: N803
+        """Where the first camera sits in the world frame the map is built in (identity unless set: the world is
+        the first camera's optical frame). A robot sets its camera mounting `T_base_cam` here, so the world is the
+        base's frame at the start: z up when the base stands level, as REP-105 wants of `map` and as Nav2 reads an
+        occupancy grid (x, y and yaw only). Before the first keyframe (not with a loaded map, whose frame stays); later maps of the
+        Atlas start where the last one left off, in this same frame."""
+        if self.atlas.n_keyframes:
+            raise RuntimeError("set_first_pose must be called before the first keyframe")
+        T = np.asarray(T_world_cam, np.float64)  # noqa: N806
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ConfigError(f"first pose: expected a finite 4x4 pose, got shape {T.shape}")
+        self.tracker.last_good_pose = T.copy()
+
     def start_from_map(self, atlas: Atlas, next_keyframe_id: int,
                        objects: dict[int, SavedObjectMap] | None = None, mode: Mode = Mode.MAPPING) -> None:
         """Multi-session: continue a saved Atlas (`io.map_file.load_map`) before the first frame. The keyframe

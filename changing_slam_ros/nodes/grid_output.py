@@ -4,8 +4,9 @@ The grid is rebuilt from every keyframe's depth scan at the keyframe's current p
 loop correction moves it; a rebuild costs milliseconds per keyframe, so it runs at most every `grid_period_s` and
 only while someone subscribes: on a keyframe or a loop when the period has passed, else from a steady timer once the
 period is over (the last change before a pause is not left out). The message's origin is the full pose of the
-first cell in the map frame: the grid lies on the estimated floor, which is not the map frame's x-y plane (the map
-frame is the first camera's optical frame). The saved pair is in the floor frame (`io.nav2_map`).
+first cell in the map frame, on the estimated floor: in the map's x-y plane when the map is z-up (tracking with a
+`base_frame`, `SlamSystem.set_first_pose`), tilted when the map is the first camera's optical frame. The saved
+pair is in the floor frame (`io.nav2_map`).
 """
 
 from __future__ import annotations

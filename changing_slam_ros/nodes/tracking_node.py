@@ -425,6 +425,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             self.frames_without_detections += 1
             used = self._carried_detections(item.stamp_ns)
         packet = None
+        self.frames_out.place_map(self.backend.system)
         if self.split is not None:
             out, packet = self.split.process(frame, used)
             if out is None:  # a new map waits for its first points from local_mapping

@@ -63,6 +63,7 @@ class Rep105Outputs:
         self.odom_timeouts = 0  # frames whose odometry never came within tf_timeout_s
         self.odom_missing = 0  # frames with no odometry path at all (no odom -> base_frame on /tf)
         self._map_moved = False
+        self._map_placed = False  # `place_map` has decided the frame of the map
         self._waiting: deque[_Waiting] = deque()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._timer = node.create_timer(0.01, self._retry, clock=steady, autostart=False)
@@ -105,6 +106,25 @@ class Rep105Outputs:
         self._set_state("LOST", stamp_ns)
         if self.has_map_odom and not self._waiting:
             self._send(stamp_ns, [(self.map_frame, self.odom_frame, self.state.T_map_odom)])
+
+    def place_map(self, system: Any) -> None:
+        """Before a map's first keyframe (none loaded): with a `base_frame` whose mounting is known, the map is
+        built in the base's frame at the start (`SlamSystem.set_first_pose`), so `map` is z-up when the base
+        stands level (REP-105) and `~/grid` lies in its x-y plane as Nav2 reads it. Without a base frame, or
+        while the mounting is unknown, the map is the first camera's optical frame (z forward, y down)."""
+        if self._map_placed or system is None:
+            return
+        self._map_placed = True
+        if system.atlas.n_keyframes or self.base_frame == self.camera_frame:  # a loaded map keeps its frame
+            return
+        T_base_cam = self.base_cam()  # noqa: N806
+        if T_base_cam is None:
+            self.node.get_logger().warning(f"tracking: {self.map_frame} is the first camera's optical frame (not "
+                                           f"z-up): no {self.base_frame} -> {self.camera_frame} mounting when the "
+                                           f"map started")  # fmt: skip
+            return
+        system.set_first_pose(T_base_cam)
+        self.node.get_logger().info(f"tracking: {self.map_frame} is {self.base_frame} at the first frame")
 
     def base_cam(self) -> F64 | None:
         """T_base_cam from /tf_static (the robot's URDF), looked up once it is there; None (warned) before."""

@@ -160,8 +160,11 @@ def test_with_visual_odometry_map_to_odom_is_identity_and_odom_to_base_is_the_ba
         assert m.transforms[0].transform.translation.x == 0.0 and m.transforms[0].transform.rotation.w == 1.0
         T_tf = tree.lookup("map", "base_link", cv.stamp_to_ns(p.header.stamp))  # noqa: N806
         assert np.abs(T_tf - cv.pose_to_matrix(p.pose)).max() < 1e-6
-    # The first base pose: the camera starts at the map origin, so the base is T_base_cam^-1 from it.
-    np.testing.assert_allclose(cv.pose_to_matrix(poses[0].pose), invert(T_BASE_CAM), atol=1e-9)
+    # The map is the base's frame at the first frame (z up with the base), not the first camera's optical frame:
+    # the first base pose is the map origin, and the first camera pose is the mounting.
+    np.testing.assert_allclose(cv.pose_to_matrix(poses[0].pose), np.eye(4), atol=1e-9)
+    first_kf = tracking.backend.system.atlas.current.keyframes[0]
+    np.testing.assert_allclose(first_kf.T_world_cam, T_BASE_CAM, atol=1e-9)
     tracking.destroy_node()
     for n in others:
         n.destroy_node()

@@ -29,9 +29,14 @@ class FloorEstimate:
 
     def frame(self, forward_hint: F64 | None = None) -> F64:
         """T_map_floor (4, 4): z along `up`, origin on the floor below the map origin, x along `forward_hint`
-        (the map's z, the first camera's viewing direction, by default) laid onto the floor."""
+        laid onto the floor. By default the hint is the map's z (the first camera's viewing direction, in a map
+        built in that camera's optical frame), or the map's x where the map's z is nearer the floor's normal than
+        45 degrees (a z-up map, built in a robot base's frame: its x is the base's forward)."""
         z = self.up / np.linalg.norm(self.up)
-        f = np.array([0.0, 0.0, 1.0]) if forward_hint is None else np.asarray(forward_hint, float).reshape(3)
+        if forward_hint is None:
+            f = np.array([1.0, 0.0, 0.0]) if abs(z[2]) > np.sqrt(0.5) else np.array([0.0, 0.0, 1.0])
+        else:
+            f = np.asarray(forward_hint, float).reshape(3)
         x = f - (f @ z) * z
         if np.linalg.norm(x) < 1e-6:  # looking straight down: any horizontal axis
             x = np.array([1.0, 0.0, 0.0]) - z[0] * z
