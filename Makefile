@@ -12,11 +12,12 @@ PYTEST_ARGS ?=
 
 MSG_SOURCES := $(shell find msg_defs -type f -not -path '*/build/*' 2>/dev/null)
 
-.PHONY: setup run test test-quick node-reference clean distclean help
+.PHONY: setup run test test-quick orbslam3-venv node-reference clean distclean help
 
 help:
 	@echo "make run         run the pipeline on the bundled sample ($(SAMPLE)) into $(OUT)"
 	@echo "make test        the whole test suite (make test-quick skips slow system tests)"
+	@echo "make orbslam3-venv  ORB-SLAM3's bindings in .venv-orbslam3 for bench/bench_orbslam3.py (GPL, not a dependency)"
 	@echo "make node-reference  regenerate docs/nodes.md from the nodes (test/nodes/test_node_reference.py checks it)"
 	@echo "make clean       remove build outputs (keeps .venv)"
 
@@ -55,6 +56,11 @@ test: setup
 
 test-quick: setup
 	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+orbslam3-venv:
+	@# ORB-SLAM3's Python bindings (GPL-3.0) in a separate venv, for bench/bench_orbslam3.py only; never a dependency.
+	@test -x .venv-orbslam3/bin/python || $(PYTHON) -m venv .venv-orbslam3
+	.venv-orbslam3/bin/python -m pip install --quiet --disable-pip-version-check pyorbslam3==0.1.1 numpy opencv-python-headless
 
 node-reference: setup
 	$(PY) tools/gen_node_reference.py
