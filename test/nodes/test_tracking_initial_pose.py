@@ -36,12 +36,15 @@ def initial_pose(T: np.ndarray, frame: str = "map") -> PoseWithCovarianceStamped
     return msg
 
 
-def test_initial_pose_message_seeds_relocalisation_at_the_place_it_names(ros_context, tmp_path):
+@pytest.mark.parametrize("in_process", [True, False], ids=["in_process_backend", "split_backend"])
+def test_initial_pose_message_seeds_relocalisation_at_the_place_it_names(ros_context, tmp_path, in_process):
+    """In-process, and split (tracking's replica of the map local_mapping owns, loaded from the same file)."""
     map_file = map_wall(tmp_path / "map.npz")
     tracking = TrackingNode(context=ros_context, parameter_overrides=[
-        Parameter("in_process_backend", value=True), Parameter("map_file", value=str(map_file)),
+        Parameter("in_process_backend", value=in_process), Parameter("map_file", value=str(map_file)),
         Parameter("mode", value="localization"), Parameter("loop_closing", value=False),
     ])  # fmt: skip
+    assert (tracking.split is None) == in_process
     probe = Node("probe", context=ros_context)
     pub = probe.create_publisher(PoseWithCovarianceStamped, "/initialpose", 10)
     executor = SingleThreadedExecutor(context=ros_context)
@@ -65,7 +68,8 @@ def test_initial_pose_message_seeds_relocalisation_at_the_place_it_names(ros_con
         assert hint is not None and np.allclose(hint.T_world_cam, given, atol=1e-9)
         assert hint.radius_m == pytest.approx(1.5) and hint.angle_rad == pytest.approx(3 * math.sqrt(0.06853891909122467))
 
-        out = tracking.backend.system.process(render(truth(0), 100 * S, 0))
+        frame = render(truth(0), 100 * S, 0)
+        out = tracking.backend.system.process(frame) if in_process else tracking.split.process(frame, None)[0]
         assert out.relocalised and out.T_world_cam is not None
         assert np.linalg.norm(out.T_world_cam[:3, 3] - truth(0)[:3, 3]) < 0.03
     finally:
