@@ -167,8 +167,8 @@ class SlamSystem:
         """Where the first camera sits in the world frame the map is built in (identity unless set: the world is
         the first camera's optical frame). A robot sets its camera mounting `T_base_cam` here, so the world is the
         base's frame at the start: z up when the base stands level, as REP-105 wants of `map` and as Nav2 reads an
-        occupancy grid (x, y and yaw only). Before the first keyframe (not with a loaded map, whose frame stays); later maps of the
-        Atlas start where the last one left off, in this same frame."""
+        occupancy grid (x, y and yaw only). Before the first keyframe (not with a loaded map, whose frame stays);
+        later maps of the Atlas start where the last one left off, in this same frame."""
         if self.atlas.n_keyframes:
             raise RuntimeError("set_first_pose must be called before the first keyframe")
         T = np.asarray(T_world_cam, np.float64)  # noqa: N806
