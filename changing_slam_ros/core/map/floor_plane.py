@@ -30,11 +30,12 @@ class FloorEstimate:
     def frame(self, forward_hint: F64 | None = None) -> F64:
         """T_map_floor (4, 4): z along `up`, origin on the floor below the map origin, x along `forward_hint`
         laid onto the floor. By default the hint is the map's z (the first camera's viewing direction, in a map
-        built in that camera's optical frame), or the map's x where the map's z is nearer the floor's normal than
-        45 degrees (a z-up map, built in a robot base's frame: its x is the base's forward)."""
+        built in that camera's optical frame), or the map's x where the map's z lies within 25 degrees of the
+        floor's normal (a z-up map, built in a robot base's frame: its x is the base's forward; a camera that
+        looks down more steeply than 65 degrees at the start gets the same)."""
         z = self.up / np.linalg.norm(self.up)
         if forward_hint is None:
-            f = np.array([1.0, 0.0, 0.0]) if abs(z[2]) > np.sqrt(0.5) else np.array([0.0, 0.0, 1.0])
+            f = np.array([1.0, 0.0, 0.0]) if abs(z[2]) > np.cos(np.deg2rad(25.0)) else np.array([0.0, 0.0, 1.0])
         else:
             f = np.asarray(forward_hint, float).reshape(3)
         x = f - (f @ z) * z
