@@ -6,11 +6,13 @@
 The graph plays the bag `--loop N` times (N passes covering the minutes; the player shifts each pass by the bag's
 duration, so time runs forward), in real time. Every `--sample-s` seconds the resident memory of every node
 process is read from outside (`/proc/<pid>/status` VmRSS; a restarted node counts its new process). Printed: per
-node the memory after warm-up (the first sample after `--warmup-s`) and at the end, and the growth in % (the
-baseline is the same run's post-warm-up sample); drops per minute in each pass (the bag's colour frames of the
-pass without a pose in trajectory.txt, by stamp), and the last pass against the second (the first pass builds
-the map); and whether the outputs are complete (exit 0, trajectory, map, semantic map, summary). No timed assert:
-a shared machine's load moves the drops; memory much less.
+node the memory after warm-up (the first sample after `--warmup-s`), half way and at the end, the growth in % (the
+baseline is the same run's post-warm-up sample) and in MiB over each half (a leak grows as much in both; memory
+that levels off grows less in the second; with `--work` the samples go to `memory_samples.json` there); drops
+per minute in each pass (the bag's colour frames of the pass without a pose in trajectory.txt, by stamp), and the
+last pass against the second (the first pass builds the map); and whether the outputs are complete (exit 0,
+trajectory, map, semantic map, summary). No timed assert: a shared machine's load moves the drops; memory much
+less.
 """
 
 from __future__ import annotations
@@ -109,12 +111,20 @@ def main() -> None:
     warm = next((m for t, m in samples if t >= a.warmup_s), samples[0][1] if samples else {})
     end = samples[-1][1] if samples else {}
     print(f"\nmemory (VmRSS MiB, {len(samples)} samples; baseline: the first after {a.warmup_s:.0f} s)")
-    print(f"  {'node':<14}{'warm':>9}{'end':>9}{'max':>9}{'growth':>9}")
+    # The halves tell a leak (the second grows as much as the first) from a level being reached (it grows less).
+    t_end = samples[-1][0] if samples else 0.0
+    t_mid = a.warmup_s + (t_end - a.warmup_s) / 2.0
+    mid = next((m for t, m in samples if t >= t_mid), end)
+    print(f"  {'node':<14}{'warm':>9}{'middle':>9}{'end':>9}{'max':>9}{'growth':>9}{'1st half':>10}{'2nd half':>10}")
     for name in sorted(set(warm) | set(end)):
         peak = max((m.get(name, 0.0) for _, m in samples), default=0.0)
-        w, e = warm.get(name), end.get(name)
+        w, c, e = warm.get(name), mid.get(name), end.get(name)
         growth = f"{100.0 * (e - w) / w:+.1f} %" if w and e else "n/a"
-        print(f"  {name:<14}{w or float('nan'):>9.1f}{e or float('nan'):>9.1f}{peak:>9.1f}{growth:>9}")
+        halves = f"{c - w:+10.1f}{e - c:+10.1f}" if w and c and e else f"{'n/a':>10}{'n/a':>10}"
+        print(f"  {name:<14}{w or float('nan'):>9.1f}{c or float('nan'):>9.1f}{e or float('nan'):>9.1f}{peak:>9.1f}"
+              f"{growth:>9}{halves}")  # fmt: skip
+    if a.work:  # the samples, for a plot of memory over time
+        (out.parent / "memory_samples.json").write_text(json.dumps([{"t_s": t, "mib": m} for t, m in samples]) + "\n")
 
     counts, frames, period_s = poses_per_pass(out, bag, passes)
     minutes = period_s / a.rate / 60.0
