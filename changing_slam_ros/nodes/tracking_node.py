@@ -190,7 +190,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.create_subscription(ObjectStateArray, "/object_map/object_states", self.on_object_states, 10)
 
         self.frames_out = Rep105Outputs(self, p)  # TF: map -> odom (-> base_frame with visual odometry)
-        self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], self.frames_out.base_frame)
+        self.poses_out = PoseOutputs(self, output_qos, p["map_frame"], self.frames_out.base_frame, p["path_max_poses"])
         self.covariance = PoseCovarianceModel(p["pose_sigma_m"], p["pose_sigma_rad"], p["pose_sigma_inliers"])
         self._n_merges = 0
         objects = None if self.backend is None or self.backend.objects is None else self.backend.objects

@@ -22,6 +22,7 @@ from visualization_msgs.msg import MarkerArray
 
 from changing_slam_msgs.msg import MovingObjectArray
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
+from changing_slam_ros.errors import ConfigError
 from changing_slam_ros.nodes.conversions import (
     make_header,
     matrix_to_pose,
@@ -36,14 +37,26 @@ CLASS_RGB = {0: (0, 220, 0), 1: (0, 120, 255), 2: (255, 0, 0), 3: (160, 160, 160
 
 class PoseOutputs:
     """~/pose, ~/odometry (with covariance) and ~/path (the online poses so far), for the base frame when its
-    mounting is known (else the camera). TF is `tracking_tf.Rep105Outputs`."""
+    mounting is known (else the camera). TF is `tracking_tf.Rep105Outputs`.
 
-    def __init__(self, node: Node, qos: QoSProfile | int, map_frame: str, child_frame: str) -> None:
+    `path_max_poses` > 0 bounds the path: it holds every `stride`-th pose (by count since the start) and the
+    newest, and when that would be more than the bound the stride doubles. So the whole way travelled stays drawn
+    at an even spacing, and a long run's path message (sent whole each frame to a subscriber) and memory stay
+    bounded; 0 keeps every pose."""
+
+    def __init__(self, node: Node, qos: QoSProfile | int, map_frame: str, child_frame: str,
+                 path_max_poses: int = 0) -> None:  # fmt: skip
+        if path_max_poses < 0 or path_max_poses == 1:
+            raise ConfigError(f"tracking: path_max_poses must be 0 (every pose) or >= 2, got {path_max_poses}")
+        self.path_max_poses = int(path_max_poses)
         self.map_frame, self.child_frame = map_frame, child_frame
         self.pose_pub = node.create_publisher(PoseStamped, "~/pose", qos)
         self.odom_pub = node.create_publisher(Odometry, "~/odometry", qos)
         self.path_pub = node.create_publisher(PathMsg, "~/path", qos)
         self.path = PathMsg(header=Header(frame_id=map_frame))
+        self._path_index: list[int] = []  # each path pose's count since the start
+        self._stride = 1
+        self._count = 0  # poses so far
 
     def publish(self, stamp_ns: int, T_map_pose: Any, child_frame: str | None = None,  # noqa: N803
                 covariance: Any = None) -> None:  # fmt: skip
@@ -59,16 +72,32 @@ class PoseOutputs:
                 odom.pose.covariance = np.asarray(covariance, np.float64).ravel()
             self.odom_pub.publish(odom)
         self.path.header.stamp = header.stamp
-        self.path.poses.append(pose)
+        self._add_to_path(pose)
         if self.path_pub.get_subscription_count() > 0:
             self.path_pub.publish(self.path)
 
     def replace_path(self, stamps_s: Any, poses: Any) -> None:
         """The path becomes these poses (after a loop closure: the optimised trajectory so far; [] after a load)."""
-        self.path.poses = [
-            PoseStamped(header=make_header(round(t * 1e9), self.map_frame), pose=matrix_to_pose(T))
-            for t, T in zip(stamps_s, poses, strict=True)
-        ]
+        self.path.poses, self._path_index, self._stride, self._count = [], [], 1, 0
+        for t, T in zip(stamps_s, poses, strict=True):  # noqa: N806
+            self._add_to_path(PoseStamped(header=make_header(round(t * 1e9), self.map_frame), pose=matrix_to_pose(T)))
+
+    def _add_to_path(self, pose: PoseStamped) -> None:
+        """Append `pose`; the previous newest goes unless it falls on the stride; the stride doubles past the bound."""
+        index, self._count = self._count, self._count + 1
+        if self.path_max_poses <= 0:
+            self.path.poses.append(pose)
+            return
+        if self._path_index and self._path_index[-1] % self._stride:
+            self.path.poses.pop()
+            self._path_index.pop()
+        self.path.poses.append(pose)
+        self._path_index.append(index)
+        while len(self.path.poses) > self.path_max_poses:
+            self._stride *= 2
+            keep = [k for k, i in enumerate(self._path_index) if i % self._stride == 0 or k == len(self._path_index) - 1]
+            self.path.poses = [self.path.poses[k] for k in keep]
+            self._path_index = [self._path_index[k] for k in keep]
 
 
 class MoverOutputs:

@@ -28,6 +28,9 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
                           "(odometry arriving after the image) before map -> odom is left as it was (warns)"),
     ("tf_cache_s", 10.0, "seconds of /tf kept for lookups at image stamps (tf2_ros's buffer when installed, "
                          "else the package's own)"),
+    ("path_max_poses", 4000, "~/path holds at most this many poses: beyond, every other one is dropped (the "
+                             "newest kept; the whole way stays drawn, evenly spaced, and memory and each path "
+                             "message stay bounded on a long run); 0 = every pose"),
     ("pose_sigma_m", 0.01, "odometry covariance: position 1-sigma (m) at pose_sigma_inliers tracking inliers; "
                            "variance scales with pose_sigma_inliers / inliers"),
     ("pose_sigma_rad", 0.01, "odometry covariance: rotation 1-sigma (rad) at pose_sigma_inliers inliers"),

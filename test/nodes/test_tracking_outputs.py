@@ -51,3 +51,21 @@ def test_the_path_keeps_every_pose_and_goes_out_only_to_subscribers(ros_context)
     executor.shutdown()
     probe.destroy_node()
     node.destroy_node()
+
+
+def test_a_bounded_path_thins_evenly_and_keeps_the_newest_pose(ros_context) -> None:
+    node = Quiet("tracking_bounded", context=ros_context)
+    out = PoseOutputs(node, 10, "map", "camera", path_max_poses=10)
+    for k in range(101):  # nobody listens; the path is bounded all the same
+        out.publish(1_000_000_000 + k, make_pose(np.eye(3), np.array([0.01 * k, 0.0, 0.0])))
+        assert len(out.path.poses) <= 10
+    xs = np.array([p.pose.position.x for p in out.path.poses])
+    assert xs[0] == 0.0 and xs[-1] == pytest.approx(1.0)  # the start of the way and the newest pose
+    steps = np.diff(xs)
+    assert len(xs) >= 6 and np.allclose(steps[:-1], steps[0]) and 0 < steps[-1] <= steps[0] + 1e-9  # even spacing
+    out.replace_path(np.arange(50.0), [make_pose(np.eye(3), np.array([float(k), 0.0, 0.0])) for k in range(50)])
+    xs = [p.pose.position.x for p in out.path.poses]
+    assert 5 <= len(xs) <= 10 and xs[0] == 0.0 and xs[-1] == 49.0
+    with pytest.raises(Exception, match="path_max_poses"):
+        PoseOutputs(node, 10, "map", "camera", path_max_poses=1)
+    node.destroy_node()
