@@ -116,7 +116,8 @@ class DynamicConfig:
       frame otherwise keeps its map points, local BA moves them with it, and tracking follows it (tuning
       seed 10, a tripod camera and a pushed cart: 21.79 -> 2.20 cm with 2). On tuning seeds 0-29 with
       `correlation.noise_from_edges` ATE median / p90 / worst 1.93 / 20.56 / 25.86 -> 2.14 / 16.36 / 25.17
-      cm (12 seeds better, 7 worse), controls about the same; not run on the evaluation seeds. Offline and
+      cm (12 seeds better, 7 worse), controls about the same; on evaluation seeds 100-129 3.22 / 16.08 /
+      32.51 -> 3.62 / 16.45 / 42.84 cm (fewer lost frames, 107 -> 83), so it stays off. Offline and
       in the in-process backend only: in the split graph the map belongs to local_mapping, and tracking's
       replica does not edit it.
     - `movers`: class-agnostic mover tracking (Dai et al.: feature tracks, windowed segmentation, object BA,
