@@ -77,10 +77,20 @@ class PoseOutputs:
             self.path_pub.publish(self.path)
 
     def replace_path(self, stamps_s: Any, poses: Any) -> None:
-        """The path becomes these poses (after a loop closure: the optimised trajectory so far; [] after a load)."""
-        self.path.poses, self._path_index, self._stride, self._count = [], [], 1, 0
-        for t, T in zip(stamps_s, poses, strict=True):  # noqa: N806
-            self._add_to_path(PoseStamped(header=make_header(round(t * 1e9), self.map_frame), pose=matrix_to_pose(T)))
+        """The path becomes these poses (after a loop closure: the optimised trajectory so far; [] after a load).
+        With a bound, only the poses it keeps are built: those on the smallest stride it allows, and the newest."""
+        stamps_s, poses = list(stamps_s), list(poses)
+        n = len(poses)
+        if len(stamps_s) != n:
+            raise ValueError(f"replace_path: {len(stamps_s)} stamps for {n} poses")
+        stride = 1
+        while self.path_max_poses > 0 and _kept_count(n, stride) > self.path_max_poses:
+            stride *= 2
+        index = [i for i in range(n) if i % stride == 0 or i == n - 1]
+        self.path.poses = [PoseStamped(header=make_header(round(stamps_s[i] * 1e9), self.map_frame),
+                                       pose=matrix_to_pose(poses[i])) for i in index]  # fmt: skip
+        self._path_index = index if self.path_max_poses > 0 else []
+        self._stride, self._count = stride, n
 
     def _add_to_path(self, pose: PoseStamped) -> None:
         """Append `pose`; the previous newest goes unless it falls on the stride; the stride doubles past the bound."""
@@ -98,6 +108,11 @@ class PoseOutputs:
             keep = [k for k, i in enumerate(self._path_index) if i % self._stride == 0 or k == len(self._path_index) - 1]
             self.path.poses = [self.path.poses[k] for k in keep]
             self._path_index = [self._path_index[k] for k in keep]
+
+
+def _kept_count(n: int, stride: int) -> int:
+    """Poses a path of `n` keeps at `stride`: every stride-th from the first, and the newest."""
+    return 0 if n == 0 else (n - 1) // stride + 1 + (1 if (n - 1) % stride else 0)
 
 
 class MoverOutputs:

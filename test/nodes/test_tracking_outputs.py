@@ -66,6 +66,10 @@ def test_a_bounded_path_thins_evenly_and_keeps_the_newest_pose(ros_context) -> N
     out.replace_path(np.arange(50.0), [make_pose(np.eye(3), np.array([float(k), 0.0, 0.0])) for k in range(50)])
     xs = [p.pose.position.x for p in out.path.poses]
     assert 5 <= len(xs) <= 10 and xs[0] == 0.0 and xs[-1] == 49.0
+    fed = PoseOutputs(node, 10, "map", "camera", path_max_poses=10)  # the same poses one by one: the same path
+    for k in range(50):
+        fed.publish(k * 1_000_000_000, make_pose(np.eye(3), np.array([float(k), 0.0, 0.0])))
+    assert [p.pose.position.x for p in fed.path.poses] == xs
     with pytest.raises(Exception, match="path_max_poses"):
         PoseOutputs(node, 10, "map", "camera", path_max_poses=1)
     node.destroy_node()
