@@ -36,8 +36,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from changing_slam_ros.config import find_config, load_yaml  # noqa: E402
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics  # noqa: E402
 from changing_slam_ros.eval.ate import ate  # noqa: E402
-from changing_slam_ros.io.dataset import open_dataset  # noqa: E402
+from changing_slam_ros.io.dataset import RgbdSource, open_dataset  # noqa: E402
 from changing_slam_ros.io.dataset_config import settings_from_mapping  # noqa: E402
 from changing_slam_ros.io.tum_trajectory import read_tum_trajectory  # noqa: E402
 
@@ -45,11 +46,13 @@ DEPTH_FACTOR = 5000.0
 STAGES = ("features", "tracking", "dynamic", "local_mapping_per_keyframe", "objects", "loop_closing")
 
 
-def export_frames(source: object, n: int, out: Path) -> tuple[Path, object, float]:
+def export_frames(source: RgbdSource, n: int, out: Path) -> tuple[Path, CameraIntrinsics, float]:
     """Frames 0..n-1 as PNGs and `frames.txt`; returns (the list, the camera, the frame rate)."""
     out.mkdir(parents=True, exist_ok=True)
-    lines, stamps, camera = [], [], None
-    for i, frame in enumerate(source):  # type: ignore[attr-defined]
+    lines: list[str] = []
+    stamps: list[float] = []
+    camera: CameraIntrinsics | None = None
+    for i, frame in enumerate(source):
         if i >= n:
             break
         camera = frame.camera
@@ -59,22 +62,22 @@ def export_frames(source: object, n: int, out: Path) -> tuple[Path, object, floa
         cv2.imwrite(str(depth), d)
         lines.append(f"{frame.stamp_ns * 1e-9:.9f} {colour} {depth}")
         stamps.append(frame.stamp_ns * 1e-9)
+    if camera is None:
+        raise SystemExit("bench_orbslam3: the source has no frames")
     listing = out / "frames.txt"
     listing.write_text("\n".join(lines) + "\n")
     fps = (len(stamps) - 1) / (stamps[-1] - stamps[0]) if len(stamps) > 1 and stamps[-1] > stamps[0] else 30.0
     return listing, camera, fps
 
 
-def settings_yaml(camera: object, fps: float, n_features: int) -> str:
+def settings_yaml(c: CameraIntrinsics, fps: float, n_features: int) -> str:
     """ORB-SLAM3's settings (its older, flat format) for an RGB-D camera with our intrinsics."""
-    c = camera
-    dist = list(np.asarray(getattr(c, "dist", None) if getattr(c, "dist", None) is not None else [], float))
-    dist = (dist + [0.0] * 5)[:5]
+    k1, k2, p1, p2, k3 = (tuple(c.dist) + (0.0,) * 5)[:5]
     keys = {
-        "Camera.type": '"PinHole"', "Camera.fx": c.fx, "Camera.fy": c.fy, "Camera.cx": c.cx, "Camera.cy": c.cy,  # type: ignore[attr-defined]
-        "Camera.k1": dist[0], "Camera.k2": dist[1], "Camera.p1": dist[2], "Camera.p2": dist[3], "Camera.k3": dist[4],
-        "Camera.width": int(c.width), "Camera.height": int(c.height), "Camera.fps": round(fps, 3),  # type: ignore[attr-defined]
-        "Camera.RGB": 0, "Camera.bf": 0.08 * c.fx, "ThDepth": 40.0, "DepthMapFactor": DEPTH_FACTOR,  # type: ignore[attr-defined]
+        "Camera.type": '"PinHole"', "Camera.fx": c.fx, "Camera.fy": c.fy, "Camera.cx": c.cx, "Camera.cy": c.cy,
+        "Camera.k1": k1, "Camera.k2": k2, "Camera.p1": p1, "Camera.p2": p2, "Camera.k3": k3,
+        "Camera.width": c.width, "Camera.height": c.height, "Camera.fps": round(fps, 3),
+        "Camera.RGB": 0, "Camera.bf": 0.08 * c.fx, "ThDepth": 40.0, "DepthMapFactor": DEPTH_FACTOR,
         "ORBextractor.nFeatures": n_features, "ORBextractor.scaleFactor": 1.2, "ORBextractor.nLevels": 8,
         "ORBextractor.iniThFAST": 20, "ORBextractor.minThFAST": 7,
         "Viewer.KeyFrameSize": 0.05, "Viewer.KeyFrameLineWidth": 1.0, "Viewer.GraphLineWidth": 0.9,
