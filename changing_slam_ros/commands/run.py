@@ -235,6 +235,11 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
         "dynamic": dynamic.summary(),
         "provenance": run_provenance(data, where, options=vars(args)),
     }
+    if system.config.tracking.level_from_floor and not args.map_in:
+        fs = system.floor_start
+        metrics["level_from_floor"] = {"levelled": fs is not None,
+                                       "camera_height_m": round(fs.height_m, 4) if fs else None,
+                                       "camera_pitch_deg": round(fs.pitch_deg, 2) if fs else None}  # fmt: skip
     if args.map_in:
         metrics["multi_session"] = multi_session_summary(system, args.map_in)
     if args.localization:
@@ -285,6 +290,9 @@ def run_warnings(metrics: dict[str, Any]) -> list[str]:
     if skipped.get("count"):
         topics = ", ".join(f"{n} on {t}" for t, n in skipped["by_topic"].items())
         out.append(f"{skipped['count']} malformed message(s) skipped ({topics}); --strict stops at the first")
+    if not metrics.get("level_from_floor", {"levelled": True})["levelled"]:
+        out.append("tracking.level_from_floor: no floor in view when the map started; the map is the first camera's "
+                   "optical frame (z forward, y down)")  # fmt: skip
     ms = metrics.get("multi_session")
     if ms is not None and not ms["relocalised"]:
         out.append(f"never relocalised in the loaded map {ms['map_in']}; a new map was started (a map of another "

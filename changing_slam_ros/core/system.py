@@ -30,6 +30,7 @@ from changing_slam_ros.core.features.frame import Frame
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.map.keyframe_grid import keyframe_scan, map_grid, object_views
 from changing_slam_ros.core.map.occupancy_grid import GridConfig, OccupancyGrid
+from changing_slam_ros.core.map.floor_start import FloorStart, level_first_pose
 from changing_slam_ros.core.slam.local_mapping import LocalMapper, MappingConfig, MappingStats
 from changing_slam_ros.core.slam.initial_pose import PoseHint
 from changing_slam_ros.core.slam.localization import Mode, Sightings
@@ -147,6 +148,9 @@ class SlamSystem:
         self.sightings = Sightings()  # localisation: the map's objects seen at their mapped place, per frame
         self.loaded_objects: dict[int, list[MapObject]] = {}  # localisation from a saved map: its objects, as saved
         self.keep_grid_scans = self.config.grid.enabled  # new keyframes keep a depth scan for the occupancy grid
+        # `tracking.level_from_floor`: the first pose from the floor in view, unless a first pose or a map is given
+        self._level_pending = self.config.tracking.level_from_floor
+        self.floor_start: FloorStart | None = None  # the floor the map was levelled on
 
     def set_mode(self, mode: Mode) -> None:
         """`Mode.LOCALIZATION`: from the next frame on the map is only read (`core/slam/localization.py`);
@@ -175,6 +179,18 @@ class SlamSystem:
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ConfigError(f"first pose: expected a finite 4x4 pose, got shape {T.shape}")
         self.tracker.last_good_pose = T.copy()
+        self._level_pending = False  # a given mounting wins over the floor
+
+    def _level_on_floor(self, rgbd: RgbdFrame) -> None:
+        """Before the first keyframe: start the map level on the floor in view (`core.map.floor_start`); tried on
+        each frame until one starts the map, which stays in the optical frame when none showed a floor."""
+        start = level_first_pose(rgbd.depth_m, rgbd.camera)
+        if start is not None:
+            self.tracker.last_good_pose = start.T_floor_cam.copy()
+            self.floor_start = start
+        elif self.floor_start is not None:  # an earlier frame's floor, not this one's: back to the optical frame
+            self.tracker.last_good_pose = np.eye(4)
+            self.floor_start = None
 
     def start_from_map(self, atlas: Atlas, next_keyframe_id: int,
                        objects: dict[int, SavedObjectMap] | None = None, mode: Mode = Mode.MAPPING) -> None:
@@ -188,6 +204,7 @@ class SlamSystem:
         if self.records:
             raise RuntimeError("start_from_map must be called before the first frame")
         self.atlas.adopt(atlas)
+        self._level_pending = False  # poses stay in the loaded map's frame
         if mode is Mode.LOCALIZATION:
             self.loaded_objects = {map_id: list(saved.objects) for map_id, saved in (objects or {}).items()}
         elif self.object_layer is not None and self.object_layer.enabled:  # first: it may deactivate points
@@ -226,6 +243,8 @@ class SlamSystem:
             self.timings_ms["dynamic"].append(dyn.ms)
             self._forget(dyn.moving_points)
         frame = Frame(rgbd.stamp_ns, len(self.records), rgbd.camera, feats)  # own counter: input order
+        if self._level_pending and not self.atlas.n_keyframes:
+            self._level_on_floor(rgbd)
         res: TrackResult = self.tracker.track(frame)
         if dyn is not None:
             self._after_dynamic(dyn, res, frame)

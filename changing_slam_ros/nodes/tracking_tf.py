@@ -111,17 +111,24 @@ class Rep105Outputs:
         """Before a map's first keyframe (none loaded): with a `base_frame` whose mounting is known, the map is
         built in the base's frame at the start (`SlamSystem.set_first_pose`), so `map` is z-up when the base
         stands level (REP-105) and `~/grid` lies in its x-y plane as Nav2 reads it. Without a base frame, or
-        while the mounting is unknown, the map is the first camera's optical frame (z forward, y down)."""
+        while the mounting is unknown, the map is the first camera's optical frame (z forward, y down), or level on
+        the floor in view with `tracking.level_from_floor` (`SlamSystem`)."""
         if self._map_placed or system is None:
             return
         self._map_placed = True
-        if system.atlas.n_keyframes or self.base_frame == self.camera_frame:  # a loaded map keeps its frame
+        if system.atlas.n_keyframes:  # a loaded map keeps its frame
             return
-        T_base_cam = self.base_cam()  # noqa: N806
+        level = system.config.tracking.level_from_floor
+        T_base_cam = self.base_cam() if self.base_frame != self.camera_frame else None  # noqa: N806
         if T_base_cam is None:
-            self.node.get_logger().warning(f"tracking: {self.map_frame} is the first camera's optical frame (not "
-                                           f"z-up): no {self.base_frame} -> {self.camera_frame} mounting when the "
-                                           f"map started")  # fmt: skip
+            missing = (f"no {self.base_frame} -> {self.camera_frame} mounting when the map started"
+                       if self.base_frame != self.camera_frame else "no base_frame")
+            if level:
+                self.node.get_logger().info(f"tracking: {missing}; {self.map_frame} starts level on the floor in the "
+                                            f"first depth image that shows one (tracking.level_from_floor)")  # fmt: skip
+            elif self.base_frame != self.camera_frame:
+                self.node.get_logger().warning(f"tracking: {self.map_frame} is the first camera's optical frame (not "
+                                               f"z-up): {missing}")  # fmt: skip
             return
         system.set_first_pose(T_base_cam)
         self.node.get_logger().info(f"tracking: {self.map_frame} is {self.base_frame} at the first frame")

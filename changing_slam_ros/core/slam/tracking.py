@@ -84,6 +84,9 @@ class TrackingConfig:
       offline and lossless where every frame has its own detections).
     - `motion_gate`: a pose that implies an impossible camera speed, or lies far off the track's prediction, is
       refused (`core.slam.motion_gate`): tracked again from the prediction, else the frame gets no pose.
+    - `level_from_floor`: a new map starts level on the floor in the first depth image (`core.map.floor_start`):
+      z up, origin on the floor below the first camera; the optical frame where none shows. For a camera without a
+      robot mounting; a given first pose (`SlamSystem.set_first_pose`) or a loaded map wins.
     """
 
     min_init_points: int = 300
@@ -105,6 +108,7 @@ class TrackingConfig:
     lost_frames_new_map: int = 30
     loaded_map_grace_s: float = 2.0
     initial_pose_timeout_s: float = 10.0
+    level_from_floor: bool = False
     busy_mapping_weak_ratio: float = 0.25
     pose_iterations_per_round: int = 6
     motion_pose_rounds: int = 4

@@ -81,3 +81,40 @@ def test_the_first_pose_is_refused_once_the_map_has_keyframes(static_room: list)
 
     with pytest.raises(ConfigError, match="finite 4x4"):
         SlamSystem().set_first_pose(np.full((4, 4), np.nan))
+
+
+def run_levelled(frames: list, first_pose: np.ndarray | None = None):  # noqa: ANN201
+    from changing_slam_ros.commands.run import system_config_from_mapping
+    from changing_slam_ros.config import find_config, load_yaml
+    from changing_slam_ros.core.system import SlamSystem
+
+    mapping = load_yaml(find_config("sim"))
+    mapping.setdefault("tracking", {})["level_from_floor"] = True
+    system = SlamSystem(system_config_from_mapping(mapping, "sim"))
+    if first_pose is not None:
+        system.set_first_pose(first_pose)
+    for rgbd in frames:
+        system.process(rgbd)
+    return system
+
+
+def test_a_map_levelled_on_the_floor_in_view_is_z_up_at_the_camera_height(static_room: list) -> None:
+    system = run_levelled(static_room)
+    assert system.floor_start is not None
+    est = system.final_trajectory().poses()
+    gt = np.array([f.T_world_cam_gt for f in static_room])
+    assert len(est) == 40
+    # the map's z is the world's up: heights above the floor and the tilt of every camera as in the world
+    assert np.abs(est[:, 2, 3] - gt[:, 2, 3]).max() < 0.03
+    tilt = np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", est[:, 2, :3], gt[:, 2, :3]), -1, 1)))
+    assert tilt.max() < 1.0
+    assert est[0, :2, 3] == pytest.approx([0.0, 0.0], abs=1e-9)  # the origin is on the floor below the first camera
+    grid = system.occupancy_grid()
+    assert grid is not None and np.degrees(np.arccos(np.clip(grid.origin_in_map()[2, 2], -1, 1))) < 3.0
+
+
+def test_a_given_first_pose_wins_over_the_floor(static_room: list) -> None:
+    T0 = static_room[0].T_world_cam_gt  # noqa: N806
+    system = run_levelled(static_room[:3], T0)
+    assert system.floor_start is None
+    assert system.final_trajectory().poses()[0] == pytest.approx(T0, abs=1e-9)
