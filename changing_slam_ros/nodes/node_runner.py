@@ -23,6 +23,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from changing_slam_ros.errors import ConfigError, SlamError
+from changing_slam_ros.nodes.heap_trim import HeapTrim, interval_from_env
 from changing_slam_ros.nodes.node_help import NodeHelp, ParamSpec, format_help, wants_help
 
 
@@ -166,8 +167,10 @@ def run_node(
         executor.add_node(node)
         if body is None:
             stop.on_request = executor.wake
+            heap = HeapTrim(interval_from_env())  # freed memory back to the system between callbacks (`heap_trim`)
             while not stop.requested and rclpy.ok():
                 executor.spin_once(timeout_sec=0.25)
+                heap.maybe_trim()
             if stop.requested:
                 drain_work(node, executor, stop, drain_timeout_s)
         else:
