@@ -31,6 +31,7 @@ from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo, PoseOb
 from changing_slam_ros.core.geometry.se3 import invert, scale_motion
 from changing_slam_ros.core.slam.initial_pose import HintedCandidates, PoseHint
 from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.slam.still_camera import StillCamera, StillCameraConfig
 from changing_slam_ros.core.slam.motion_gate import MotionGate, MotionGateConfig, check_speed
 from changing_slam_ros.errors import ConfigError
 
@@ -84,6 +85,7 @@ class TrackingConfig:
       offline and lossless where every frame has its own detections).
     - `motion_gate`: a pose that implies an impossible camera speed, or lies far off the track's prediction, is
       refused (`core.slam.motion_gate`): tracked again from the prediction, else the frame gets no pose.
+    - `still_camera`: a camera that stood still keeps to the background its last pose explains (`still_camera`).
     - `level_from_floor`: a new map starts level on the floor in the first depth image (`core.map.floor_start`):
       z up, origin on the floor below the first camera; the optical frame where none shows. For a camera without a
       robot mounting; a given first pose (`SlamSystem.set_first_pose`) or a loaded map wins.
@@ -115,6 +117,7 @@ class TrackingConfig:
     object_keyframe_min_frames: int = 10
     deferred_refinement: RefinementConfig = field(default_factory=RefinementConfig)
     motion_gate: MotionGateConfig = field(default_factory=MotionGateConfig)
+    still_camera: StillCameraConfig = field(default_factory=StillCameraConfig)
 
     def __post_init__(self) -> None:
         if self.pose_iterations_per_round < 1:
@@ -183,6 +186,7 @@ class Tracker:
         self.n_gated = 0  # poses refused by the motion gate (tracked and relocalised)
         self._T_wc_pred: F64 = np.eye(4)  # the motion model's prediction for the frame being tracked
         self.gate = MotionGate(self.cfg.motion_gate)
+        self.still = StillCamera(self.cfg.still_camera)
         self.n_refused = 0  # frames in a row refused by the gate since the last accepted one
         self.awaiting_loaded_map = False  # a loaded map: relocalise against it before starting a new one
         self._grace_start_ns: int | None = None
@@ -375,8 +379,7 @@ class Tracker:
         return len(ia)
 
     def _optimise(self, frame: Frame, T_cw0: F64, rounds: int = 4) -> int:
-        """Optimise the pose on the current matches (`rounds` outlier rounds); outliers lose their map point.
-        Returns inliers."""
+        """Optimise the pose on the current matches (`rounds` outlier rounds); outliers lose their map point; inliers."""
         idx = np.flatnonzero(frame.point_ids >= 0)
         if len(idx) < 3:
             return 0
@@ -386,8 +389,10 @@ class Tracker:
             self.inv_sigma2[f.octaves[idx]],
         )
         cam = frame.camera
-        res = optimize_pose(T_cw0, obs, PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.fcfg.bf_m_px),
-                            rounds=rounds, iterations=self.cfg.pose_iterations_per_round)
+        stereo = PinholeStereo(cam.fx, cam.fy, cam.cx, cam.cy, self.fcfg.bf_m_px)
+        res = optimize_pose(T_cw0, obs, stereo, rounds=rounds, iterations=self.cfg.pose_iterations_per_round)
+        if self.state == TrackingState.OK:  # a still camera held against a mover (`still_camera`)
+            res = self.still.check(obs, stereo, res, self.cfg.pose_iterations_per_round)
         frame.T_world_cam = invert(res.T_cam_world)
         frame.point_ids[idx[~res.inliers]] = -1
         frame.outliers[:] = False
@@ -542,6 +547,7 @@ class Tracker:
         self.last_good_pose = frame.T_world_cam
         self.last_good_stamp_ns = frame.stamp_ns
         self.gate.accept(frame.T_world_cam, frame.stamp_ns)
+        self.still.accept(self.velocity, invert(frame.T_world_cam))
         return TrackResult(TrackingState.OK, frame.T_world_cam, n_inliers, kf)
 
     def request_keyframe(self) -> None:
