@@ -63,16 +63,18 @@ class DynamicSetup:
     detection_ms: list[float] = field(default_factory=list)
 
     detect_every: int = 1
-    cadence: DetectionCadence | None = None
+    cadence: DetectionCadence | None = field(init=False, default=None)
+
+    def __post_init__(self) -> None:
+        if self.detector is not None:
+            self.cadence = DetectionCadence(self._detect, self.detect_every)
 
     def detections_for(self, rgbd: RgbdFrame) -> tuple[Detection, ...] | None:
         """The frame's detections; frames must come in order (with `detect_every` > 1 the frames between two
         detected ones take the earlier's boxes carried forward, `core.dynamic.detection_cadence`)."""
         if self.filter is None or not self.filter.config.detection_filtering:
             return None
-        if self.detector is not None:
-            if self.cadence is None:
-                self.cadence = DetectionCadence(self._detect, self.detect_every)
+        if self.cadence is not None:
             return self.cadence(rgbd)
         if self.oracle is not None:
             return self.oracle.for_stamp(rgbd.stamp_ns)

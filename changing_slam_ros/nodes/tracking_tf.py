@@ -118,15 +118,15 @@ class Rep105Outputs:
         self._map_placed = True
         if system.atlas.n_keyframes:  # a loaded map keeps its frame
             return
-        level = system.config.tracking.level_from_floor
-        T_base_cam = self.base_cam() if self.base_frame != self.camera_frame else None  # noqa: N806
+        has_base = self.base_frame != self.camera_frame
+        T_base_cam = self.base_cam() if has_base else None  # noqa: N806
         if T_base_cam is None:
-            missing = (f"no {self.base_frame} -> {self.camera_frame} mounting when the map started"
-                       if self.base_frame != self.camera_frame else "no base_frame")
-            if level:
+            missing = (f"no {self.base_frame} -> {self.camera_frame} mounting when the map started" if has_base
+                       else "no base_frame")
+            if system.config.tracking.level_from_floor:
                 self.node.get_logger().info(f"tracking: {missing}; {self.map_frame} starts level on the floor in the "
                                             f"first depth image that shows one (tracking.level_from_floor)")  # fmt: skip
-            elif self.base_frame != self.camera_frame:
+            elif has_base:
                 self.node.get_logger().warning(f"tracking: {self.map_frame} is the first camera's optical frame (not "
                                                f"z-up): {missing}")  # fmt: skip
             return

@@ -36,8 +36,7 @@ class DetectionCadence:
     n_detected: int = 0
     n_carried: int = 0
     _count: int = 0
-    _last: DetectionSet | None = None
-    _last_image: FlowImage | None = None
+    _last: tuple[DetectionSet, FlowImage] | None = None  # the newest detected set and the image it was made on
 
     def __post_init__(self) -> None:
         if self.every < 1:
@@ -46,15 +45,14 @@ class DetectionCadence:
     def __call__(self, frame: RgbdFrame) -> tuple[Detection, ...]:
         k = self._count
         self._count += 1
-        if self.every == 1 or k % self.every == 0 or self._last is None:
+        if k % self.every == 0:  # frame 0 always: a carried frame has a detected one before it
             found = self.detect(frame)
             self.n_detected += 1
             if self.every > 1:
-                self._last = found
-                self._last_image = FlowImage.from_rgb(frame.stamp_ns, frame.rgb, frame.depth_m)
+                self._last = (found, FlowImage.from_rgb(frame.stamp_ns, frame.rgb, frame.depth_m))
             return found.detections
+        assert self._last is not None
         self.n_carried += 1
-        image = FlowImage.from_rgb(frame.stamp_ns, frame.rgb, frame.depth_m)
-        images = (self._last_image, image) if self._last_image is not None else None
-        carried = carried_forward(self._last, frame.stamp_ns, self.carry, images=images)
-        return carried or ()
+        detected, image = self._last
+        now = FlowImage.from_rgb(frame.stamp_ns, frame.rgb, frame.depth_m)
+        return carried_forward(detected, frame.stamp_ns, self.carry, images=(image, now)) or ()

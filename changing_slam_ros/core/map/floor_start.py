@@ -65,12 +65,8 @@ def depth_points(depth_m: npt.NDArray[np.floating], camera: CameraIntrinsics, st
                  max_depth_m: float) -> F64:
     """Back-projected readings (N, 3) of every `stride_px`-th pixel with 0 < depth <= `max_depth_m`, camera frame."""
     d = np.asarray(depth_m, np.float64)[::stride_px, ::stride_px]
-    v, u = np.mgrid[0:d.shape[0], 0:d.shape[1]]
-    ok = np.isfinite(d) & (d > 0.0) & (d <= max_depth_m)
-    z = d[ok]
-    x = (u[ok] * stride_px - camera.cx) * z / camera.fx
-    y = (v[ok] * stride_px - camera.cy) * z / camera.fy
-    return np.stack([x, y, z], axis=1)
+    v, u = np.nonzero(np.isfinite(d) & (d > 0.0) & (d <= max_depth_m))
+    return camera.backproject(np.stack([u, v], axis=1).astype(np.float64) * stride_px, d[v, u])
 
 
 def level_first_pose(depth_m: npt.NDArray[np.floating], camera: CameraIntrinsics,

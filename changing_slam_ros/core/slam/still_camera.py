@@ -34,8 +34,8 @@ class StillCameraConfig:
 
     - `enabled`: hold a still camera's pose against a mover (off by default).
     - `still_frames`: accepted frames in a row, each moving under `still_m` and `still_deg`, before the check runs.
-    - `min_points`, `min_share`: matches the last pose must still explain, absolute and as a share of the
-      moved pose's inliers, for the camera to count as still.
+    - `min_points`, `min_share`: matches the anchor (the pose the camera came to rest at) must still explain,
+      absolute and as a share of the moved pose's inliers, for the camera to count as still.
     """
 
     enabled: bool = False
@@ -58,7 +58,6 @@ class StillCamera:
     def __init__(self, cfg: StillCameraConfig) -> None:
         self.cfg = cfg
         self.n_still = 0
-        self.n_held = 0  # poses fitted to the still background instead of the moved solution
         self.anchor_cw: F64 | None = None  # T_cam_world where the camera came to rest
         self._held = False  # the frame being tracked was held
 
@@ -80,20 +79,19 @@ class StillCamera:
     def check(self, obs: PoseObservations, cam: PinholeStereo, full: PoseResult, iterations: int) -> PoseResult:
         """`full`, or the pose of the matches the anchor explains where the camera has been still (module doc)."""
         cfg = self.cfg
-        T_cw_last = self.anchor_cw  # noqa: N806
-        if not cfg.enabled or self.n_still < cfg.still_frames or T_cw_last is None:
+        anchor = self.anchor_cw
+        if not cfg.enabled or self.n_still < cfg.still_frames or anchor is None:
             return full
-        if not _moved(T_cw_last, full.T_cam_world, cfg):
+        if not _moved(anchor, full.T_cam_world, cfg):
             return full
-        chi2 = residuals(T_cw_last, obs, cam)[2]
+        chi2 = residuals(anchor, obs, cam)[2]
         still = chi2 <= np.where(obs.u_right_px >= 0, CHI2_STEREO, CHI2_MONO)
         n = int(still.sum())
         if n < cfg.min_points or n < cfg.min_share * full.n_inliers:
             return full
         sub = PoseObservations(obs.points_w[still], obs.uv_px[still], obs.u_right_px[still], obs.inv_sigma2[still])
-        refit = optimize_pose(T_cw_last, sub, cam, iterations=iterations, robust_rounds=0)
+        refit = optimize_pose(anchor, sub, cam, iterations=iterations, robust_rounds=0)
         inliers = np.zeros(len(still), bool)
         inliers[np.flatnonzero(still)[refit.inliers]] = True
-        self.n_held += 1
         self._held = True
         return PoseResult(refit.T_cam_world, inliers, residuals(refit.T_cam_world, obs, cam)[2])
