@@ -113,6 +113,45 @@ def test_a_large_depth_spread_disables_the_objects_keypoints() -> None:
     assert (relaxed.kp_classes[len(on_person) :] == KeypointClass.STATIC).all()
 
 
+def test_a_spread_box_can_keep_the_background_deeper_than_its_centre_and_still_drop_the_object() -> None:
+    depth, box, on_person, behind = person_scene()
+    depth[depth == WALL_M] = 6.0  # std 2.2 m: the box is left out, but its centre lies on the person at 1.5 m
+    kps = np.concatenate([on_person, behind])
+    cfg = KeypointClassificationConfig(repopulate_occluded_boxes=True)
+    res = classify_keypoints(kps, depth, [box], cfg)
+    assert not res.box_usable[0] and res.box_background_depth_m[0] == pytest.approx(1.5 + 0.8)
+    assert (res.kp_classes[: len(on_person)] == KeypointClass.UNUSED).all()
+    assert (res.kp_classes[len(on_person) :] == KeypointClass.STATIC).all()
+    # An occluded centre says nothing of the object's depth: the whole box stays out.
+    depth, chair, on_chair, behind = chair_scene(with_occluder=True)
+    occluded = classify_keypoints(np.concatenate([on_chair, behind]), depth, [chair], cfg)
+    assert not occluded.box_usable[0] and (occluded.kp_classes == KeypointClass.UNUSED).all()
+
+
+def test_a_thin_person_before_a_far_wall_can_keep_the_wall_seen_around_it() -> None:
+    # A box fitted to a stick figure at 1.5 m (torso spanning the box's height, arms its width) before a wall at
+    # 4 m that fills most of the box: the median lies on the wall, so the centre test calls the box occluded.
+    depth = np.full((H, W), 4.0, np.float32)
+    depth[80:460, 300:340] = 1.5
+    depth[180:200, 200:440] = 1.5
+    box = Detection((200.0, 80.0, 440.0, 460.0), PERSON_CLASS_ID, 0.9)
+    on_person = grid(302, 82, 338, 458, 8)
+    wall = np.concatenate([grid(204, 84, 296, 176, 10), grid(344, 204, 436, 456, 10)])
+    kps = np.concatenate([on_person, wall])
+    res = classify_keypoints(kps, depth, [box])
+    st = res.box_stats[0]
+    assert st is not None and st.std_m < 1.5 and st.median_m == pytest.approx(4.0) and st.centre_m == pytest.approx(1.5)
+    assert not res.box_usable[0] and (res.kp_classes == KeypointClass.UNUSED).all()  # the paper's rule
+    cfg = KeypointClassificationConfig(repopulate_occluded_boxes=True)
+    kept = classify_keypoints(kps, depth, [box], cfg)
+    assert not kept.box_usable[0] and (kept.kp_classes[: len(on_person)] == KeypointClass.UNUSED).all()
+    assert (kept.kp_classes[len(on_person) :] == KeypointClass.STATIC).all()
+    # A pole in front of a chair spans the box's height but not its width: the chair behind keeps the box out.
+    depth, chair, on_chair, behind = chair_scene(with_occluder=True)
+    occluded = classify_keypoints(np.concatenate([on_chair, behind]), depth, [chair], cfg)
+    assert not occluded.box_usable[0] and (occluded.kp_classes == KeypointClass.UNUSED).all()
+
+
 def test_the_optional_centre_band_check_disables_an_object_behind_an_unlabelled_table() -> None:
     depth, box, on_person, behind = person_scene()
     depth[380:460, 230:410] = 0.5  # a table in front of the person's legs; the box centre stays on the person
