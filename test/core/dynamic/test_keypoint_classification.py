@@ -104,7 +104,8 @@ def test_occlusion_by_an_unlabelled_object_disables_the_objects_keypoints() -> N
 def test_a_large_depth_spread_disables_the_objects_keypoints() -> None:
     depth, box, on_person, behind = person_scene()
     depth[depth == WALL_M] = 6.0  # same person, far background: std 2.2 m > 1.5 m
-    res = classify_keypoints(np.concatenate([on_person, behind]), depth, [box])
+    paper = KeypointClassificationConfig(repopulate_occluded_class_ids=())
+    res = classify_keypoints(np.concatenate([on_person, behind]), depth, [box], paper)
     assert res.box_stats[0] is not None and res.box_stats[0].std_m > 1.5
     assert not res.box_usable[0] and (res.kp_classes == KeypointClass.UNUSED).all()
     relaxed = classify_keypoints(np.concatenate([on_person, behind]), depth, [box],
@@ -117,7 +118,7 @@ def test_a_spread_box_can_keep_the_background_deeper_than_its_centre_and_still_d
     depth, box, on_person, behind = person_scene()
     depth[depth == WALL_M] = 6.0  # std 2.2 m: the box is left out, but its centre lies on the person at 1.5 m
     kps = np.concatenate([on_person, behind])
-    cfg = KeypointClassificationConfig(repopulate_occluded_boxes=True)
+    cfg = KeypointClassificationConfig(repopulate_occluded_class_ids=(PERSON_CLASS_ID, CHAIR_CLASS_ID))
     res = classify_keypoints(kps, depth, [box], cfg)
     assert not res.box_usable[0] and res.box_background_depth_m[0] == pytest.approx(1.5 + 0.8)
     assert (res.kp_classes[: len(on_person)] == KeypointClass.UNUSED).all()
@@ -138,12 +139,13 @@ def test_a_thin_person_before_a_far_wall_can_keep_the_wall_seen_around_it() -> N
     on_person = grid(302, 82, 338, 458, 8)
     wall = np.concatenate([grid(204, 84, 296, 176, 10), grid(344, 204, 436, 456, 10)])
     kps = np.concatenate([on_person, wall])
-    res = classify_keypoints(kps, depth, [box])
+    res = classify_keypoints(kps, depth, [box], KeypointClassificationConfig(repopulate_occluded_class_ids=()))
     st = res.box_stats[0]
     assert st is not None and st.std_m < 1.5 and st.median_m == pytest.approx(4.0) and st.centre_m == pytest.approx(1.5)
     assert not res.box_usable[0] and (res.kp_classes == KeypointClass.UNUSED).all()  # the paper's rule
-    cfg = KeypointClassificationConfig(repopulate_occluded_boxes=True)
-    kept = classify_keypoints(kps, depth, [box], cfg)
+    cfg = KeypointClassificationConfig(repopulate_occluded_class_ids=(PERSON_CLASS_ID, CHAIR_CLASS_ID))
+    kept = classify_keypoints(kps, depth, [box])  # the default: person boxes
+    assert (kept.kp_classes == classify_keypoints(kps, depth, [box], cfg).kp_classes).all()
     assert not kept.box_usable[0] and (kept.kp_classes[: len(on_person)] == KeypointClass.UNUSED).all()
     assert (kept.kp_classes[len(on_person) :] == KeypointClass.STATIC).all()
     # A pole in front of a chair spans the box's height but not its width: the chair behind keeps the box out.
@@ -258,7 +260,7 @@ def test_median_1d_is_numpys_median_bit_for_bit(n: int) -> None:
 def test_a_keypoint_in_several_boxes_takes_the_unusable_then_dynamic_then_nearest_one(seed: int) -> None:
     """Random overlapping boxes over layered depth, against the rule written per keypoint: among the boxes a
     keypoint is inside (person boxes widened by `box_margin_px`) and in front of the box's background depth (or
-    any keypoint, for an unusable box), the unusable box wins, then a dynamic class, then the smallest minimum
+    any keypoint, for an unusable box that has none), the unusable box wins, then a dynamic class, then the smallest minimum
     depth; a low score drops a box."""
     rng = np.random.default_rng(seed)
     cfg = KeypointClassificationConfig(min_detection_score=0.2)
@@ -287,7 +289,7 @@ def test_a_keypoint_in_several_boxes_takes_the_unusable_then_dynamic_then_neares
             if not (bx0 - g <= x < bx1 + g and by0 - g <= y < by1 + g):
                 continue
             fg = kp_depth[i] <= res.box_background_depth_m[b] if kp_depth[i] > 0 else cfg.invalid_depth_is_object
-            if fg or not res.box_usable[b]:
+            if fg or (not res.box_usable[b] and np.isinf(res.box_background_depth_m[b])):
                 st = res.box_stats[b]
                 owners.append((bool(res.box_usable[b]), d.class_id != PERSON_CLASS_ID, st.min_m if st else np.inf, b))
         if not owners:
