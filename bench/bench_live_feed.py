@@ -31,11 +31,12 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def load_frames(sequence: str, config: str, n: int) -> tuple[list, object]:
+def load_frames(sequence: str, config: str, n: int) -> tuple[list, Any]:
     """The first `n` frames (colour, depth in metres) of `sequence` and its camera."""
     from changing_slam_ros.io.dataset import open_dataset
 
@@ -48,16 +49,14 @@ def load_frames(sequence: str, config: str, n: int) -> tuple[list, object]:
     return frames, camera
 
 
-def feed(frames: list, camera: object, out: Path, args: argparse.Namespace, graph_options: list[str]) -> dict:
+def feed(frames: list, camera: Any, out: Path, args: argparse.Namespace, graph_options: list[str]) -> dict:
     """One graph run fed `frames` at `args.rate` Hz; its summary plus what the driver saw."""
     import rclpy
     from geometry_msgs.msg import PoseStamped
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import qos_profile_sensor_data
-    from sensor_msgs.msg import CameraInfo, Image
 
     from changing_slam_ros.io.dataset_config import TOPIC_PRESETS
-    from changing_slam_ros.nodes.conversions import depth_to_image, intrinsics_to_camera_info, rgb_to_image
+    from changing_slam_ros.nodes.camera_feed import CameraFeed
 
     topics = TOPIC_PRESETS[args.topics]
     domain = random.Random(os.getpid() + time.time_ns()).randint(100, 200)
@@ -83,30 +82,17 @@ def feed(frames: list, camera: object, out: Path, args: argparse.Namespace, grap
         if not listening.wait(300) or graph.poll() is not None:
             raise SystemExit("bench_live_feed: the graph did not start:\n" + "".join(log[-20:]))
         node = rclpy.create_node("bench_camera_driver", context=context)
-        pubs = {name: node.create_publisher(kind, name, qos_profile_sensor_data) for name, kind in
-                ((topics.rgb, Image), (topics.depth, Image), (topics.camera_info, CameraInfo))}  # fmt: skip
+        driver = CameraFeed(node, topics, camera)
         node.create_subscription(PoseStamped, "/tracking/pose",
                                  lambda m: posed.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         deadline = time.monotonic() + 120
-        while any(p.get_subscription_count() < 1 for p in pubs.values()):
+        while not driver.ready():
             if time.monotonic() > deadline:
                 raise SystemExit("bench_live_feed: tracking never subscribed to the camera topics")
             executor.spin_once(timeout_sec=0.05)
-        sent: list[int] = []
-        period_ns = round(1e9 / args.rate)
-        t_next = t0 = time.monotonic_ns()
-        for rgb, depth_m in frames:
-            while time.monotonic_ns() < t_next:
-                executor.spin_once(timeout_sec=max(0.0, (t_next - time.monotonic_ns()) * 1e-9))
-            t_next += period_ns
-            stamp = time.time_ns()
-            pubs[topics.camera_info].publish(intrinsics_to_camera_info(camera, stamp, "camera_color_optical_frame"))
-            pubs[topics.rgb].publish(rgb_to_image(rgb, stamp, "camera_color_optical_frame"))
-            pubs[topics.depth].publish(depth_to_image(depth_m, stamp, "camera_color_optical_frame", encoding="16UC1"))
-            sent.append(stamp)
-        feed_s = (time.monotonic_ns() - t0) * 1e-9
+        sent, feed_s = driver.play(executor, frames, args.rate)
         end = time.monotonic() + 5.0
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)

@@ -48,8 +48,6 @@ def _lines(stream, out: queue.Queue) -> None:  # noqa: ANN001 - a text pipe
 def test_live_graph_poses_most_frames_of_a_30_hz_best_effort_camera_and_publishes_tf(tmp_path, monkeypatch):
     import rclpy
     from geometry_msgs.msg import PoseStamped
-    from rclpy.qos import qos_profile_sensor_data
-    from sensor_msgs.msg import CameraInfo, Image
     from tf2_msgs.msg import TFMessage
 
     from changing_slam_ros.io.dataset_config import REALSENSE_JAZZY_TOPICS as TOPICS
@@ -79,9 +77,10 @@ def test_live_graph_poses_most_frames_of_a_30_hz_best_effort_camera_and_publishe
                 log.append(lines.get(timeout=1.0))
             except queue.Empty:
                 pass
+        from changing_slam_ros.nodes.camera_feed import CameraFeed
+
         node = rclpy.create_node("fake_realsense", context=context)
-        pubs = {t: node.create_publisher(m, t, qos_profile_sensor_data) for t, m in
-                ((TOPICS.rgb, Image), (TOPICS.depth, Image), (TOPICS.camera_info, CameraInfo))}  # fmt: skip
+        driver = CameraFeed(node, TOPICS, camera)
         poses: list[int] = []
         edges: set[tuple[str, str]] = set()
         node.create_subscription(PoseStamped, "/tracking/pose",
@@ -90,26 +89,11 @@ def test_live_graph_poses_most_frames_of_a_30_hz_best_effort_camera_and_publishe
             (t.header.frame_id, t.child_frame_id) for t in m.transforms), 100)  # fmt: skip
         executor = rclpy.executors.SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        while any(p.get_subscription_count() < 1 for p in pubs.values()):  # tracking has subscribed
+        while not driver.ready():  # tracking has subscribed
             assert time.monotonic() < deadline
             executor.spin_once(timeout_sec=0.05)
-        from changing_slam_ros.nodes.conversions import depth_to_image, intrinsics_to_camera_info, rgb_to_image
-
         # the driver: each frame stamped with the wall clock as it goes out, every 1/30 s
-        sent: list[int] = []
-        period_ns = round(1e9 / RATE_HZ)
-        t_next = t_start = time.monotonic_ns()
-        for rgb, depth_m in frames:
-            while time.monotonic_ns() < t_next:
-                executor.spin_once(timeout_sec=max(0.0, (t_next - time.monotonic_ns()) * 1e-9))
-            t_next += period_ns
-            stamp = time.time_ns()
-            frame_id = "camera_color_optical_frame"
-            pubs[TOPICS.camera_info].publish(intrinsics_to_camera_info(camera, stamp, frame_id))
-            pubs[TOPICS.rgb].publish(rgb_to_image(rgb, stamp, frame_id))
-            pubs[TOPICS.depth].publish(depth_to_image(depth_m, stamp, frame_id, encoding="16UC1"))
-            sent.append(stamp)
-        feed_s = (time.monotonic_ns() - t_start) * 1e-9
+        sent, feed_s = driver.play(executor, frames, RATE_HZ)
         end = time.monotonic() + 5.0  # the last frames, keyframes and map updates in flight
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
