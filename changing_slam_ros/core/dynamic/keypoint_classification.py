@@ -79,7 +79,7 @@ class KeypointClassificationConfig:
       around that person is dropped. Person boxes only by default: given back behind furniture boxes too, the
       background changed static scenes for the worse (7-Scenes redkitchen, 300 frames: 2.34 -> 3.25 cm ATE),
       while behind person boxes it lowered the random_dynamic evaluation seeds' ATE p90 / worst from 16.1 /
-      32.5 to 14.3 / 16.4 cm and raised moving-keypoint precision from 0.55 to 0.65 at the same recall
+      32.5 to 14.3 / 16.4 cm and raised moving-keypoint precision from 0.55 to 0.65 at about the same recall
       (`docs/results.md`).
     - `near_layer_edge_fraction`: with the centre nearer than the median, the centre is the object's when the
       pixels within the class margin of the centre depth reach each side of the box to within this fraction
