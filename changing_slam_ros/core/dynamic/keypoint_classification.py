@@ -9,6 +9,8 @@ object's keypoints out (`KeypointClass.UNUSED`) when "the standard deviation of 
 median depth is higher than the depth of the centre of the bounding box". Read literally the second test fires
 on any object before a far background, so it applies with a tolerance (`centre_occlusion_margin_m`); the
 optional converse check (`check_centre_in_object_band`, off) is described on `KeypointClassificationConfig`.
+A person's box left out this way still gives back the background seen around the person when its centre depth
+is the person's (`centre_on_object`, `repopulate_occluded_class_ids`).
 """
 
 from __future__ import annotations
@@ -73,10 +75,10 @@ class KeypointClassificationConfig:
       `static` run (eleven movable objects, oracle boxes) from 3.15 to 12.66 cm ATE.
     - `repopulate_occluded_class_ids`: a box of these classes left out by the tests above still gives back the
       background seen through it when its centre depth is the object's (`centre_on_object`): keypoints deeper
-      than the centre by the class margin are static, the others stay out. The centre test fires on any object before a far
-      background that fills most of its box (a person close to the camera in a room: more than half of the
-      oracle person boxes on seven random_dynamic seeds), and without this every keypoint of the room seen
-      around that person is dropped. Person boxes only by default: given back behind furniture boxes too, the
+      than the centre by the class margin are static, the others stay out. The centre test fires on any object
+      before a far background that fills most of its box (a person close to the camera in a room: more than
+      half of the oracle person boxes on seven random_dynamic seeds), and without this every keypoint of the
+      room seen around that person is dropped. Person boxes only by default: given back behind furniture boxes too, the
       background changed static scenes for the worse (7-Scenes redkitchen, 300 frames: 2.34 -> 3.25 cm ATE),
       while behind person boxes it lowered the random_dynamic evaluation seeds' ATE p90 / worst from 16.1 /
       32.5 to 14.3 / 16.4 cm and raised moving-keypoint precision from 0.55 to 0.65 at about the same recall
@@ -278,8 +280,8 @@ def near_layer_spans_box(depth_m: npt.NDArray[np.float32], box_xyxy: tuple[float
 def centre_on_object(depth_m: npt.NDArray[np.float32], box_xyxy: tuple[float, float, float, float],
                      stats: BoxDepthStats, margin_m: float, config: KeypointClassificationConfig) -> bool:
     """For a box `is_occluded` called occluded: True when its centre depth is still the object's, so that what
-    lies deeper than the centre by the class margin is background (`repopulate_occluded_class_ids`). That holds when
-    the spread alone fired (the centre tests passed), or when the centre lies nearer than the median but the
+    lies deeper than the centre by the class margin is background (`repopulate_occluded_class_ids`). That holds
+    when the spread alone fired (the centre tests passed), or when the centre lies nearer than the median but the
     near layer spans the box (`near_layer_spans_box`): an object before a far background that fills most of
     its box, as a person seen close before a room, not an occluder across it."""
     if np.isnan(stats.centre_m) or (config.check_centre_in_object_band and stats.centre_m > stats.min_m + margin_m):
