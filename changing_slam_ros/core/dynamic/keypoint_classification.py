@@ -163,6 +163,13 @@ class KeypointClassification:
         return np.asarray(self.kp_classes == KeypointClass.STATIC)
 
 
+def box_pixels(shape: tuple[int, ...], box_xyxy: tuple[float, float, float, float] | F64) -> tuple[int, int, int, int]:
+    """The pixel range (x0, y0, x1, y1), max exclusive, that a box covers in an image of `shape` (H, W), clipped."""
+    h, w = shape[:2]
+    x0, y0 = max(math.floor(box_xyxy[0]), 0), max(math.floor(box_xyxy[1]), 0)
+    return x0, y0, min(math.ceil(box_xyxy[2]), w), min(math.ceil(box_xyxy[3]), h)
+
+
 def box_depth_stats(
     depth_m: npt.NDArray[np.float32],
     box_xyxy: tuple[float, float, float, float] | F64,
@@ -171,9 +178,7 @@ def box_depth_stats(
 ) -> BoxDepthStats | None:
     """Statistics of depth image (H, W) metres (0 = invalid) inside a box, without the areas where the
     boxes `others_xyxy` (K, 4) overlap it; None when too few valid samples remain."""
-    h, w = depth_m.shape
-    x0, y0, x1, y1 = math.floor(box_xyxy[0]), math.floor(box_xyxy[1]), math.ceil(box_xyxy[2]), math.ceil(box_xyxy[3])
-    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    x0, y0, x1, y1 = box_pixels(depth_m.shape, box_xyxy)
     if x1 - x0 < 1 or y1 - y0 < 1:
         return None
     s = config.stats_stride_px
@@ -263,9 +268,7 @@ def near_layer_spans_box(depth_m: npt.NDArray[np.float32], box_xyxy: tuple[float
     `near_layer_edge_fraction` of its width / height): a detector's box is fitted to its object, so a near layer
     that spans it is the object, while an unlabelled occluder in front of the object leaves sides of the box
     to the object behind it."""
-    h, w = depth_m.shape
-    x0, y0 = max(math.floor(box_xyxy[0]), 0), max(math.floor(box_xyxy[1]), 0)
-    x1, y1 = min(math.ceil(box_xyxy[2]), w), min(math.ceil(box_xyxy[3]), h)
+    x0, y0, x1, y1 = box_pixels(depth_m.shape, box_xyxy)
     s = config.stats_stride_px
     patch = depth_m[y0:y1:s, x0:x1:s]
     near = (patch > 0.0) & (patch <= limit_m)
