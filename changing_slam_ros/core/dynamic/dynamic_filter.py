@@ -78,9 +78,9 @@ class DynamicConfig:
     - `segmentation_search_k`: "edge_test" compares each keypoint with this many earlier keypoints nearest
       to its predicted position (the search's cost; a fast mover's match may lie beyond them).
     - `segmentation_min_matches`: fewer matches = no segmentation in that frame.
-    - `segmentation_spread_px` / `segmentation_spread_depth_m`: a keypoint within this image distance and
-      depth difference of a flagged one is flagged too (only matched keypoints can be flagged, about half
-      of a walking person's; 0 = off).
+    - `segmentation_spread_px` / `segmentation_spread_depth_m`: a keypoint within this image distance (in
+      pixels of a 640-wide image, scaled with the width) and depth difference of a flagged one is flagged too
+      (only matched keypoints can be flagged, about half of a walking person's; 0 = off).
     - `detection_hold_frames`: a box of a `hold_class_ids` class that the detector stops reporting is kept
       for this many frames, grown by `detection_hold_grow_px` per side per missed frame. A real detector
       misses a person in single frames, or names a close one "chair" or "teddy bear" every other frame
@@ -432,7 +432,8 @@ class DynamicFilter:
         self._pending_age = age
         moving |= age <= cfg.segmentation_carry_frames
         if cfg.segmentation_spread_px > 0.0 and moving.any():
-            moving = _spread(moving, features, cfg.segmentation_spread_px, cfg.segmentation_spread_depth_m)
+            radius_px = cfg.segmentation_spread_px * camera.width / 640.0
+            moving = _spread(moving, features, radius_px, cfg.segmentation_spread_depth_m)
         return moving
 
     def _segment_pair(
