@@ -80,7 +80,8 @@ class DynamicConfig:
     - `segmentation_min_matches`: fewer matches = no segmentation in that frame.
     - `segmentation_spread_px` / `segmentation_spread_depth_m`: a keypoint within this image distance (in
       pixels of a 640-wide image, scaled with the width) and depth difference of a flagged one is flagged too
-      (only matched keypoints can be flagged, about half of a walking person's; 0 = off).
+      (only matched keypoints can be flagged, about half of a walking person's; 0 = off). In a frame where
+      that would leave tracking fewer than `min_kept_keypoints` keypoints with depth, the spread yields.
     - `detection_hold_frames`: a box of a `hold_class_ids` class that the detector stops reporting is kept
       for this many frames, grown by `detection_hold_grow_px` per side per missed frame. A real detector
       misses a person in single frames, or names a close one "chair" or "teddy bear" every other frame
@@ -232,6 +233,7 @@ class DynamicFilter:
         )
         self._n_frames = 0
         self._pending_age: npt.NDArray[np.int64] | None = None
+        self._spread_only: BoolArr | None = None  # keypoints flagged by the segmentation's spread alone
         self._poses: deque[F64] = deque(maxlen=2)  # last two tracked poses, for the prediction
         self._pending: _Past | None = None
         self._moving_points: list[tuple[int, npt.NDArray[np.int64]]] = []  # this frame's, for `DynamicFrame`
@@ -299,6 +301,11 @@ class DynamicFilter:
                 classes = res.classification.kp_classes.astype(np.int8)
                 object_ids = res.kp_object_ids.copy()
                 objects = res.objects
+            spread_only, self._spread_only = self._spread_only, None
+            if spread_only is not None and len(spread_only) == n and spread_only.any():
+                # The spread yields where it would leave tracking short of keypoints with depth.
+                if np.count_nonzero(keep & ~moving & (features.depths_m > 0)) < cfg.min_kept_keypoints:
+                    moving &= ~spread_only
             keep &= ~moving
             short = int(np.count_nonzero(keep & (features.depths_m > 0))) < cfg.min_kept_keypoints
             if cfg.detection_filtering and cfg.ekf_doc and (cfg.keep_undecided or short):
@@ -433,7 +440,9 @@ class DynamicFilter:
         moving |= age <= cfg.segmentation_carry_frames
         if cfg.segmentation_spread_px > 0.0 and moving.any():
             radius_px = cfg.segmentation_spread_px * camera.width / 640.0
-            moving = _spread(moving, features, radius_px, cfg.segmentation_spread_depth_m)
+            spread = _spread(moving, features, radius_px, cfg.segmentation_spread_depth_m)
+            self._spread_only = spread & ~moving
+            moving = spread
         return moving
 
     def _segment_pair(

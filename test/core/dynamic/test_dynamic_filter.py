@@ -233,7 +233,8 @@ def test_a_close_person_the_detector_names_chair_every_other_frame_is_never_mova
 
 
 def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_similar_depth() -> None:
-    """As above, plus 20 box points whose descriptors never match (a deforming person): only spread flags them."""
+    """As above, plus 20 box points whose descriptors never match (a deforming person): only spread flags them,
+    unless that leaves tracking fewer than `min_kept_keypoints` keypoints with depth."""
     rng = np.random.default_rng(4)
     static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
     ray = static[:, :2] / static[:, 2:3] * 1.8  # the box hides the wall behind its path, as above
@@ -241,9 +242,9 @@ def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_s
     box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (60, 3))
     desc = rng.integers(0, 256, (460, 32), dtype=np.uint8)
     flagged = {}
-    for spread in (0.0, 25.0):
+    for spread, min_kept in ((0.0, 300), (25.0, 300), (25.0, 420)):
         flt = DynamicFilter(DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
-                                          segmentation_spread_px=spread))
+                                          segmentation_spread_px=spread, min_kept_keypoints=min_kept))
         rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
         for k in range(4):
             T_world_cam = np.eye(4)
@@ -254,10 +255,12 @@ def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_s
             d[440:] = rng.integers(0, 256, (20, 32), dtype=np.uint8)  # new descriptors every frame
             res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), _features(CAM.project(cam), cam[:, 2], d), None)
             flt.after_tracking(T_world_cam)
-        flagged[spread] = res.moving
-    assert not flagged[0.0][440:].any() and flagged[0.0][400:440].mean() >= 0.9
-    assert flagged[25.0][400:].mean() >= 0.9
-    assert flagged[25.0][:400].mean() <= 0.02
+        flagged[spread, min_kept] = res.moving
+    assert not flagged[0.0, 300][440:].any() and flagged[0.0, 300][400:440].mean() >= 0.9
+    assert flagged[25.0, 300][400:].mean() >= 0.9
+    assert flagged[25.0, 300][:400].mean() <= 0.02
+    # With 420 keypoints asked of tracking, the spread yields: the 400 room points alone are too few.
+    assert (flagged[25.0, 420] == flagged[0.0, 300]).all()
 
 
 def test_boxes_of_fixed_furniture_classes_are_background_unless_configured_movable() -> None:
