@@ -44,6 +44,7 @@ from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
+from changing_slam_ros.core.slam.frame_records import FrameRecords
 from changing_slam_ros.core.slam.tracking import KeyframeCandidates, Tracker, TrackingConfig, TrackingState, TrackResult
 from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import ConfigError
@@ -76,19 +77,6 @@ class SystemConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     grid: GridConfig = field(default_factory=GridConfig)
-
-
-@dataclass
-class FrameRecord:
-    """Bookkeeping for the trajectories: one per input frame."""
-
-    stamp_ns: int
-    index: int
-    state: TrackingState
-    map_id: int
-    ref_kf_id: int
-    T_ref_cam: F64 | None
-    T_world_cam_online: F64 | None
 
 
 @dataclass
@@ -133,7 +121,7 @@ class SlamSystem:
         self.object_layer = object_layer  # MapObjects and beliefs (Changing-SLAM §4); None = every point stays active
         self._extractor: OrbExtractor | None = None
         self._camera: CameraIntrinsics | None = None
-        self.records: list[FrameRecord] = []
+        self.records = FrameRecords()  # one per frame, for the trajectories written at the end
         self.timings_ms: dict[str, list[float]] = defaultdict(list)
         self.n_loops = 0
         self.merges: list[MergeResult] = []
@@ -324,9 +312,7 @@ class SlamSystem:
         """Tracking's part of a merge the Atlas went through: frame records of the merged-away map name the
         merged one, the last frame (pose, point ids) and the last good pose move into it. (The split graph's
         tracking calls this on the owner's merge update: `nodes.split_backend.TrackingSide`.)"""
-        for r in self.records:
-            if r.map_id == result.from_map_id:
-                r.map_id = result.into_map_id
+        self.records.rename_map(result.from_map_id, result.into_map_id)
         if self.tracker.last_frame is not None:
             move_frame(self.tracker.last_frame, result)
         self.tracker.last_good_pose = result.T_into_from @ self.tracker.last_good_pose
@@ -399,10 +385,7 @@ class SlamSystem:
             T_ref_cam = np.eye(4)  # the frame is its own (not yet mapped) keyframe
         elif res.state == TrackingState.OK and frame.T_world_cam is not None and frame.ref_kf_id >= 0:
             T_ref_cam = invert(m.pose_of(frame.ref_kf_id)) @ frame.T_world_cam
-        online = None if frame.T_world_cam is None else frame.T_world_cam.copy()
-        self.records.append(
-            FrameRecord(frame.stamp_ns, frame.index, res.state, m.id, frame.ref_kf_id, T_ref_cam, online)
-        )
+        self.records.append(frame.stamp_ns, frame.index, res.state, m.id, frame.ref_kf_id, T_ref_cam, frame.T_world_cam)
 
     def refine_with_detections(self, detections: DetectionSet) -> list[RefinedPose]:
         """A frame's detections have arrived after tracking went past it (real time): the tracked frames they
@@ -469,28 +452,26 @@ class SlamSystem:
         keyframe (ORB-SLAM `UpdateLastFrame`) so the motion model predicts in the corrected map."""
         rec = self.records[-1]
         last = self.tracker.last_frame
-        if rec.T_ref_cam is None or last is None or last.T_world_cam is None:
+        T_ref_cam = rec.T_ref_cam  # noqa: N806
+        if T_ref_cam is None or last is None or last.T_world_cam is None:
             return
         m = self.atlas.maps[rec.map_id]
         if rec.ref_kf_id in m.keyframes or rec.ref_kf_id in m.removed:
-            last.T_world_cam = m.pose_of(rec.ref_kf_id) @ rec.T_ref_cam
+            last.T_world_cam = m.pose_of(rec.ref_kf_id) @ T_ref_cam
             self.tracker.last_good_pose = last.T_world_cam
 
     # Results ------------------------------------------------------------------------------------
     def online_trajectory(self) -> Trajectory:
-        recs = [r for r in self.records if r.state == TrackingState.OK and r.T_world_cam_online is not None]
+        recs = list(self.records.online_poses())
         return Trajectory.from_poses(
-            np.array([r.stamp_ns * 1e-9 for r in recs]), np.array([r.T_world_cam_online for r in recs]).reshape(-1, 4, 4)
+            np.array([stamp_ns * 1e-9 for stamp_ns, _ in recs]), np.array([T for _, T in recs]).reshape(-1, 4, 4)
         )
 
     def final_trajectory(self) -> Trajectory:
         stamps, poses = [], []
-        for r in self.records:
-            if r.T_ref_cam is None:
-                continue
-            m = self.atlas.maps[r.map_id]
-            poses.append(m.pose_of(r.ref_kf_id) @ r.T_ref_cam)
-            stamps.append(r.stamp_ns * 1e-9)
+        for stamp_ns, map_id, ref_kf_id, T_ref_cam in self.records.relative_poses():  # noqa: N806
+            poses.append(self.atlas.maps[map_id].pose_of(ref_kf_id) @ T_ref_cam)
+            stamps.append(stamp_ns * 1e-9)
         return Trajectory.from_poses(np.array(stamps), np.array(poses).reshape(-1, 4, 4))
 
     def keyframe_trajectory(self) -> Trajectory:
@@ -500,7 +481,7 @@ class SlamSystem:
         )
 
     def n_tracked(self) -> int:
-        return sum(1 for r in self.records if r.state == TrackingState.OK)
+        return self.records.n_in_state(TrackingState.OK)
 
     def timing_summary(self) -> dict[str, dict[str, float]]:
         """Per stage: count, mean, p50, p90, p99, max (milliseconds)."""

@@ -309,9 +309,7 @@ class TrackingSide:
         if tracked_in == r.from_map_id:
             self.system.follow_merge(r)
         else:  # tracking is in B (or a newer map): only the records of A move
-            for rec in self.system.records:
-                if rec.map_id == r.from_map_id:
-                    rec.map_id = r.into_map_id
+            self.system.records.rename_map(r.from_map_id, r.into_map_id)
             self.system.merges.append(r)
         if last is not None and last_ids is not None and len(remap):
             held = held_src if tracked_in == r.from_map_id else held_dst if tracked_in == r.into_map_id else None
