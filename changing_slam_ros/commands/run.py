@@ -103,7 +103,8 @@ def main(args: argparse.Namespace) -> int:
                                `grid: enabled`, the default), in the floor frame, its pose in the map under
                                `floor_pose_in_map`;
     - `metrics.json`           frames tracked, keyframes, loops, speed; ATE / RPE when ground truth exists;
-    - `timing.json`            per-stage milliseconds (count, mean, p50, p90, p99, max);
+    - `timing.json`            per-stage milliseconds (count, mean, max; p50, p90, p99 of the last 32768 values,
+                               `core.recent_values`: of every frame in a shorter run);
     - `trajectory.png`         the final trajectory against ground truth (when it exists);
     - `moving_objects.json`, `moving_objects/object_<id>.txt`  moving objects and their trajectories (TUM), with
                                `dynamic: movers: enabled: true` (`io.moving_objects_file`);

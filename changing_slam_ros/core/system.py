@@ -39,6 +39,7 @@ from changing_slam_ros.core.slam.map_merging import MergeResult, merge_maps, mov
 from changing_slam_ros.core.objects.map_object import MapObject
 from changing_slam_ros.core.objects.object_evidence import keyframe_thumbnail
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
+from changing_slam_ros.core.recent_values import RecentValues
 from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
 from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
@@ -122,7 +123,7 @@ class SlamSystem:
         self._extractor: OrbExtractor | None = None
         self._camera: CameraIntrinsics | None = None
         self.records = FrameRecords()  # one per frame, for the trajectories written at the end
-        self.timings_ms: dict[str, list[float]] = defaultdict(list)
+        self.timings_ms: dict[str, RecentValues] = defaultdict(RecentValues)  # per stage, the recent frames' ms
         self.n_loops = 0
         self.merges: list[MergeResult] = []
         refine = self.config.tracking.deferred_refinement
@@ -484,15 +485,9 @@ class SlamSystem:
         return self.records.n_in_state(TrackingState.OK)
 
     def timing_summary(self) -> dict[str, dict[str, float]]:
-        """Per stage: count, mean, p50, p90, p99, max (milliseconds)."""
-        out: dict[str, dict[str, float]] = {}
-        for k, v in self.timings_ms.items():
-            a = np.asarray(v)
-            out[k] = {
-                "count": float(len(a)), "mean": float(a.mean()), "p50": float(np.percentile(a, 50)),
-                "p90": float(np.percentile(a, 90)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
-            }
-        return out
+        """Per stage (milliseconds): count, mean and max of the whole run; p50, p90, p99 of its last
+        `RECENT_CAPACITY` values (`core.recent_values`: every value of a shorter run)."""
+        return {k: v.summary() for k, v in self.timings_ms.items()}
 
 
 def _thumbnail(rgbd: RgbdFrame) -> npt.NDArray[np.uint8] | None:

@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.recent_values import RecentValues
 from changing_slam_ros.core.dynamic.detector import Detection
 from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
@@ -243,9 +244,11 @@ class DynamicFilter:
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
         self.n_keypoints = 0
         self.n_kept = 0
-        self.frames_ms: list[float] = []
-        self.segmentation_cpu_ms: list[float] = []  # thread CPU of each frame's segmentation (matching included)
-        self.free_space_cpu_ms: list[float] = []  # thread CPU of each frame's free-space check (its filter included)
+        # per frame, the recent ones kept (`core.recent_values`): wall ms of the filter, thread CPU of the
+        # segmentation (matching included) and of the free-space check (its filter included)
+        self.frames_ms = RecentValues()
+        self.segmentation_cpu_ms = RecentValues()
+        self.free_space_cpu_ms = RecentValues()
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
         self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
 
