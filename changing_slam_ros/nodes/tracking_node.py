@@ -32,6 +32,7 @@ from changing_slam_msgs.msg import ObjectStateArray
 from changing_slam_msgs.msg import Keyframe as KeyframeMsg
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.geometry.rep105 import PoseCovarianceModel
+from changing_slam_ros.core.recent_values import RecentValues
 from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.slam.tracking import TrackingState
@@ -90,10 +91,10 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.duplicates = {"colour": 0, "depth": 0}
         self._newest_ns = {"colour": -1, "depth": -1}
         self._warned_backward = {"colour": False, "depth": False}  # a jump back is warned about once
-        self.latency_ms: list[float] = []
-        self.process_ms: list[float] = []
-        self.process_cpu_ms: list[float] = []  # process CPU time per processed frame (load-independent)
-        self.detection_delay_ms: list[float] = []  # colour received -> its detections received
+        self.latency_ms = RecentValues()  # per frame, the recent ones kept (core/recent_values.py); image -> pose
+        self.process_ms = RecentValues()
+        self.process_cpu_ms = RecentValues()  # process CPU time per processed frame (load-independent)
+        self.detection_delay_ms = RecentValues()  # colour received -> its detections received
         self.published_poses = 0
         self.frames_dropped_stale = 0  # frame_policy latest: paired frames skipped for a newer one
         self.frames_not_waited = 0  # detections_skip_late: frames tracked at once as detections came late
@@ -119,7 +120,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
                                   flow_hull=p["detections_carry_flow_hull"])  # fmt: skip
         # detections_carry_flow: grey + depth of the recent frames, by stamp (the carried boxes' image motion)
         self._recent_images = RecentImages(p["detections_carry_max_age_s"], p["detections_carry_flow_max_stamp_gap_s"])
-        self.carry_cpu_ms: list[float] = []  # CPU of carrying boxes forward (with flow: measuring their motion)
+        self.carry_cpu_ms = RecentValues()  # CPU of carrying boxes forward (with flow: measuring their motion)
         self.frames_with_carried_detections = 0
         self._finished = False
 
@@ -129,7 +130,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.updates_applied = 0
         self.updates_rejected = 0
         self.detections_in = 0
-        self.update_latency_ms: list[float] = []  # keyframe published -> its map update applied
+        self.update_latency_ms = RecentValues()  # keyframe published -> its map update applied
         self._awaiting: dict[str, Any] | None = None  # wait_for_map_updates: what the held ack waits for
         self.map_update_waits_timed_out = 0  # held acks sent after map_update_timeout_s without update / verdict
         self._kf_sent_s: dict[int, float] = {}

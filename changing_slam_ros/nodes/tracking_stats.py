@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 
 # A stamp further than this behind its stream's newest is not a resumed player's overlap but a bag played again or
 # a clock reset: warned about once per jump (frames are dropped either way).
@@ -17,13 +16,13 @@ BACKWARD_JUMP_S = 1.0
 class TrackingStats:
     """Methods of `TrackingNode` (see the module docstring)."""
 
-    def stats(self) -> dict[str, Any]:
-        """Counts and latencies for tracking_stats.json and the log."""
+    def stats(self, per_frame: bool = True) -> dict[str, Any]:
+        """Counts and latencies for tracking_stats.json and the log. The per-frame figures are `RecentValues`: their
+        medians and p90s are of the last `RECENT_CAPACITY` values (32768; every frame of a shorter run), and so is the
+        `latency_ms` list (left out with `per_frame` False); `carry_cpu_ms_mean` is of every frame."""
         s = self.pairer.stats
-        lat = np.asarray(self.latency_ms) if self.latency_ms else np.zeros(0)
-        proc = np.asarray(self.process_ms) if self.process_ms else np.zeros(0)
         prov = self.split.provisional if self.split is not None else None
-        return {
+        out = {
             "colour_received": self.colour_in, "pairs": s.pairs, "unpaired_colour_dropped": s.dropped_first,
             "unpaired_depth_dropped": s.dropped_second, "frames_converted": self.frames_in,
             "frames_rejected": self.frames_rejected, "poses_published": self.published_poses,
@@ -33,23 +32,22 @@ class TrackingStats:
             "frames_without_detections": self.frames_without_detections,
             "detections_skipped_received": self.detections_skipped_in,
             "frames_with_carried_detections": self.frames_with_carried_detections,
-            "carry_cpu_ms_mean": float(np.mean(self.carry_cpu_ms)) if self.carry_cpu_ms else None,
+            "carry_cpu_ms_mean": self.carry_cpu_ms.mean(),
             "deferred_refinement": None if self.backend is None or self.backend.system.refinement is None
             else dict(vars(self.backend.system.refinement.stats)),  # frames bracketed / optimised again / refined
             "frames_dropped_stale": self.frames_dropped_stale, "frame_policy": self.params["frame_policy"],
             "frames_not_waited_for_late_detections": self.frames_not_waited,
-            "latency_ms_median": float(np.median(lat)) if lat.size else None,
-            "latency_ms_p90": float(np.percentile(lat, 90)) if lat.size else None,
-            "process_ms_median": float(np.median(proc)) if proc.size else None,
-            "process_cpu_ms_median": float(np.median(self.process_cpu_ms)) if self.process_cpu_ms else None,
-            "process_cpu_ms_p90": float(np.percentile(self.process_cpu_ms, 90)) if self.process_cpu_ms else None,
-            "detection_delay_ms_median": float(np.median(self.detection_delay_ms)) if self.detection_delay_ms else None,
+            "latency_ms_median": self.latency_ms.median(), "latency_ms_p90": self.latency_ms.percentile(90),
+            "process_ms_median": self.process_ms.median(),
+            "process_cpu_ms_median": self.process_cpu_ms.median(),
+            "process_cpu_ms_p90": self.process_cpu_ms.percentile(90),
+            "detection_delay_ms_median": self.detection_delay_ms.median(),
             "detections_received": self.detections_in,
             "backend": "in_process" if self.split is None else "split",
             "map_updates_applied": self.updates_applied, "map_updates_rejected": self.updates_rejected,
             "keyframes_without_map_update": len(self._kf_sent_s) if self.split is not None else None,
             "map_update_waits_timed_out": self.map_update_waits_timed_out,
-            "map_update_latency_ms_median": float(np.median(self.update_latency_ms)) if self.update_latency_ms else None,
+            "map_update_latency_ms_median": self.update_latency_ms.median(),
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "maps_merged_split": self.split.n_merges if self.split is not None else None,
             "keyframes_moved_by_merges": self.split.n_moved_keyframes if self.split is not None else None,
@@ -62,8 +60,10 @@ class TrackingStats:
             "map_loads": self.loads,
             "load_relocalised_after_s": self._relocalised_after_load_s(),
             "dropped_before_load": self.epochs.dropped,
-            "latency_ms": [round(float(v), 2) for v in lat],
         }  # fmt: skip
+        if per_frame:
+            out["latency_ms"] = [round(v, 2) for v in self.latency_ms]
+        return out
 
     def _relocalised_after_load_s(self) -> float | None:
         """After a LoadMap: seconds (frame stamps) from the first frame tracked after it to the frame that
@@ -78,7 +78,7 @@ class TrackingStats:
 
     def diagnostic_values(self) -> dict[str, Any]:
         """Counts and latencies for /diagnostics (no per-frame lists)."""
-        s = self.stats()
+        s = self.stats(per_frame=False)
         keep = ("colour_received", "frames_converted", "poses_published", "unpaired_colour_dropped",
                 "unpaired_depth_dropped", "frames_rejected", "frames_without_detections", "frames_dropped_stale",
                 "latency_ms_median",
@@ -132,7 +132,7 @@ class TrackingStats:
             if counts == getattr(self, "_last_counts_line", ""):
                 return
             self._last_counts_line = counts
-            lat = f", latency median {np.median(self.latency_ms):.0f} ms" if self.latency_ms else ""
+            lat = f", latency median {self.latency_ms.median():.0f} ms" if self.latency_ms else ""
             self.get_logger().info(counts + lat)
 
 

@@ -331,7 +331,7 @@ def test_detections_for_a_frame_never_received_are_kept_and_a_waiting_frames_del
 
     src, f, node = _first_frame_and_node_waiting_for_detections(ros_context, wait_s=60.0)
     node.on_detections(DetectionArray(header=cv.make_header(f.stamp_ns - 33_000_000, "camera"), detections=[]))
-    assert node.detections_in == 1 and node.detection_delay_ms == []  # no frame of that stamp: no delay
+    assert node.detections_in == 1 and len(node.detection_delay_ms) == 0  # no frame of that stamp: no delay
     node.on_camera_info(cv.intrinsics_to_camera_info(src.camera, f.stamp_ns, "camera"))
     node.on_colour(cv.rgb_to_image(f.rgb, f.stamp_ns, "camera"))
     node.on_depth(cv.depth_to_image(f.depth_m, f.stamp_ns, "camera"))
