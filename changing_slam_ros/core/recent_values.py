@@ -2,8 +2,8 @@
 
 A run appends one value per frame (or per keyframe) for as long as it runs; a list of Python floats costs ~32
 bytes a value and grows without end on a robot that runs for days. `RecentValues` keeps the newest `capacity`
-values in a float64 ring and the count, sum and maximum of all of them. The ring is allocated zero-filled at the
-first value, so the memory is taken as it fills (8 bytes a value, a page at a time) and stays at `capacity` values:
+values in a float64 ring and the count, sum and maximum of all of them. The ring is allocated at the first value
+(8 bytes a value: 256 KiB at the default capacity, about 4 MiB for the tracking node's figures) and never grows:
 
 - `len()`, `mean()`, `max()`: every value appended (the whole run);
 - `median()`, `percentile(q)`, iteration, indexing and `np.asarray`: the values kept, oldest first, i.e. the
