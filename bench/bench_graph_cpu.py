@@ -25,6 +25,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from changing_slam_ros.commands.process_cpu import process_cpu_s
@@ -53,10 +54,17 @@ def _children(pid: int) -> dict[str, int]:
     return out
 
 
-def start_graph(argv: list[str], tree: Path) -> tuple[subprocess.Popen, threading.Event, list[str], threading.Thread]:
-    """Start `changing-slam graph` (`argv`) from `tree`; a thread collects its output lines into the returned list
-    and sets the event once the graph says it is up and playing."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
+def _playing(line: str) -> bool:
+    return "up after" in line and "playing" in line
+
+
+def start_graph(
+    argv: list[str], tree: Path, ready: Callable[[str], bool] = _playing, extra_env: dict[str, str] | None = None
+) -> tuple[subprocess.Popen, threading.Event, list[str], threading.Thread]:
+    """Start `changing-slam graph` (`argv`) from `tree` (with `extra_env` added to the environment); a thread collects
+    its output lines into the returned list and sets the event at the first line `ready` accepts (by default the
+    one saying the graph is up and playing its bag)."""
+    env = dict(os.environ, PYTHONPATH=str(tree), **(extra_env or {}))
     proc = subprocess.Popen(argv, cwd=tree, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     playing = threading.Event()
     log: list[str] = []
@@ -65,7 +73,7 @@ def start_graph(argv: list[str], tree: Path) -> tuple[subprocess.Popen, threadin
         assert proc.stdout is not None
         for line in proc.stdout:
             log.append(line)
-            if "up after" in line and "playing" in line:
+            if ready(line):
                 playing.set()
 
     reader = threading.Thread(target=read, daemon=True)

@@ -25,15 +25,13 @@ import os
 import random
 import signal
 import statistics
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_graph_cpu import REPO, start_graph
 
 
 def load_frames(sequence: str, config: str, n: int) -> tuple[list, Any]:
@@ -60,21 +58,10 @@ def feed(frames: list, camera: Any, out: Path, args: argparse.Namespace, graph_o
 
     topics = TOPIC_PRESETS[args.topics]
     domain = random.Random(os.getpid() + time.time_ns()).randint(100, 200)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = {"ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     argv = [sys.executable, "-m", "changing_slam_ros", "graph", "--live", "--topics", args.topics, "--out", str(out),
             "--config", args.config, *graph_options]  # fmt: skip
-    graph = subprocess.Popen(argv, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    log: list[str] = []
-    listening = threading.Event()
-
-    def read() -> None:
-        assert graph.stdout is not None
-        for line in graph.stdout:
-            log.append(line)
-            if "listening to" in line:
-                listening.set()
-
-    threading.Thread(target=read, daemon=True).start()
+    graph, listening, log, _ = start_graph(argv, REPO, lambda line: "listening to" in line, env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     posed: list[int] = []
