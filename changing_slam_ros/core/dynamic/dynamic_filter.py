@@ -234,7 +234,6 @@ class DynamicFilter:
         )
         self._n_frames = 0
         self._pending_age: npt.NDArray[np.int64] | None = None
-        self._spread_only: BoolArr | None = None  # keypoints flagged by the segmentation's spread alone
         self._poses: deque[F64] = deque(maxlen=2)  # last two tracked poses, for the prediction
         self._pending: _Past | None = None
         self._moving_points: list[tuple[int, npt.NDArray[np.int64]]] = []  # this frame's, for `DynamicFrame`
@@ -279,12 +278,13 @@ class DynamicFilter:
         classes = np.full(n, KeypointClass.STATIC, dtype=np.int8)
         object_ids = np.full(n, -1, dtype=np.int64)
         moving = np.zeros(n, dtype=bool)
+        spread_only = np.zeros(n, dtype=bool)  # flagged by the segmentation's spread alone
         objects: tuple[ObjectState, ...] = ()
         self._classified = False
         if cfg.enabled:
             if cfg.segmentation:
                 c0 = time.thread_time()
-                moving = self._segment(features, rgbd.camera)
+                moving, spread_only = self._segment(features, rgbd.camera)
                 self.segmentation_cpu_ms.append((time.thread_time() - c0) * 1e3)
             if cfg.free_space_check:
                 c0 = time.thread_time()
@@ -304,8 +304,7 @@ class DynamicFilter:
                 classes = res.classification.kp_classes.astype(np.int8)
                 object_ids = res.kp_object_ids.copy()
                 objects = res.objects
-            spread_only, self._spread_only = self._spread_only, None
-            if spread_only is not None and len(spread_only) == n and spread_only.any():
+            if spread_only.any():
                 # The spread yields where it would leave tracking short of keypoints with depth.
                 if np.count_nonzero(keep & ~moving & (features.depths_m > 0)) < cfg.min_kept_keypoints:
                     moving &= ~spread_only
@@ -400,8 +399,9 @@ class DynamicFilter:
         return free_space_violations(features.keypoints_px, features.depths_m, T_now, past.near_surface,
                                      past.T_world_cam, rgbd.camera, cfg.free_space)  # fmt: skip
 
-    def _segment(self, features: Features, camera: CameraIntrinsics) -> BoolArr:
-        """(N,) keypoints of the frame that the two-frame segmentation puts on an object target.
+    def _segment(self, features: Features, camera: CameraIntrinsics) -> tuple[BoolArr, BoolArr]:
+        """(N,) keypoints of the frame that the two-frame segmentation puts on an object target, and (N,) those
+        of them flagged by `segmentation_spread_px` alone.
 
         Against the frame `segmentation_gap_frames` back on every frame; with "edge_test" and
         `segmentation_long_gap_frames`, also against that frame on every `segmentation_long_every`-th frame,
@@ -444,9 +444,8 @@ class DynamicFilter:
         if cfg.segmentation_spread_px > 0.0 and moving.any():
             radius_px = cfg.segmentation_spread_px * camera.width / 640.0
             spread = _spread(moving, features, radius_px, cfg.segmentation_spread_depth_m)
-            self._spread_only = spread & ~moving
-            moving = spread
-        return moving
+            return spread, spread & ~moving
+        return moving, np.zeros(n, dtype=bool)
 
     def _segment_pair(
         self, features: Features, past: _Past, T_now: F64, camera: CameraIntrinsics
