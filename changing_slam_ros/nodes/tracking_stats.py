@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from typing import Any
 
-
 # A stamp further than this behind its stream's newest is not a resumed player's overlap but a bag played again or
 # a clock reset: warned about once per jump (frames are dropped either way).
 BACKWARD_JUMP_S = 1.0
