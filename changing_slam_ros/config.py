@@ -35,7 +35,7 @@ def section_classes() -> dict[str, type]:
     from changing_slam_ros.core.objects.map_object import ObjectMapConfig
     from changing_slam_ros.core.slam.local_mapping import MappingConfig
     from changing_slam_ros.core.slam.loop_closing import LoopConfig
-    from changing_slam_ros.core.slam.tracking import TrackingConfig
+    from changing_slam_ros.core.slam.tracking_config import TrackingConfig
     from changing_slam_ros.io.dataset_config import CameraConfig, DatasetConfig
 
     classes = {"camera": CameraConfig, "dataset": DatasetConfig, "features": FeatureConfig,

@@ -61,7 +61,7 @@ def test_resolved_config_has_every_section_with_the_file_values_and_the_defaults
     path.write_text("tracking:\n  min_local_inliers: 17\ncamera:\n  width: 320\n  height: 240\n  fx: 260.0\n"
                     "  fy: 261.0\n  cx: 160.0\n  cy: 120.0\n")  # fmt: skip
     from changing_slam_ros.config import load_config
-    from changing_slam_ros.core.slam.tracking import TrackingConfig
+    from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 
     data, where = load_config(path)
     record = run_provenance(data, where, options={"out": tmp_path, "rate": 1.0})

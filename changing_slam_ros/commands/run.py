@@ -42,7 +42,7 @@ from changing_slam_ros.core.slam.local_mapping import MappingConfig
 from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.slam.tracking import TrackingConfig
+from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 from changing_slam_ros.core.slam.localization import Mode
 from changing_slam_ros.errors import ConfigError, EvalError, OutputError
 from changing_slam_ros.io.atomic import atomic_write_text

@@ -46,7 +46,8 @@ from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.geometry.se3 import invert
 from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.slam.frame_records import FrameRecords
-from changing_slam_ros.core.slam.tracking import KeyframeCandidates, Tracker, TrackingConfig, TrackingState, TrackResult
+from changing_slam_ros.core.slam.tracking import KeyframeCandidates, Tracker, TrackingState, TrackResult
+from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 from changing_slam_ros.core.geometry.trajectory import Trajectory
 from changing_slam_ros.errors import ConfigError
 

@@ -28,7 +28,8 @@ from changing_slam_ros.core.objects.map_object import MapObject
 from changing_slam_ros.core.map.map_point import PointStore
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerConfig, SavedObjectMap
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.slam.tracking import TrackingConfig, TrackingState
+from changing_slam_ros.core.slam.tracking import TrackingState
+from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 from changing_slam_ros.core.features.vocabulary import Vocabulary
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.eval.multi_session import map_frame_errors_m, moved_places

@@ -35,7 +35,7 @@ from changing_slam_ros.core.objects.map_object import ObjectMapConfig
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerConfig
 from changing_slam_ros.core.slam.place_recognition import DriftGateConfig
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.slam.tracking import TrackingConfig
+from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 from changing_slam_ros.core.features.vocabulary import Vocabulary
 from changing_slam_ros.io.dataset import open_dataset
 from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file

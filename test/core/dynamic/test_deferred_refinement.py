@@ -250,7 +250,7 @@ def test_bad_settings_are_named():
 
 def test_the_tracking_section_parses_the_refinement_settings():
     from changing_slam_ros.config import section
-    from changing_slam_ros.core.slam.tracking import TrackingConfig
+    from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 
     cfg = section(TrackingConfig, {"deferred_refinement": {"enabled": True, "max_age_s": 0.4}}, "sim.yaml: tracking")
     assert cfg.deferred_refinement == RefinementConfig(enabled=True, max_age_s=0.4)
@@ -272,7 +272,7 @@ def test_the_system_refines_bracketed_frames_only_and_leaves_the_online_poses_an
     from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
     from changing_slam_ros.core.dynamic.late_detections import CarryConfig, carried_forward
     from changing_slam_ros.core.system import SlamSystem, SystemConfig
-    from changing_slam_ros.core.slam.tracking import TrackingConfig
+    from changing_slam_ros.core.slam.tracking_config import TrackingConfig
     from changing_slam_ros.io.dataset import open_dataset
     from changing_slam_ros.io.detections_file import find_detections_file, read_detections_file
     from changing_slam_ros.sim.scenarios import build_scenario

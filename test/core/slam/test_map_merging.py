@@ -149,7 +149,7 @@ def _lost_and_revisit(merge: bool):
     from changing_slam_ros.core.slam.local_mapping import MappingConfig
     from changing_slam_ros.core.slam.loop_closing import LoopCloser, LoopConfig, SlamMapLoopClosing
     from changing_slam_ros.core.system import SlamSystem, SystemConfig
-    from changing_slam_ros.core.slam.tracking import TrackingConfig
+    from changing_slam_ros.core.slam.tracking_config import TrackingConfig
     from changing_slam_ros.core.features.vocabulary import Vocabulary
     from changing_slam_ros.io.dataset import open_dataset
 

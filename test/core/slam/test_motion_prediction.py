@@ -11,7 +11,8 @@ import pytest
 from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.geometry.se3 import make_pose, scale_motion
 from changing_slam_ros.core.map.slam_map import Atlas
-from changing_slam_ros.core.slam.tracking import Tracker, TrackingConfig
+from changing_slam_ros.core.slam.tracking import Tracker
+from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 
 PERIOD_NS = 33_333_333  # 30 Hz
 

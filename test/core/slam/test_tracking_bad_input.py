@@ -10,7 +10,8 @@ from helpers import FR1_XYZ_10, REDKITCHEN, require
 
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.system import SlamSystem, SystemConfig
-from changing_slam_ros.core.slam.tracking import TrackingConfig, TrackingState
+from changing_slam_ros.core.slam.tracking import TrackingState
+from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 from changing_slam_ros.errors import ConfigError
 from changing_slam_ros.eval.ate import ate
 from changing_slam_ros.io.dataset import open_dataset
