@@ -380,6 +380,11 @@ class Tracker:
             )
             if not ok or inl is None or len(inl) < 12:
                 continue
+            # The pose is optimised on the PnP inliers only: with the outliers, which repetitive textures and
+            # a mover in view make the majority, the robust optimisation walks off the PnP pose.
+            outl = np.ones(len(idx), dtype=bool)
+            outl[inl.ravel()] = False
+            frame.point_ids[idx[outl]] = -1
             T_cw = np.eye(4)
             T_cw[:3, :3] = cv2.Rodrigues(rvec)[0]
             T_cw[:3, 3] = tvec.ravel()
