@@ -227,12 +227,15 @@ class SlamSystem:
         feats = self._extractor_for(rgbd.camera).extract(rgbd.rgb, rgbd.depth_m)
         t1 = time.perf_counter()
         dyn = None
+        n_depth = -1
         if self.dynamic_filter is not None:  # drop keypoints on people and moving objects before tracking
             dyn = self.dynamic_filter.before_tracking(rgbd, feats, detections)
+            n_depth = int(np.count_nonzero(feats.depths_m > 0))
             feats = feats.subset(dyn.keep)
             self.timings_ms["dynamic"].append(dyn.ms)
             self._forget(dyn.moving_points)
-        frame = Frame(rgbd.stamp_ns, len(self.records), rgbd.camera, feats)  # own counter: input order
+        frame = Frame(rgbd.stamp_ns, len(self.records), rgbd.camera, feats,  # own counter: input order
+                      n_depth_extracted=n_depth)
         if self._level_pending and not self.atlas.n_keyframes:
             self._level_on_floor(rgbd)
         res: TrackResult = self.tracker.track(frame)

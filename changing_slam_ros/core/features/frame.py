@@ -23,6 +23,8 @@ class Frame:
     - `outliers` (N,) bool: matches rejected by the last pose optimisation.
     - `T_world_cam`: camera-to-world (4, 4), None until tracked.
     - `ref_kf_id`: the reference keyframe (its pose anchors this frame's final pose).
+    - `n_depth_extracted`: keypoints with depth the image gave before the dynamic stage dropped some from
+      `features`; -1 = `features` holds them all.
     """
 
     stamp_ns: int
@@ -33,6 +35,7 @@ class Frame:
     outliers: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     T_world_cam: F64 | None = None
     ref_kf_id: int = -1
+    n_depth_extracted: int = -1
     _tree: cKDTree | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:

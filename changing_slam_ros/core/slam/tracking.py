@@ -221,8 +221,9 @@ class Tracker:
 
     # 1. Initialisation ----------------------------------------------------------------------------
     def _initialise(self, frame: Frame, T_world_cam: F64, new_map: bool = False) -> TrackResult:
-        n_depth = int((frame.features.depths_m > 0).sum())
-        if n_depth < self.cfg.min_init_points:
+        n_kept = int((frame.features.depths_m > 0).sum())
+        n_image = n_kept if frame.n_depth_extracted < 0 else frame.n_depth_extracted
+        if n_image < self.cfg.min_init_points or n_kept < min(self.cfg.min_init_points, self.cfg.min_init_kept_points):
             self.last_frame = frame
             return TrackResult(self.state, None, 0, None)
         if new_map and len(self.map.keyframes) > 0:
