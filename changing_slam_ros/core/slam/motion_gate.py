@@ -46,6 +46,9 @@ class MotionGateConfig:
       accepted pose; one more and tracking is lost (relocalisation).
     - `window_s`: relocalisation more than this long after the last accepted pose is not checked (the
       camera may have been carried anywhere meanwhile).
+    - `relocalisation`: check a relocalised pose's speed from the last accepted pose even with the gate off: a
+      relocalisation that puts the camera further from where it was than `max_speed_m_s` allows matched a
+      look-alike place or a part of the map a mover had bent, and tracking on from it bends the map further.
     """
 
     enabled: bool = False
@@ -59,6 +62,7 @@ class MotionGateConfig:
     slack_deg: float = 5.0
     max_refused_frames: int = 5
     window_s: float = 2.0
+    relocalisation: bool = True
 
     def __post_init__(self) -> None:
         for name in ("max_speed_m_s", "max_turn_deg_s", "max_accel_m_s2", "innovation_sigmas", "slack_m",
@@ -88,12 +92,14 @@ def _between(T_a: F64, T_b: F64) -> tuple[float, float]:  # noqa: N803
     return float(np.linalg.norm(rel[:3, 3])), float(np.degrees(rotation_angle_rad(rel[:3, :3])))
 
 
-def check_speed(cfg: MotionGateConfig, T_world_prev: F64, T_world_now: F64, dt_s: float) -> MotionCheck:  # noqa: N803
-    """Is the move from `T_world_prev` to `T_world_now` (camera-to-world, 4x4) within the speed bound over `dt_s`?"""
+def check_speed(cfg: MotionGateConfig, T_world_prev: F64, T_world_now: F64, dt_s: float,  # noqa: N803
+                relocalised: bool = False) -> MotionCheck:
+    """Is the move from `T_world_prev` to `T_world_now` (camera-to-world, 4x4) within the speed bound over `dt_s`?
+    Always yes with the gate off, except for a `relocalised` pose with `cfg.relocalisation`."""
     step, turn = _between(T_world_prev, T_world_now)
     dt = max(float(dt_s), 0.0)
     ok = step <= cfg.max_speed_m_s * dt + cfg.slack_m and turn <= cfg.max_turn_deg_s * dt + cfg.slack_deg
-    return MotionCheck(ok or not cfg.enabled, step, turn)
+    return MotionCheck(ok or not (cfg.enabled or (relocalised and cfg.relocalisation)), step, turn)
 
 
 class MotionGate:

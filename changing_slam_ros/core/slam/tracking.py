@@ -444,7 +444,7 @@ class Tracker:
         dt = (frame.stamp_ns - self.last_good_stamp_ns) * 1e-9
         if dt > self.cfg.motion_gate.window_s:
             return True
-        if check_speed(self.cfg.motion_gate, self.last_good_pose, frame.T_world_cam, dt).ok:
+        if check_speed(self.cfg.motion_gate, self.last_good_pose, frame.T_world_cam, dt, relocalised=True).ok:
             return True
         self.n_gated += 1
         return False

@@ -33,6 +33,14 @@ def test_a_metre_in_a_thirtieth_of_a_second_is_refused_and_a_centimetre_passes()
     assert check_speed(MotionGateConfig(enabled=False), _pose(), _pose(5.0), DT).ok
 
 
+def test_a_relocalised_pose_is_checked_with_the_gate_off_unless_told_not_to() -> None:
+    off = MotionGateConfig(enabled=False)
+    assert not check_speed(off, _pose(), _pose(0.6), 5 * DT, relocalised=True).ok  # 0.6 m in 0.17 s
+    assert check_speed(off, _pose(), _pose(0.3), 5 * DT, relocalised=True).ok  # 1.8 m/s: a fast hand-held swing
+    assert check_speed(off, _pose(), _pose(0.6), 5 * DT).ok  # a tracked pose: the gate is off
+    assert check_speed(MotionGateConfig(relocalisation=False), _pose(), _pose(0.6), 5 * DT, relocalised=True).ok
+
+
 def _track(gate: MotionGate, xs: list[float]) -> int:
     for i, x in enumerate(xs):
         gate.accept(_pose(x), i * DT_NS)

@@ -1,4 +1,5 @@
-"""Relocalisation against a keyframe when many of the frame's matches are wrong."""
+"""Relocalisation: against a keyframe when many of the frame's matches are wrong; refused when the camera could not
+have moved there."""
 
 from __future__ import annotations
 
@@ -9,8 +10,10 @@ from helpers import FR1_XYZ_10, require
 
 from changing_slam_ros.core.features.frame import Frame
 from changing_slam_ros.core.features.orb_features import Features
+from changing_slam_ros.core.slam.motion_gate import MotionGateConfig
 from changing_slam_ros.core.slam.tracking import TrackingState
-from changing_slam_ros.core.system import SlamSystem
+from changing_slam_ros.core.slam.tracking_config import TrackingConfig
+from changing_slam_ros.core.system import SlamSystem, SystemConfig
 from changing_slam_ros.io.dataset import open_dataset
 
 
@@ -51,3 +54,23 @@ def test_relocalisation_finds_the_pose_when_most_matches_are_decoys() -> None:
     res = tracker.track(frame)
     assert res.relocalised and res.state == TrackingState.OK
     assert np.linalg.norm(res.T_world_cam[:3, 3] - poses[8][:3, 3]) < 0.02
+
+
+def test_a_relocalisation_further_than_the_camera_could_move_is_refused() -> None:
+    frames = list(open_dataset(require(FR1_XYZ_10), "tum_fr1"))
+    for check, relocalises in ((True, False), (False, True)):
+        config = SystemConfig(tracking=TrackingConfig(motion_gate=MotionGateConfig(relocalisation=check)))
+        system = SlamSystem(config)
+        for f in frames[:6]:
+            assert system.process(f).state == TrackingState.OK
+        tracker = system.tracker
+        tracker.state = TrackingState.LOST
+        # The last accepted pose 1 m off, 0.1 s before the frame: 10 m/s to where relocalisation finds it.
+        tracker.last_good_pose = tracker.last_good_pose @ np.array(
+            [[1.0, 0, 0, 1.0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+        target = frames[8]
+        tracker.last_good_stamp_ns = target.stamp_ns - 100_000_000
+        frame = Frame(target.stamp_ns, 8, target.camera,
+                      system._extractor_for(target.camera).extract(target.rgb, target.depth_m))
+        res = tracker.track(frame)
+        assert res.relocalised == relocalises and (res.state == TrackingState.OK) == relocalises
