@@ -14,42 +14,33 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
-import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
 
-
-def _stamps(path: Path) -> F64:
-    return np.array([float(line.split()[0]) for line in path.read_text().splitlines() if line and not line.startswith("#")])
-
-
-def _rigid_fit(src: F64, dst: F64) -> tuple[F64, F64, F64]:
-    """R, mean of src, mean of dst with dst ~ R (src - mean_src) + mean_dst (Kabsch, no scale)."""
-    ms, md = src.mean(axis=0), dst.mean(axis=0)
-    u, _, vt = np.linalg.svd((dst - md).T @ (src - ms))
-    d = np.eye(3)
-    d[2, 2] = np.sign(np.linalg.det(u @ vt))
-    return u @ d @ vt, ms, md
+from changing_slam_ros.eval.alignment import umeyama  # noqa: E402
+from changing_slam_ros.io.tum_folder import read_file_list  # noqa: E402
+from changing_slam_ros.io.tum_trajectory import read_tum_trajectory  # noqa: E402
 
 
 def gaps_of(run: Path, seq: Path) -> list[tuple[int, int, float, float]]:
     """(last frame before, first frame after, error before m, error after m) per gap of `run`'s online poses."""
-    frame_stamps = _stamps(seq / "rgb.txt")
-    gt = np.loadtxt(seq / "groundtruth.txt", ndmin=2)
-    est = np.loadtxt(run / "trajectory_online.txt", ndmin=2)
-    if len(est) < 2:
+    frame_stamps = np.array([f.stamp_ns * 1e-9 for f in read_file_list(seq / "rgb.txt")])
+    gt = read_tum_trajectory(seq / "groundtruth.txt")
+    est = read_tum_trajectory(run / "trajectory_online.txt")
+    if len(est.stamps_s) < 2:
         return []
-    frames = np.array([int(np.argmin(np.abs(frame_stamps - t))) for t in est[:, 0]])
-    truth = np.array([gt[int(np.argmin(np.abs(gt[:, 0] - t))), 1:4] for t in est[:, 0]])
+    frames = np.array([int(np.argmin(np.abs(frame_stamps - t))) for t in est.stamps_s])
+    truth = gt.positions[[int(np.argmin(np.abs(gt.stamps_s - t))) for t in est.stamps_s]]
     gaps = [k for k in range(1, len(frames)) if frames[k] - frames[k - 1] > 1]
     if not gaps:
         return []
-    n = min(max(10, gaps[0]), len(est))
-    R, ms, md = _rigid_fit(est[:n, 1:4], truth[:n])
-    err = np.linalg.norm((R @ (est[:, 1:4] - ms).T).T + md - truth, axis=1)
+    n = min(max(10, gaps[0]), len(frames))
+    err = np.linalg.norm(umeyama(est.positions[:n], truth[:n]).apply_points(est.positions) - truth, axis=1)
     return [(int(frames[k - 1]), int(frames[k]), float(err[k - 1]), float(err[k])) for k in gaps]
 
 
