@@ -70,7 +70,6 @@ def test_a_relocalisation_further_than_the_camera_could_move_is_refused() -> Non
             [[1.0, 0, 0, 1.0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
         target = frames[8]
         tracker.last_good_stamp_ns = target.stamp_ns - 100_000_000
-        frame = Frame(target.stamp_ns, 8, target.camera,
-                      system._extractor_for(target.camera).extract(target.rgb, target.depth_m))
+        frame = Frame(target.stamp_ns, 8, target.camera, _features(system, target))
         res = tracker.track(frame)
         assert res.relocalised == relocalises and (res.state == TrackingState.OK) == relocalises
