@@ -31,6 +31,7 @@ from changing_slam_ros.core.dynamic.detector import Detection
 from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
 from changing_slam_ros.core.movers.edge_test import edge_test_segment, match_nearby
+from changing_slam_ros.core.movers.flag_vote import FlagVoteConfig, vote_flags
 from changing_slam_ros.core.movers.free_space_check import FreeSpaceConfig, free_space_violations, near_surface
 from changing_slam_ros.core.movers.mover_tracking import MoverConfig, MoverTracker
 from changing_slam_ros.core.features.orb_features import Features
@@ -83,6 +84,9 @@ class DynamicConfig:
       pixels of a 640-wide image, scaled with the width) and depth difference of a flagged one is flagged too
       (only matched keypoints can be flagged, about half of a walking person's; 0 = off). In a frame where
       that would leave tracking fewer than `min_kept_keypoints` keypoints with depth, the spread yields.
+    - `flag_vote`: the keypoints the segmentation did not test take the verdict of the tested keypoints around
+      them in 3-D (`movers/flag_vote.py`; off by default); a tested keypoint keeps its own. It yields as the
+      spread does.
     - `detection_hold_frames`: a box of a `hold_class_ids` class that the detector stops reporting is kept
       for this many frames, grown by `detection_hold_grow_px` per side per missed frame. A real detector
       misses a person in single frames, or names a close one "chair" or "teddy bear" every other frame
@@ -142,6 +146,7 @@ class DynamicConfig:
     segmentation_min_matches: int = 30
     segmentation_spread_px: float = 0.0
     segmentation_spread_depth_m: float = 0.3
+    flag_vote: FlagVoteConfig = field(default_factory=FlagVoteConfig)
     detection_hold_frames: int = 6
     detection_hold_grow_px: float = 8.0
     hold_class_ids: tuple[int, ...] = (0,)
@@ -278,7 +283,7 @@ class DynamicFilter:
         classes = np.full(n, KeypointClass.STATIC, dtype=np.int8)
         object_ids = np.full(n, -1, dtype=np.int64)
         moving = np.zeros(n, dtype=bool)
-        spread_only = np.zeros(n, dtype=bool)  # flagged by the segmentation's spread alone
+        spread_only = np.zeros(n, dtype=bool)  # flagged by the segmentation's spread or vote alone
         objects: tuple[ObjectState, ...] = ()
         self._classified = False
         if cfg.enabled:
@@ -401,7 +406,7 @@ class DynamicFilter:
 
     def _segment(self, features: Features, camera: CameraIntrinsics) -> tuple[BoolArr, BoolArr]:
         """(N,) keypoints of the frame that the two-frame segmentation puts on an object target, and (N,) those
-        of them flagged by `segmentation_spread_px` alone.
+        of them flagged by `segmentation_spread_px` or `flag_vote` alone.
 
         Against the frame `segmentation_gap_frames` back on every frame; with "edge_test" and
         `segmentation_long_gap_frames`, also against that frame on every `segmentation_long_every`-th frame,
@@ -415,6 +420,7 @@ class DynamicFilter:
         n = len(features)
         moving = np.zeros(n, dtype=bool)
         age = np.full(n, NEVER, dtype=np.int64)  # frames since a test flagged the keypoint (carried by matches)
+        tested = np.zeros(n, dtype=bool)
         T_now = self._predicted_pose()
         gaps = [cfg.segmentation_gap_frames]
         long_gap = cfg.segmentation_long_gap_frames
@@ -426,6 +432,7 @@ class DynamicFilter:
             past = self._history[-gap]
             q, t, flagged = self._segment_pair(features, past, T_now, camera)
             moving[q[flagged]] = True
+            tested[q] = True
             if cfg.forget_moving_points > 0 and past.point_ids is not None:
                 ids = past.point_ids[t]
                 if flagged.any():
@@ -445,6 +452,9 @@ class DynamicFilter:
             radius_px = cfg.segmentation_spread_px * camera.width / 640.0
             spread = _spread(moving, features, radius_px, cfg.segmentation_spread_depth_m)
             return spread, spread & ~moving
+        if cfg.flag_vote.enabled and moving.any():
+            voted = vote_flags(moving, tested, features.keypoints_px, features.depths_m, camera, cfg.flag_vote)
+            return moving | voted, voted
         return moving, np.zeros(n, dtype=bool)
 
     def _segment_pair(

@@ -12,6 +12,7 @@ from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.dynamic.detector import CHAIR_CLASS_ID, PERSON_CLASS_ID, Detection
 from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter
 from changing_slam_ros.core.map.keyframe import KeypointClass
+from changing_slam_ros.core.movers.flag_vote import FlagVoteConfig
 from changing_slam_ros.core.features.orb_features import Features
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.geometry.se3 import invert, transform_points
@@ -261,6 +262,36 @@ def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_s
     assert flagged[25.0, 300][:400].mean() <= 0.02
     # With 420 keypoints asked of tracking, the spread yields: the 400 room points alone are too few.
     assert (flagged[25.0, 420] == flagged[0.0, 300]).all()
+
+
+def test_flag_vote_flags_untested_keypoints_among_flagged_ones_and_leaves_the_tested_room() -> None:
+    """As the spread test: 20 of the box's 60 points never match. The vote flags them from their flagged 3-D
+    neighbours; the room's tested points keep their verdict; it yields as the spread does."""
+    rng = np.random.default_rng(4)
+    static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
+    ray = static[:, :2] / static[:, 2:3] * 1.8
+    static = static[~((ray[:, 0] > 0.05) & (ray[:, 0] < 0.79) & (ray[:, 1] > -0.05) & (ray[:, 1] < 0.45))][:400]
+    box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (60, 3))
+    desc = rng.integers(0, 256, (460, 32), dtype=np.uint8)
+    flagged = {}
+    for radius, min_kept in ((0.0, 300), (0.25, 300), (0.25, 420)):
+        flt = DynamicFilter(DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
+                                          flag_vote=FlagVoteConfig(radius_m=radius), min_kept_keypoints=min_kept))
+        rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
+        for k in range(4):
+            T_world_cam = np.eye(4)
+            T_world_cam[:3, 3] = [0.02 * k, 0.0, 0.0]
+            world = np.vstack([static, box0 + np.array([0.08 * k, 0.0, 0.0])])
+            cam = transform_points(invert(T_world_cam), world)
+            d = desc.copy()
+            d[440:] = rng.integers(0, 256, (20, 32), dtype=np.uint8)  # new descriptors every frame
+            res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), _features(CAM.project(cam), cam[:, 2], d), None)
+            flt.after_tracking(T_world_cam)
+        flagged[radius, min_kept] = res.moving
+    assert not flagged[0.0, 300][440:].any() and flagged[0.0, 300][400:440].mean() >= 0.9
+    assert flagged[0.25, 300][440:].mean() >= 0.9
+    assert (flagged[0.25, 300][:400] == flagged[0.0, 300][:400]).all()
+    assert (flagged[0.25, 420] == flagged[0.0, 300]).all()
 
 
 def test_boxes_of_fixed_furniture_classes_are_background_unless_configured_movable() -> None:
