@@ -99,7 +99,8 @@ def save_map(path: str | Path, atlas: Atlas, objects: ObjectLayer | Mapping[int,
     - from version 4, the depth scans of the keyframes that keep one (`core.map.grid_scan`), S keyframes in id
       order: `gs_kf_ids` (S,), `gs_counts` (S,); their P points concatenated: `gs_points_cam` (P, 3) float32,
       `gs_dynamic` (P,) bool, `gs_object_ids` (P,) int64;
-    - map points, every row of the `PointStore` (ids are rows; culled rows stay, flagged `bad`):
+    - map points, one row per point id of the `PointStore` (a culled point stays, flagged `bad`, with the
+      store's gone row for its values):
       `pt_<column>` for each `PointStore.COLUMNS` (position, descriptor, normal, scale range, counters, class,
       object id, active, bad, ...), `pt_obs` (E, 3) rows (point id, keyframe id, keypoint index) in the
       point's observation order, `pt_size` ();

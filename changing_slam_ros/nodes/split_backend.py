@@ -286,9 +286,7 @@ class TrackingSide:
         self.counters.rebase(m)
         inc = combine_counters(inc_dst, move_counters(inc_src, r))
         pts = m.points
-        np.add.at(pts.n_visible, inc.ids, inc.n_visible)
-        np.add.at(pts.n_found, inc.ids, inc.n_found)
-        pts.last_seen_frame[inc.ids] = np.maximum(pts.last_seen_frame[inc.ids], inc.last_seen_frame)
+        pts.add_counters(inc.ids, inc.n_visible, inc.n_found, inc.last_seen_frame)
         # 5. The waiting keyframes into the merged map again, in the order they were made (the owner's order).
         for kf in late:
             if kf.map_id == r.from_map_id:

@@ -174,8 +174,8 @@ def test_load_map_mid_run_moves_the_running_graph_onto_the_saved_map(ros_context
                 np.testing.assert_array_equal(m.keyframes[k].point_ids, kf.point_ids)
             n = s.points.size
             assert m.points.size == n
-            np.testing.assert_array_equal(m.points.positions[:n], s.points.positions[:n])
-            np.testing.assert_array_equal(m.points.bad[:n], s.points.bad[:n])
+            np.testing.assert_array_equal(m.points.column_arrays()["positions"], s.points.column_arrays()["positions"])
+            np.testing.assert_array_equal(m.points.column_arrays()["bad"], s.points.column_arrays()["bad"])
         e = expected.atlas.current.points
         np.testing.assert_array_equal(owner.current.points.active[: e.size], e.active[: e.size])
         # object_map's input: the loaded semantic map (the saved objects) is published with the load.

@@ -108,6 +108,6 @@ def test_local_mapping_applies_a_merge_in_real_time_and_maps_late_keyframes_of_t
             np.testing.assert_array_equal(m.keyframes[kf_id].point_ids, kf.point_ids)
         n = want.points.size
         assert m.points.size == n
-        np.testing.assert_allclose(m.points.positions[:n], want.points.positions[:n], atol=1e-9, rtol=0)
+        np.testing.assert_allclose(m.points.column_arrays()["positions"], want.points.column_arrays()["positions"], atol=1e-9, rtol=0)
     finally:
         node.destroy_node()

@@ -114,7 +114,7 @@ def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros
     for k, kf in owner.keyframes.items():
         np.testing.assert_allclose(m.keyframes[k].T_world_cam, kf.T_world_cam, atol=1e-9, rtol=0)
     n = owner.points.size
-    np.testing.assert_allclose(m.points.positions[:n], owner.points.positions[:n], atol=1e-9, rtol=0)
+    np.testing.assert_allclose(m.points.column_arrays()["positions"], owner.points.column_arrays()["positions"], atol=1e-9, rtol=0)
     def reported() -> dict[str, str]:
         ours = [s for d in diags for s in d.status if s.name == "local_mapping"]
         return {kv.key: kv.value for kv in ours[-1].values} if ours else {}
@@ -133,7 +133,7 @@ def test_local_mapping_node_maps_real_keyframes_and_its_map_equals_the_owner(ros
     assert spin_until(executor, future.done, 30.0) and future.result().success, future.result().message
     loaded = load_map(tmp_path / "saved" / "map.npz").atlas.current
     assert sorted(loaded.keyframes) == sorted(owner.keyframes)
-    np.testing.assert_array_equal(loaded.points.positions[:n], m.points.positions[:n])
+    np.testing.assert_array_equal(loaded.points.column_arrays()["positions"], m.points.column_arrays()["positions"])
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
@@ -287,8 +287,8 @@ def test_a_restarted_local_mapping_node_gets_its_map_back_from_tracking(ros_cont
         np.testing.assert_array_equal(m.keyframes[k].point_ids, kf.point_ids)
         assert m.covisibility[k] == owner.covisibility[k]
     n = owner.points.size
-    np.testing.assert_allclose(m.points.positions[:n], owner.points.positions[:n], atol=1e-9, rtol=0)
-    np.testing.assert_array_equal(m.points.bad[:n], owner.points.bad[:n])
+    np.testing.assert_allclose(m.points.column_arrays()["positions"], owner.points.column_arrays()["positions"], atol=1e-9, rtol=0)
+    np.testing.assert_array_equal(m.points.column_arrays()["bad"], owner.points.column_arrays()["bad"])
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()

@@ -140,7 +140,7 @@ def reprojection_chi2(
     T_cw = np.stack([np.linalg.inv(poses_wc[k]) for k in kf_u.tolist()]) if len(kf_u) else np.zeros((0, 4, 4))
     R = np.ascontiguousarray(T_cw[kf_of_obs, :3, :3])
     t = np.ascontiguousarray(T_cw[kf_of_obs, :3, 3])
-    pw = np.asarray(positions)[obs.point_ids]
+    pw = np.asarray(positions[obs.point_ids], np.float64)  # an array, or a PointStore column, by point id
     pc = np.einsum("nij,nj->ni", R, pw) + t
     z = np.where(np.abs(pc[:, 2]) < 1e-6, 1e-6, pc[:, 2])
     u = fx * pc[:, 0] / z + cx

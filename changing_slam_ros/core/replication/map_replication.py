@@ -11,7 +11,7 @@ Three packets cross processes (mirrored by the messages Keyframe, MapUpdate, Loo
   delta the correction made to loop closing's replica and the `core.slam.loop_closing.LoopCorrection`.
 
 Ids: keyframe ids are allocated by tracking only (`Tracker.next_kf_id`) and map point ids by the map owner
-only (`PointStore.add` rows); replicas never create either, so ids cannot collide between processes.
+only (`PointStore.add`); replicas never create either, so ids cannot collide between processes.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ class PointRows:
 
     @staticmethod
     def of(points: PointStore, ids: I64) -> PointRows:
-        cols = {name: getattr(points, name)[ids].copy() for name, _, _ in POINT_COLUMNS}
+        cols = points.column_arrays(ids)
         obs = [points.observations[i] for i in ids.tolist()]
         return PointRows(ids.copy(), cols, _i64([len(o) for o in obs]),
                          _i64([k for o in obs for k in o]), _i64([v for o in obs for v in o.values()]))  # fmt: skip
@@ -226,8 +226,9 @@ class MapSnapshot:
     keyframes: dict[int, tuple[Any, ...]]
     removed: frozenset[int]
     n_points: int
-    columns: dict[str, npt.NDArray[Any]]
-    observations: list[tuple[tuple[int, int], ...]]
+    ids: I64  # the points that had a storage row, sorted (others were compacted away: gone for good)
+    columns: dict[str, npt.NDArray[Any]]  # rows of `ids`
+    observations: list[tuple[tuple[int, int], ...]]  # of `ids`
 
 
 def _kf_state(m: SlamMap, k: int) -> tuple[Any, ...]:
@@ -243,11 +244,12 @@ def _kf_equal(a: tuple[Any, ...], b: tuple[Any, ...]) -> bool:
 
 
 def snapshot(m: SlamMap) -> MapSnapshot:
-    n = m.points.size
+    pts = m.points
+    ids = pts.live_ids()
+    obs = pts.observations
     return MapSnapshot(
-        m.id, m.origin_kf_id, {k: _kf_state(m, k) for k in m.keyframes}, frozenset(m.removed), n,
-        m.points.column_arrays(),
-        [tuple(o.items()) for o in m.points.observations[:n]],
+        m.id, m.origin_kf_id, {k: _kf_state(m, k) for k in m.keyframes}, frozenset(m.removed), pts.size, ids,
+        pts.column_arrays(ids), [tuple(obs[i].items()) for i in ids.tolist()],
     )
 
 
@@ -264,17 +266,18 @@ def diff(before: MapSnapshot, m: SlamMap) -> MapDelta:
     new_removed = [k for k in m.removed if k not in before.removed]
     pts = m.points
     n0, n1 = before.n_points, pts.size
-    changed = np.zeros(n0, bool)
+    old = before.ids  # an id compacted before the snapshot is gone in both
+    now = pts.column_arrays(old)
+    changed = np.zeros(len(old), bool)
     for name, _, _ in POINT_COLUMNS:
-        a, b = before.columns[name], getattr(pts, name)[:n0]
-        ne = a != b
+        ne = before.columns[name] != now[name]
         changed |= ne.any(axis=1) if ne.ndim > 1 else ne
     obs = pts.observations
-    for i in np.flatnonzero(~changed).tolist():
-        o = obs[i]
-        if len(o) != len(before.observations[i]) or tuple(o.items()) != before.observations[i]:
-            changed[i] = True
-    ids = np.concatenate([np.flatnonzero(changed), np.arange(n0, n1)]).astype(np.int64)
+    for j in np.flatnonzero(~changed).tolist():
+        o = obs[int(old[j])]
+        if len(o) != len(before.observations[j]) or tuple(o.items()) != before.observations[j]:
+            changed[j] = True
+    ids = np.concatenate([old[changed], np.arange(n0, n1)]).astype(np.int64)
     rem = [m.removed[k] for k in new_removed]
     return MapDelta(
         m.id, m.origin_kf_id, n1, KeyframeRows.of(m, kf_ids),
@@ -287,7 +290,7 @@ def diff(before: MapSnapshot, m: SlamMap) -> MapDelta:
 def empty_snapshot(map_id: int) -> MapSnapshot:
     """The snapshot of a map with nothing in it: `diff(empty_snapshot(m.id), m)` is all of map `m`."""
     cols = {name: np.zeros((0,) + shape, dtype) for name, shape, dtype in POINT_COLUMNS}
-    return MapSnapshot(map_id, -1, {}, frozenset(), 0, cols, [])
+    return MapSnapshot(map_id, -1, {}, frozenset(), 0, _i64(), cols, [])
 
 
 def full_delta(m: SlamMap) -> MapDelta:
@@ -325,13 +328,6 @@ def insert_keyframe(atlas: Atlas, kf: Keyframe) -> SlamMap:
     return m
 
 
-def _ensure_rows(points: PointStore, n: int) -> None:
-    if n > points.size:
-        points._grow(n)  # noqa: SLF001 - the replica fills rows the owner allocated
-        points.observations.extend({} for _ in range(n - points.size))
-        points.size = n
-
-
 def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
     """Write a delta into the replica's map `delta.map_id`, in place. Keyframes it names must be there.
 
@@ -341,9 +337,10 @@ def apply_delta(atlas: Atlas, delta: MapDelta) -> SlamMap:
     m.origin_kf_id = delta.origin_kf_id
     # 1. Points: every column, then observations in the owner's order.
     pts = m.points
-    _ensure_rows(pts, delta.n_points)
+    pts.extend_ids(delta.n_points)  # rows the owner allocated
     pr = delta.points
     if len(pr):
+        pts.revive(pr.ids[~pr.columns["bad"]])  # a live point this replica had compacted (it had it bad)
         for name, _, _ in POINT_COLUMNS:
             getattr(pts, name)[pr.ids] = pr.columns[name]
         kfs = _split(pr.obs_counts, pr.obs_kf_ids, f"map {m.id}: observation keyframe ids")
@@ -497,9 +494,7 @@ def apply_counters(points: PointStore, counters: PointCounters) -> None:
     ids = counters.ids
     if len(ids) and int(ids.max()) >= points.size:
         raise ReplicationError(f"point counters name point {int(ids.max())}; the map has {points.size}")
-    np.add.at(points.n_visible, ids, counters.n_visible)
-    np.add.at(points.n_found, ids, counters.n_found)
-    points.last_seen_frame[ids] = np.maximum(points.last_seen_frame[ids], counters.last_seen_frame)
+    points.add_counters(ids, counters.n_visible, counters.n_found, counters.last_seen_frame)
 
 
 # -- short-term objects as flat arrays (for the Keyframe message) --------------------------------------

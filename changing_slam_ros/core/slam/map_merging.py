@@ -63,16 +63,15 @@ def append_points(target: PointStore, source: PointStore, T_target_source: F64) 
     n = source.size
     if n == 0:
         return offset
-    # `add` grows the columns and appends n rows; then every column is overwritten from the source.
-    target.add(np.zeros((n, 3)), np.zeros((n, 32), np.uint8), 0, np.zeros(n, np.int64), np.zeros(3),
-               np.zeros(n, np.int64), np.ones(1))
-    rows = slice(offset, offset + n)
+    ids = target.extend_ids(offset + n)
+    cols = source.column_arrays()
     for name in PointStore.COLUMNS:  # every per-point column, whatever the store holds
-        getattr(target, name)[rows] = getattr(source, name)[:n]
+        getattr(target, name)[ids] = cols[name]
     R, t = T_target_source[:3, :3], T_target_source[:3, 3]
-    target.positions[rows] = source.positions[:n] @ R.T + t
-    target.normals[rows] = source.normals[:n] @ R.T
-    target.observations[offset: offset + n] = [dict(o) for o in source.observations[:n]]
+    target.positions[ids] = cols["positions"] @ R.T + t
+    target.normals[ids] = cols["normals"] @ R.T
+    for pid, o in zip(ids.tolist(), source.observations[:n], strict=True):
+        target.observations[pid] = dict(o)
     return offset
 
 

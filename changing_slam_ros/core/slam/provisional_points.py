@@ -164,13 +164,12 @@ class ProvisionalPoints:
         if len(rows):
             n0 = pts.size
             self._owner_size[m.id] = n0
-            pts._grow(n0 + len(rows))  # noqa: SLF001 - the store's own growth, as replication does
+            new_ids = pts.extend_ids(n0 + len(rows))
             for name in PointStore.COLUMNS:
-                getattr(pts, name)[n0:n0 + len(rows)] = held.columns[name][rows]
-            pts.observations.extend({k: v for k, v in held.observations[j].items() if k in waiting}
-                                    for j in rows.tolist())  # fmt: skip
-            pts.size = n0 + len(rows)
-            remap[rows] = np.arange(n0, n0 + len(rows), dtype=np.int64)
+                getattr(pts, name)[new_ids] = held.columns[name][rows]
+            for pid, j in zip(new_ids.tolist(), rows.tolist(), strict=True):
+                pts.observations[pid] = {k: v for k, v in held.observations[j].items() if k in waiting}
+            remap[rows] = new_ids
         # 3. Entries of waiting keyframes that named held rows.
         for k, kp, j in zip(held.ref_kf_ids.tolist(), held.ref_kp_indices.tolist(), held.ref_rows.tolist(), strict=True):
             kf = m.keyframes.get(k)
@@ -227,7 +226,6 @@ def _cut(m: SlamMap, n0: int) -> HeldRows | None:
             kps.append(sel.astype(np.int64))
             rows.append(kf.point_ids[sel] - n0)
             kf.point_ids[sel] = -1
-    del pts.observations[n0:]
-    pts.size = n0
+    pts.truncate(n0)
     cat = lambda a: np.concatenate(a) if a else np.zeros(0, np.int64)  # noqa: E731
     return HeldRows(m.id, n0, cols, obs, cat(kf_ids), cat(kps), cat(rows))

@@ -47,8 +47,8 @@ def _assert_same_map(a: SlamMap, b: SlamMap) -> None:
         assert b.keyframes[k].map_id == a.id
     n = a.points.size
     assert b.points.size == n
-    np.testing.assert_array_equal(b.points.positions[:n], a.points.positions[:n])
-    np.testing.assert_array_equal(b.points.bad[:n], a.points.bad[:n])
+    np.testing.assert_array_equal(b.points.column_arrays()["positions"], a.points.column_arrays()["positions"])
+    np.testing.assert_array_equal(b.points.column_arrays()["bad"], a.points.column_arrays()["bad"])
 
 
 @pytest.mark.slow
