@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from changing_slam_ros.core.geometry.se3 import rot_to_quat
 from changing_slam_ros.sim.actors import Actor, Part, Shape
 from changing_slam_ros.sim.textures import texture_png
 
@@ -159,7 +160,11 @@ def _mesh_xml(name: str, part: Part) -> str:
 
 
 def _geom_xml(mesh: str, part: Part, group: int) -> str:
-    turn = f'euler="0 {_fmt(-part.pitch_rad)} 0" ' if part.pitch_rad else ""
+    if part.yaw_rad:
+        q = rot_to_quat(part.rotation())  # (x, y, z, w); MuJoCo wants (w, x, y, z)
+        turn = f'quat="{_fmt([q[3], q[0], q[1], q[2]])}" '
+    else:
+        turn = f'euler="0 {_fmt(-part.pitch_rad)} 0" ' if part.pitch_rad else ""
     return (f'<geom name="{mesh}" type="mesh" mesh="{mesh}" material="mat_{part.texture}" '
             f'pos="{_fmt(part.offset_m)}" {turn}group="{group}" contype="0" conaffinity="0"/>')
 
