@@ -16,7 +16,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.se3 import rot_to_quat
 from changing_slam_ros.sim.actors import Actor, Part, Shape
-from changing_slam_ros.sim.textures import texture_png
+from changing_slam_ros.sim.textures import texture_emission, texture_png
 
 F64 = npt.NDArray[np.float64]
 
@@ -169,6 +169,11 @@ def _geom_xml(mesh: str, part: Part, group: int) -> str:
             f'pos="{_fmt(part.offset_m)}" {turn}group="{group}" contype="0" conaffinity="0"/>')
 
 
+def _emission(texture: str) -> str:
+    e = texture_emission(texture)
+    return f' emission="{e:.6g}"' if e > 0 else ""
+
+
 def actor_body_name(index: int) -> str:
     return f"actor{index}"
 
@@ -204,7 +209,8 @@ def build_mjcf(spec: SceneSpec) -> Mjcf:
     ]
     tex_xml = "".join(f'<texture name="tex_{t}" type="2d" file="{t}.png"/>' for t in textures)
     mat_xml = "".join(
-        f'<material name="mat_{t}" texture="tex_{t}" specular="0.12" shininess="0.25"/>' for t in textures
+        f'<material name="mat_{t}" texture="tex_{t}" specular="0.12" shininess="0.25"{_emission(t)}/>'
+        for t in textures
     )
     amb = spec.ambient if spec.room.ambient is None else spec.room.ambient
     xml = f"""<mujoco model="changing_slam_sim">
