@@ -186,5 +186,4 @@ GENERATED: dict[str, Callable[[], U8]] = {
 }
 
 # texture name -> material emission (0-1): screens light themselves
-EMISSION: dict[str, float] = {"screen_desktop": 0.5, "screen_rocket": 0.5, "screen_astronaut": 0.5,
-                              "screen_coffee": 0.5}
+EMISSION: dict[str, float] = {"screen_desktop": 0.5, "screen_rocket": 0.5, "screen_astronaut": 0.5}

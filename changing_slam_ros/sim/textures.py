@@ -86,7 +86,6 @@ TEXTURES: dict[str, TextureSource] = {
     "screen_rocket": TextureSource("rocket", licence="public domain (SpaceX)", what="monitor screen"),
     "screen_astronaut": TextureSource("astronaut", licence="public domain (NASA; Eileen Collins)",
                                       what="monitor screen"),
-    "screen_coffee": TextureSource("coffee", licence="CC0 (Rachel Michetti)", what="monitor screen"),
 }
 
 
