@@ -38,7 +38,8 @@ class Part:
 
     `tile_m`: metres per texture repeat (tiled surfaces); None stretches the texture once over each face.
     `pitch_rad`: the part turned by this angle about the parent's y axis, about its own centre (a leg or an
-    arm swung forward: positive moves its bottom towards +x).
+    arm swung forward: positive moves its bottom towards +x). `yaw_rad`: then turned about the parent's z
+    axis, about its own centre (a leaf pointing out of a plant, a wheel's axle along y).
     """
 
     half_size_m: tuple[float, float, float]
@@ -47,11 +48,16 @@ class Part:
     tile_m: float | None = None
     shape: Shape = Shape.BOX
     pitch_rad: float = 0.0
+    yaw_rad: float = 0.0
 
     def rotation(self) -> F64:
-        """(3, 3) rotation of the part in the parent frame (about y by -`pitch_rad`)."""
+        """(3, 3) rotation of the part in the parent frame: about y by -`pitch_rad`, then about z by `yaw_rad`."""
         c, s = np.cos(self.pitch_rad), np.sin(self.pitch_rad)
-        return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+        r = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+        if self.yaw_rad:
+            cy, sy = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
+            r = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]]) @ r
+        return r
 
     def corners_m(self) -> F64:
         """The 8 corners (8, 3) of the part's bounding box, in the parent frame."""

@@ -1,14 +1,15 @@
 """The randomised changing-room family: `random_changing` (changed between laps) and its control.
 
 A seed draws a room (size, wall and floor photos, lights), pictures on the walls (photos a COCO detector may
-name: plants, people, clocks, screens, a cat, a cup), 3-8 objects of COCO classes built from shapes (chairs,
-couches, potted plants, suitcases, monitors and bottles on an optional table, a clock or a screen hung on a
-wall), a wheeled robot's square loop of 2-3 laps facing each wall in turn, and 1-4 changes between laps:
-moved a short or a long way and turned, removed, added, replaced by another class, two of different classes
-swapped. A change happens while neither its old nor its new place is in view, after the old place was seen
-and before both places are seen again, so that each change can be observed. The control
-(`random_changing_control`) is the same draw with no change applied. The drawn parameters and the ground
-truth per lap (`changing_truth.json`, see `sim/changing_truth.py`) are written beside the render.
+name: plants, people, clocks, screens, a cat, a cup), 3-8 objects of COCO classes, each in one of several
+styles built to look like its class (`sim/furniture.py`: chairs, couches, potted plants, suitcases, monitors
+and bottles on an optional table, a round clock or a screen hung on a wall), a wheeled robot's square loop of
+2-3 laps facing each wall in turn, and 1-4 changes between laps: moved a short or a long way and turned,
+removed, added, replaced by another class, two of different classes swapped. A change happens while neither
+its old nor its new place is in view, after the old place was seen and before both places are seen again, so
+that each change can be observed. The control (`random_changing_control`) is the same draw with no change
+applied. The drawn parameters and the ground truth per lap (`changing_truth.json`, see
+`sim/changing_truth.py`) are written beside the render.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim import actors as cat
 from changing_slam_ros.sim.actors import Actor, Change, ChangeKind, Part
 from changing_slam_ros.sim.camera_path import RobotLoop, robot_loop
+from changing_slam_ros.sim.furniture import draw_look
 from changing_slam_ros.sim.motions import changed
 from changing_slam_ros.sim.path_views import OUT_OF_VIEW_MARGIN_PX, PathViews
 from changing_slam_ros.sim.renderer import fovy_for_focal
@@ -74,6 +76,7 @@ class Item:
     class_id: int
     parts: tuple[Part, ...]
     support: str
+    style: str = ""  # the look (`furniture.LOOKS`), "" for the plain catalogue shape
 
 
 @dataclass(frozen=True)
@@ -203,26 +206,18 @@ def footprint_radius_m(item: Item) -> float:
 
 # --- the catalogue ---
 
+KIND_SUPPORT = {"chair": "floor", "couch": "floor", "potted_plant": "floor", "suitcase": "floor", "monitor": "table",
+                "bottle": "table", "wall_clock": "wall", "wall_tv": "wall"}
+
+
 def _floor_item(rng: np.random.Generator, kind: str, name: str) -> Item:
-    fabric = ("leather", "fabric_dark", "denim", "wood")
-    if kind == "chair":
-        return Item(name, kind, 56, cat.chair_parts(fabric[int(rng.integers(len(fabric)))]), "floor")
-    if kind == "couch":
-        return Item(name, kind, 57, cat.couch_parts(fabric[int(rng.integers(3))], round(_u(rng, 1.3, 1.9), 3)), "floor")
-    if kind == "potted_plant":
-        return Item(name, kind, 58, cat.potted_plant_parts(), "floor")
-    if kind == "suitcase":
-        return Item(name, kind, 28, cat.suitcase_parts(), "floor")
-    if kind == "monitor":
-        return Item(name, kind, 62, cat.tv_parts(("rocket", "hubble")[int(rng.integers(2))]), "table")
-    if kind == "bottle":
-        return Item(name, kind, 39, cat.bottle_parts(("plastic_blue", "shirt_red", "grass")[int(rng.integers(3))]), "table")
-    if kind == "wall_clock":
-        return Item(name, kind, 74, cat.wall_clock_parts(round(_u(rng, 0.12, 0.18), 3)), "wall")
-    if kind == "wall_tv":
-        return Item(name, kind, 62, cat.wall_tv_parts(("rocket", "hubble")[int(rng.integers(2))],
-                                                round(_u(rng, 0.3, 0.45), 3)), "wall")
-    raise SimError(f"random_changing: unknown object kind {kind!r}")
+    """An object of catalogue `kind` in one of its `furniture.LOOKS` styles; the look draws from its own stream
+    (one draw of `rng` seeds it), so that a style with more parts does not shift the rest of the room's draw."""
+    if kind not in KIND_SUPPORT:
+        raise SimError(f"random_changing: unknown object kind {kind!r}")
+    look_rng = np.random.default_rng(int(rng.integers(2**31)))
+    style, parts = draw_look(kind, look_rng)
+    return Item(name, kind, KIND_CLASS[kind], parts, KIND_SUPPORT[kind], style)
 
 
 class _Planner:
@@ -527,6 +522,7 @@ def draw_changing_room(seed: int) -> ChangingRoom:
         "robot": {"side_m": side, "speed_m_s": speed, "turn_deg_s": turn, "camera_height_m": height,
                   "tilt_deg": tilt, "start_xy": list(loop.start_xy), "start_yaw_deg": round(np.degrees(yaw0), 1)},
         "objects": {n: it.kind for n, it in items.items()},
+        "object_styles": {n: it.style for n, it in items.items() if it.style},
         "pictures": [p.texture for p in pictures],
         "changes": [{"kind": c.kind, "object": c.actor, "other": c.other, "lap": c.lap, "t_s": round(c.t_s, 4)}
                     for c in changes],

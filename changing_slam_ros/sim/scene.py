@@ -14,8 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from changing_slam_ros.core.geometry.se3 import rot_to_quat
 from changing_slam_ros.sim.actors import Actor, Part, Shape
-from changing_slam_ros.sim.textures import texture_png
+from changing_slam_ros.sim.textures import texture_emission, texture_png
 
 F64 = npt.NDArray[np.float64]
 
@@ -159,9 +160,18 @@ def _mesh_xml(name: str, part: Part) -> str:
 
 
 def _geom_xml(mesh: str, part: Part, group: int) -> str:
-    turn = f'euler="0 {_fmt(-part.pitch_rad)} 0" ' if part.pitch_rad else ""
+    if part.yaw_rad:
+        q = rot_to_quat(part.rotation())  # (x, y, z, w); MuJoCo wants (w, x, y, z)
+        turn = f'quat="{_fmt([q[3], q[0], q[1], q[2]])}" '
+    else:
+        turn = f'euler="0 {_fmt(-part.pitch_rad)} 0" ' if part.pitch_rad else ""
     return (f'<geom name="{mesh}" type="mesh" mesh="{mesh}" material="mat_{part.texture}" '
             f'pos="{_fmt(part.offset_m)}" {turn}group="{group}" contype="0" conaffinity="0"/>')
+
+
+def _emission(texture: str) -> str:
+    e = texture_emission(texture)
+    return f' emission="{e:.6g}"' if e > 0 else ""
 
 
 def actor_body_name(index: int) -> str:
@@ -199,7 +209,8 @@ def build_mjcf(spec: SceneSpec) -> Mjcf:
     ]
     tex_xml = "".join(f'<texture name="tex_{t}" type="2d" file="{t}.png"/>' for t in textures)
     mat_xml = "".join(
-        f'<material name="mat_{t}" texture="tex_{t}" specular="0.12" shininess="0.25"/>' for t in textures
+        f'<material name="mat_{t}" texture="tex_{t}" specular="0.12" shininess="0.25"{_emission(t)}/>'
+        for t in textures
     )
     amb = spec.ambient if spec.room.ambient is None else spec.room.ambient
     xml = f"""<mujoco model="changing_slam_sim">

@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.errors import SimError
+from changing_slam_ros.sim.texture_gen import EMISSION, GENERATED
 
 U8 = npt.NDArray[np.uint8]
 
@@ -81,18 +82,26 @@ TEXTURES: dict[str, TextureSource] = {
                                crop=(28, 178, 150, 295), wrap_fraction=0.36, grey=True),
     "plastic_blue": TextureSource("coins", (0.3, 0.45, 0.85), "no known copyright restrictions (Brooklyn Museum)",
                                   "the unknown object"),
+    # the same photos shown on a lit screen (`texture_gen.EMISSION`)
+    "screen_rocket": TextureSource("rocket", licence="public domain (SpaceX)", what="monitor screen"),
+    "screen_astronaut": TextureSource("astronaut", licence="public domain (NASA; Eileen Collins)",
+                                      what="monitor screen"),
 }
 
 
 def load_texture(name: str) -> U8:
     """The texture `name` as an (H, W, 3) uint8 RGB image, tinted.
 
-    Raises SimError for an unknown name. Loads from the scikit-image data folder (no network).
+    Raises SimError for an unknown name. Loads from the scikit-image data folder (no network), or draws one
+    of `texture_gen.GENERATED`.
     """
+    if name in GENERATED:
+        return GENERATED[name]()
     try:
         source = TEXTURES[name]
     except KeyError as err:
-        raise SimError(f"texture {name!r}: unknown; known: {', '.join(sorted(TEXTURES))}") from err
+        known = ", ".join(sorted({*TEXTURES, *GENERATED}))
+        raise SimError(f"texture {name!r}: unknown; known: {known}") from err
     import skimage.data
 
     try:
@@ -136,6 +145,11 @@ def _wrapped(face: npt.NDArray[np.float32], fraction: float) -> npt.NDArray[np.f
 def texture_png(name: str) -> bytes:
     """The texture `name` as PNG bytes, ready for MuJoCo; cached per process (textures never change)."""
     return png_bytes(load_texture(name))
+
+
+def texture_emission(name: str) -> float:
+    """Material emission (0-1) of the texture `name`: above 0 only for lit screens."""
+    return EMISSION.get(name, 0.0)
 
 
 def png_bytes(image_rgb: U8) -> bytes:

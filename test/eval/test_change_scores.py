@@ -207,18 +207,18 @@ def test_a_written_report_reads_back_with_each_side_in_its_sessions_frame(tmp_pa
 
 
 def test_a_family_seeds_truth_splits_before_its_change_and_lists_the_move(tmp_path) -> None:
-    """Seed 2: one chair moved 1.2-4.5 m at 34.5 s (5 frames per second): the first session gets 0-172."""
+    """Seed 30: one chair moved 1.2-4.5 m at 36.1 s (5 frames per second): the first session gets 0-180."""
     from changing_slam_ros.eval.changing_bench import load_changing_truth
     from changing_slam_ros.sim.random_changing import random_changing
 
     path = tmp_path / "changing_truth.json"
-    path.write_text(dict(random_changing(2).extra_files)["changing_truth.json"])
+    path.write_text(dict(random_changing(30).extra_files)["changing_truth.json"])
     truth = load_changing_truth(path)
     (t,) = truth_changes(truth)
     assert (t.kind, t.truth_kind, t.before.class_name) == ("moved", "moved_long", "chair")  # type: ignore[union-attr]
     assert 1.2 - 0.3 <= t.distance_m <= 4.5 + 0.3  # type: ignore[operator]  # box centres: the turn moves them a little
     frames = [k / 5.0 for k in range(int(truth.changes[0]["t_s"] * 5) + 40)]
-    assert session_split([float(c["t_s"]) for c in truth.changes], frames) == 173
+    assert session_split([float(c["t_s"]) for c in truth.changes], frames) == 181
 
 
 def test_the_bench_prints_and_writes_each_seeds_verdicts_and_the_change_summary() -> None:
@@ -254,7 +254,7 @@ def test_the_bench_prints_and_writes_each_seeds_verdicts_and_the_change_summary(
 
 @pytest.mark.slow
 def test_bench_changing_with_sessions_runs_and_scores_a_small_seed(tmp_path, capsys) -> None:
-    """Seed 2 at 320x240, its first 190 frames, no control: the first session gets the 173 frames before the chair
+    """Seed 30 at 320x240, its first 198 frames, no control: the first session gets the 181 frames before the chair
     moves, the second the other 17 from its map; the JSON and the printed lines carry the sessions (a render and three
     runs: 90 s on two busy cores)."""
     import json as json_
@@ -262,17 +262,17 @@ def test_bench_changing_with_sessions_runs_and_scores_a_small_seed(tmp_path, cap
     from changing_slam_ros.cli import main
 
     out = tmp_path / "bench"
-    assert main(["bench", "changing", "--seeds", "2", "--frames", "190", "--width", "320", "--height", "240",
+    assert main(["bench", "changing", "--seeds", "30", "--frames", "198", "--width", "320", "--height", "240",
                  "--no-control", "--sessions", "--out", str(out), "--cache", str(tmp_path / "cache")]) == 0
     doc = json_.loads((out / "changing_bench.json").read_text())
     sessions = doc["per_seed"][0]["sessions"]
-    assert doc["sessions"] is True and [sessions["split_frame"], sessions["frames"]] == [173, 190]
+    assert doc["sessions"] is True and [sessions["split_frame"], sessions["frames"]] == [181, 198]
     assert sessions["error"] == "" and sessions["relocalised"] is True
     assert [t["truth_kind"] for t in sessions["score"]["truths"]] == ["moved_long"]
     assert doc["summary"]["changes"]["kinds"]["moved"]["truths"] == 1
-    s2 = json_.loads((out / "runs" / "s2_session2" / "metrics.json").read_text())
+    s2 = json_.loads((out / "runs" / "s30_session2" / "metrics.json").read_text())
     assert s2["frames"] == 17 and "changes" in s2
-    assert "seed    2  sessions 173+17 frames  relocalised  truth: moved_long chair" in capsys.readouterr().out
+    assert "seed   30  sessions 181+17 frames  relocalised  truth: moved_long chair" in capsys.readouterr().out
 
 
 def test_a_summary_of_no_scored_seed_has_every_count_at_zero() -> None:

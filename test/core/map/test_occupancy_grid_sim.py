@@ -6,8 +6,8 @@ from the scans) and compares it, placed back in the world through its floor fram
 and furniture footprints (`sim.floor_plan`) at the end of the scenario. Dynamic detections come from the
 instance masks (the simulator's oracle); a replaced object's scan points carry its actor as their object, and
 its id is passed as an object whose belief fell, as the object layer's persistence filter leaves a missed
-object. Measured here: agreement `static` 0.971, `random_changing` seed 0 0.967, `walking_xyz` 0.959; cells a
-person crossed (1984 seen) or a replaced object stood on (314 seen), more than one cell from the plan, hold no
+object. Measured here: agreement `static` 0.971, `random_changing` seed 8 0.967, `walking_xyz` 0.959; cells a
+person crossed (1984 seen) or a replaced object stood on (501 seen), more than one cell from the plan, hold no
 obstacle (23 and 19 without the dynamic flags / the belief exclusion, ray casting alone).
 """
 
@@ -73,7 +73,7 @@ def swept(sc: object, actors: list[int], times: np.ndarray, xy: np.ndarray) -> n
     return swept_plan(sc, actors, list(times), CFG.min_height_m, CFG.max_height_m, plan).lookup(xy) == 1  # type: ignore[arg-type]
 
 
-@pytest.mark.parametrize(("name", "seed"), [("static", 0), ("random_changing", 0)])
+@pytest.mark.parametrize(("name", "seed"), [("static", 0), ("random_changing", 8)])
 def test_robot_rooms_agree_with_the_floor_plan_and_replaced_objects_leave_no_obstacle(name: str, seed: int) -> None:
     sc, views = render_scans(name, seed, 1.0)
     replaced = [sc.actor_index(c.actor) for c in sc.changes if c.kind.value == "replaced"]
