@@ -233,19 +233,18 @@ def test_a_close_person_the_detector_names_chair_every_other_frame_is_never_mova
         assert movable == movable_frames, (cfg.detection_hold_frames, movable)
 
 
-def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_similar_depth() -> None:
-    """As above, plus 20 box points whose descriptors never match (a deforming person): only spread flags them,
-    unless that leaves tracking fewer than `min_kept_keypoints` keypoints with depth."""
+def _flags_with_unmatched_box_points(configs: list[DynamicConfig]) -> list[np.ndarray]:
+    """The moving-box scene above with 60 box points, 20 of whose descriptors never match (a deforming person):
+    each config's final-frame flags (400 room points, then 40 matched and 20 unmatched box points)."""
     rng = np.random.default_rng(4)
     static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
     ray = static[:, :2] / static[:, 2:3] * 1.8  # the box hides the wall behind its path, as above
     static = static[~((ray[:, 0] > 0.05) & (ray[:, 0] < 0.79) & (ray[:, 1] > -0.05) & (ray[:, 1] < 0.45))][:400]
     box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (60, 3))
     desc = rng.integers(0, 256, (460, 32), dtype=np.uint8)
-    flagged = {}
-    for spread, min_kept in ((0.0, 300), (25.0, 300), (25.0, 420)):
-        flt = DynamicFilter(DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
-                                          segmentation_spread_px=spread, min_kept_keypoints=min_kept))
+    out = []
+    for cfg in configs:
+        flt = DynamicFilter(cfg)
         rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
         for k in range(4):
             T_world_cam = np.eye(4)
@@ -256,42 +255,37 @@ def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_s
             d[440:] = rng.integers(0, 256, (20, 32), dtype=np.uint8)  # new descriptors every frame
             res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), _features(CAM.project(cam), cam[:, 2], d), None)
             flt.after_tracking(T_world_cam)
-        flagged[spread, min_kept] = res.moving
-    assert not flagged[0.0, 300][440:].any() and flagged[0.0, 300][400:440].mean() >= 0.9
-    assert flagged[25.0, 300][400:].mean() >= 0.9
-    assert flagged[25.0, 300][:400].mean() <= 0.02
+        out.append(res.moving)
+    return out
+
+
+def _segmenting(**kwargs: object) -> DynamicConfig:
+    return DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1, **kwargs)  # type: ignore[arg-type]
+
+
+def test_segmentation_spread_flags_unmatched_keypoints_next_to_flagged_ones_at_similar_depth() -> None:
+    """Only the spread flags the unmatched box points, unless that leaves tracking fewer than
+    `min_kept_keypoints` keypoints with depth."""
+    plain, spread, short = _flags_with_unmatched_box_points([
+        _segmenting(), _segmenting(segmentation_spread_px=25.0), _segmenting(segmentation_spread_px=25.0,
+                                                                            min_kept_keypoints=420)])
+    assert not plain[440:].any() and plain[400:440].mean() >= 0.9
+    assert spread[400:].mean() >= 0.9
+    assert spread[:400].mean() <= 0.02
     # With 420 keypoints asked of tracking, the spread yields: the 400 room points alone are too few.
-    assert (flagged[25.0, 420] == flagged[0.0, 300]).all()
+    assert (short == plain).all()
 
 
 def test_flag_vote_flags_untested_keypoints_among_flagged_ones_and_leaves_the_tested_room() -> None:
-    """As the spread test: 20 of the box's 60 points never match. The vote flags them from their flagged 3-D
-    neighbours; the room's tested points keep their verdict; it yields as the spread does."""
-    rng = np.random.default_rng(4)
-    static = np.column_stack([rng.uniform(-2, 2, 600), rng.uniform(-1.5, 1.5, 600), rng.uniform(3.0, 5.0, 600)])
-    ray = static[:, :2] / static[:, 2:3] * 1.8
-    static = static[~((ray[:, 0] > 0.05) & (ray[:, 0] < 0.79) & (ray[:, 1] > -0.05) & (ray[:, 1] < 0.45))][:400]
-    box0 = np.array([0.3, 0.2, 1.8]) + rng.uniform(-0.15, 0.15, (60, 3))
-    desc = rng.integers(0, 256, (460, 32), dtype=np.uint8)
-    flagged = {}
-    for radius, min_kept in ((0.0, 300), (0.25, 300), (0.25, 420)):
-        flt = DynamicFilter(DynamicConfig(detection_filtering=False, segmentation=True, segmentation_gap_frames=1,
-                                          flag_vote=FlagVoteConfig(radius_m=radius), min_kept_keypoints=min_kept))
-        rgbd = RgbdFrame(0, np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.float32), CAM)
-        for k in range(4):
-            T_world_cam = np.eye(4)
-            T_world_cam[:3, 3] = [0.02 * k, 0.0, 0.0]
-            world = np.vstack([static, box0 + np.array([0.08 * k, 0.0, 0.0])])
-            cam = transform_points(invert(T_world_cam), world)
-            d = desc.copy()
-            d[440:] = rng.integers(0, 256, (20, 32), dtype=np.uint8)  # new descriptors every frame
-            res = flt.before_tracking(dataclasses.replace(rgbd, stamp_ns=k * FRAME_NS), _features(CAM.project(cam), cam[:, 2], d), None)
-            flt.after_tracking(T_world_cam)
-        flagged[radius, min_kept] = res.moving
-    assert not flagged[0.0, 300][440:].any() and flagged[0.0, 300][400:440].mean() >= 0.9
-    assert flagged[0.25, 300][440:].mean() >= 0.9
-    assert (flagged[0.25, 300][:400] == flagged[0.0, 300][:400]).all()
-    assert (flagged[0.25, 420] == flagged[0.0, 300]).all()
+    """The vote flags the unmatched box points from their flagged 3-D neighbours; the room's tested points keep
+    their verdict; it yields as the spread does."""
+    plain, voted, short = _flags_with_unmatched_box_points([
+        _segmenting(), _segmenting(flag_vote=FlagVoteConfig(radius_m=0.25)),
+        _segmenting(flag_vote=FlagVoteConfig(radius_m=0.25), min_kept_keypoints=420)])
+    assert not plain[440:].any() and plain[400:440].mean() >= 0.9
+    assert voted[440:].mean() >= 0.9
+    assert (voted[:400] == plain[:400]).all()
+    assert (short == plain).all()
 
 
 def test_boxes_of_fixed_furniture_classes_are_background_unless_configured_movable() -> None:
