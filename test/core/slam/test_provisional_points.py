@@ -148,8 +148,10 @@ def test_after_the_last_update_the_replica_holds_no_provisional_point_and_equals
     assert sorted(m.keyframes) == sorted(owner.keyframes)
     n = owner.points.size
     assert m.points.size == n
-    np.testing.assert_allclose(m.points.positions[:n], owner.points.positions[:n], atol=1e-9, rtol=0)
-    np.testing.assert_array_equal(m.points.bad[:n], owner.points.bad[:n])
+    # By id; a culled point reads as gone in both, whether or not its store has compacted its row yet.
+    mine, theirs = m.points.column_arrays(), owner.points.column_arrays()
+    np.testing.assert_allclose(mine["positions"], theirs["positions"], atol=1e-9, rtol=0)
+    np.testing.assert_array_equal(mine["bad"], theirs["bad"])
     for k, kf in owner.keyframes.items():
         np.testing.assert_array_equal(m.keyframes[k].point_ids, kf.point_ids)
         np.testing.assert_allclose(m.keyframes[k].T_world_cam, kf.T_world_cam, atol=1e-9, rtol=0)
