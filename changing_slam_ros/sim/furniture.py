@@ -17,13 +17,10 @@ import numpy as np
 
 from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim.actors import Part, Shape
+from changing_slam_ros.sim.draws import between
 
 B, C, E = Shape.BOX, Shape.CYLINDER, Shape.ELLIPSOID
 HALF_PI = float(np.pi / 2)
-
-
-def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(rng.uniform(lo, hi))
 
 
 def _pick(rng: np.random.Generator, options: tuple[str, ...]) -> str:
@@ -79,37 +76,37 @@ LEAF_TEXTURES = ("leaf_green", "leaf_dark", "leaf_yellow")
 def potted_plant(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     """A potted plant, 0.6-1.3 m: "bushy" (broad leaves arching out of the soil), "tree" (a trunk carrying
     clusters of small leaves) or "upright" (long blades standing up, a snake plant)."""
-    pot_r, pot_h = _u(rng, 0.13, 0.18), _u(rng, 0.22, 0.32)
+    pot_r, pot_h = between(rng, 0.13, 0.18), between(rng, 0.22, 0.32)
     parts = _pot(rng, pot_r, pot_h, _pick(rng, POT_TEXTURES))
     top = pot_h + 0.02
     leaf_tex = _pick(rng, LEAF_TEXTURES)
     if style == "bushy":
         n = int(rng.integers(22, 32))
         for k in range(n):
-            az = 2.4 * k + _u(rng, -0.3, 0.3)  # the golden angle: leaves spread evenly round the stem
-            el = _u(rng, 0.35, 1.35)
-            base = (_u(rng, -0.03, 0.03), _u(rng, -0.03, 0.03), top + _u(rng, 0.0, 0.15))
-            parts.append(leaf(base, float(az), el, _u(rng, 0.28, 0.45), _u(rng, 0.08, 0.13), leaf_tex))
+            az = 2.4 * k + between(rng, -0.3, 0.3)  # the golden angle: leaves spread evenly round the stem
+            el = between(rng, 0.35, 1.35)
+            base = (between(rng, -0.03, 0.03), between(rng, -0.03, 0.03), top + between(rng, 0.0, 0.15))
+            parts.append(leaf(base, float(az), el, between(rng, 0.28, 0.45), between(rng, 0.08, 0.13), leaf_tex))
         parts.append(Part((0.015, 0.015, 0.1), (0.0, 0.0, top + 0.08), "leaf_dark", 0.1, C))
     elif style == "tree":
-        trunk_h = _u(rng, 0.55, 0.8)
+        trunk_h = between(rng, 0.55, 0.8)
         parts.append(Part((0.018, 0.018, trunk_h / 2), (0.0, 0.0, top + trunk_h / 2), "wood", 0.2, C))
         n_clusters = int(rng.integers(4, 7))
         for j in range(n_clusters):
-            a = 2 * np.pi * j / n_clusters + _u(rng, -0.3, 0.3)
-            rad = _u(rng, 0.08, 0.2)
-            cz = top + trunk_h * _u(rng, 0.55, 1.05)
+            a = 2 * np.pi * j / n_clusters + between(rng, -0.3, 0.3)
+            rad = between(rng, 0.08, 0.2)
+            cz = top + trunk_h * between(rng, 0.55, 1.05)
             centre = (rad * np.cos(a), rad * np.sin(a), cz)
             parts.append(rod((0.0, 0.0, cz - 0.12), _r3(centre), 0.008, "wood", 0.2))
             for _ in range(int(rng.integers(9, 14))):
-                parts.append(leaf(centre, _u(rng, -np.pi, np.pi), _u(rng, -0.6, 1.2), _u(rng, 0.12, 0.2),
-                                  _u(rng, 0.05, 0.08), leaf_tex))
+                parts.append(leaf(centre, between(rng, -np.pi, np.pi), between(rng, -0.6, 1.2), between(rng, 0.12, 0.2),
+                                  between(rng, 0.05, 0.08), leaf_tex))
     elif style == "upright":
         n = int(rng.integers(9, 15))
         for k in range(n):
-            az = _u(rng, -np.pi, np.pi)
-            base = (0.6 * pot_r * np.cos(az) * _u(rng, 0.0, 1.0), 0.6 * pot_r * np.sin(az) * _u(rng, 0.0, 1.0), top)
-            parts.append(leaf(_r3(base), az, _u(rng, 1.2, 1.5), _u(rng, 0.45, 0.8), _u(rng, 0.06, 0.09), leaf_tex))
+            az = between(rng, -np.pi, np.pi)
+            base = (0.6 * pot_r * np.cos(az) * between(rng, 0.0, 1.0), 0.6 * pot_r * np.sin(az) * between(rng, 0.0, 1.0), top)
+            parts.append(leaf(_r3(base), az, between(rng, 1.2, 1.5), between(rng, 0.45, 0.8), between(rng, 0.06, 0.09), leaf_tex))
     else:
         raise SimError(f"potted plant: unknown style {style!r}")
     return tuple(parts)
@@ -121,10 +118,10 @@ def wall_clock(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     rim_tex = {"black": "black_plastic", "silver": "rim_silver", "wood": "wood"}.get(style)
     if rim_tex is None:
         raise SimError(f"wall clock: unknown style {style!r}")
-    r = _u(rng, 0.12, 0.18)
-    depth = _u(rng, 0.035, 0.05)
+    r = between(rng, 0.12, 0.18)
+    depth = between(rng, 0.035, 0.05)
     face = _pick(rng, ("clock_white", "clock_bars", "clock_black") if style != "wood" else ("clock_white",))
-    fr = r * _u(rng, 0.84, 0.9)
+    fr = r * between(rng, 0.84, 0.9)
     return (
         Part((r, r, depth / 2), (depth / 2, 0.0, 0.0), rim_tex, 0.1, C, -HALF_PI),
         Part((fr, fr, 0.003), (depth + 0.002, 0.0, 0.0), face, None, C, -HALF_PI),
@@ -139,9 +136,9 @@ def couch(style: str, rng: np.random.Generator, length_m: float | None = None) -
     cushions, back cushions leaning back, and arms: "square" or "rolled" (a round bolster on top)."""
     if style not in ("square", "rolled"):
         raise SimError(f"couch: unknown style {style!r}")
-    length = length_m if length_m is not None else _u(rng, 1.4, 2.0)
+    length = length_m if length_m is not None else between(rng, 1.4, 2.0)
     tex = _pick(rng, FABRICS)
-    hy, arm_w = length / 2, _u(rng, 0.12, 0.16) if style == "square" else _u(rng, 0.14, 0.2)
+    hy, arm_w = length / 2, between(rng, 0.12, 0.16) if style == "square" else between(rng, 0.14, 0.2)
     n_seats = 3 if length > 1.7 else 2
     inner = hy - arm_w
     parts = [Part((0.02, 0.02, 0.05), (sx * 0.38, sy * (hy - 0.06), 0.05), "wood", 0.2, C)
@@ -153,7 +150,7 @@ def couch(style: str, rng: np.random.Generator, length_m: float | None = None) -
         y = -inner + w * (2 * k + 1)
         parts.append(Part((0.3, w - 0.008, 0.07), (0.1, y, 0.37), tex, 0.35))  # seat cushion
         parts.append(Part((0.09, w - 0.012, 0.22), (-0.2, y, 0.62), tex, 0.35, B, 0.22))  # back cushion
-    arm_top = _u(rng, 0.55, 0.65)
+    arm_top = between(rng, 0.55, 0.65)
     for sy in (-1, 1):
         y = sy * (hy - arm_w / 2)
         if style == "square":
@@ -189,7 +186,7 @@ SHELLS = ("shell_black", "shell_navy", "shell_red", "shell_silver")
 def suitcase(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     """An upright suitcase on four spinner wheels, its wide face to +x: "hard" (ribbed shell, seam) or "soft"
     (fabric with a front pocket); a carry handle on top and a telescopic handle, retracted or pulled out."""
-    hx, hy, hz = _u(rng, 0.1, 0.13), _u(rng, 0.19, 0.24), _u(rng, 0.28, 0.36)
+    hx, hy, hz = between(rng, 0.1, 0.13), between(rng, 0.19, 0.24), between(rng, 0.28, 0.36)
     z0 = 0.07
     zc = z0 + hz
     rc = 0.055  # radius of the shell's rounded corners
@@ -213,7 +210,7 @@ def suitcase(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     parts += [rod((0.0, -0.06, top), (0.0, -0.06, top + 0.035), 0.01, "black_plastic"),
               rod((0.0, 0.06, top), (0.0, 0.06, top + 0.035), 0.01, "black_plastic"),
               rod((0.0, -0.07, top + 0.04), (0.0, 0.07, top + 0.04), 0.014, "black_plastic")]
-    ext = _u(rng, 0.25, 0.45) if rng.random() < 0.6 else 0.0
+    ext = between(rng, 0.25, 0.45) if rng.random() < 0.6 else 0.0
     xb = -hx + 0.02
     for sy in (-1, 1):
         parts.append(rod((xb, sy * 0.12, top - 0.02), (xb, sy * 0.12, top + 0.02 + ext), 0.009, "metal"))
@@ -230,10 +227,10 @@ TV_SCREENS = SCREENS + ("screen_astronaut",)
 def monitor(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     """A computer monitor standing on a table top (z = 0), screen to +x: a thin black bezel, a lit picture,
     a housing at the back, a neck and a foot: "round" (disc foot) or "flat" (a flat rectangular foot)."""
-    w = _u(rng, 0.26, 0.34)  # half width; 16:9
+    w = between(rng, 0.26, 0.34)  # half width; 16:9
     h = w * 9 / 16
     screen = _pick(rng, SCREENS)
-    zc = _u(rng, 0.1, 0.16) + h + 0.02
+    zc = between(rng, 0.1, 0.16) + h + 0.02
     parts = [
         Part((0.012, w, h), (0.0, 0.0, zc), "black_plastic", 0.1),  # bezel
         Part((0.002, w - 0.012, h - 0.012), (0.013, 0.0, zc), screen, None),  # picture
@@ -252,7 +249,7 @@ def monitor(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
 def wall_screen(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     """A flat screen hung on a wall, 0.6-0.9 m wide, 3 cm deep, a thin black bezel round a lit picture;
     "plain" or "soundbar" (a speaker bar under it). Origin at its back centre on the wall."""
-    w = _u(rng, 0.3, 0.45)
+    w = between(rng, 0.3, 0.45)
     h = w * 9 / 16
     screen = _pick(rng, TV_SCREENS)
     parts = [Part((0.015, w, h), (0.015, 0.0, 0.0), "black_plastic", 0.1),
@@ -271,10 +268,10 @@ def bottle(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     """A bottle standing on z = 0: body, rounded shoulder, neck, cap and a label round the body; "wine"
     (tall, long neck) or "water" (shorter, wide, short neck)."""
     if style == "wine":
-        r, body_h, neck_h, neck_r = _u(rng, 0.035, 0.04), _u(rng, 0.17, 0.2), _u(rng, 0.07, 0.09), 0.014
+        r, body_h, neck_h, neck_r = between(rng, 0.035, 0.04), between(rng, 0.17, 0.2), between(rng, 0.07, 0.09), 0.014
         body = _pick(rng, ("glass_green", "glass_brown"))
     elif style == "water":
-        r, body_h, neck_h, neck_r = _u(rng, 0.035, 0.045), _u(rng, 0.15, 0.2), _u(rng, 0.02, 0.03), 0.016
+        r, body_h, neck_h, neck_r = between(rng, 0.035, 0.045), between(rng, 0.15, 0.2), between(rng, 0.02, 0.03), 0.016
         body = _pick(rng, ("plastic_clear", "plastic_blue"))
     else:
         raise SimError(f"bottle: unknown style {style!r}")
@@ -295,13 +292,13 @@ def chair(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     """A chair facing +x, seat at 0.44-0.48 m: "padded" (wooden frame, cushion, padded back), "slatted"
     (wooden seat, a back of vertical slats under a top rail), "armchair" (upholstered, arms) or "office"
     (a five-star base on casters, gas lift, seat, curved back and arms)."""
-    seat_z = _u(rng, 0.44, 0.48)
-    hw = _u(rng, 0.2, 0.24)
+    seat_z = between(rng, 0.44, 0.48)
+    hw = between(rng, 0.2, 0.24)
     wood = "wood"
     parts: list[Part] = []
     if style in ("padded", "slatted"):
-        lean = _u(rng, 0.08, 0.18)
-        top_z = seat_z + _u(rng, 0.38, 0.48)
+        lean = between(rng, 0.08, 0.18)
+        top_z = seat_z + between(rng, 0.38, 0.48)
         for sy in (-1, 1):
             parts.append(Part((0.018, 0.018, seat_z / 2), (hw - 0.03, sy * (hw - 0.03), seat_z / 2), wood, 0.2))
             back_foot = (-hw + 0.03, sy * (hw - 0.03), 0.0)
@@ -328,7 +325,7 @@ def chair(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
                                   wood, 0.2, B, lean))
     elif style == "armchair":
         tex = _pick(rng, FABRICS)
-        hw = _u(rng, 0.32, 0.38)
+        hw = between(rng, 0.32, 0.38)
         # splayed legs; their foot starts 4 mm up so that the tilted round foot just touches the floor
         parts += [rod((sx * 0.3, sy * (hw - 0.05), 0.004), (sx * 0.28, sy * (hw - 0.07), 0.16), 0.018, wood, 0.2)
                   for sx in (-1, 1) for sy in (-1, 1)]
@@ -342,7 +339,7 @@ def chair(style: str, rng: np.random.Generator) -> tuple[Part, ...]:
     elif style == "office":
         tex = _pick(rng, ("fabric_dark", "black_plastic", "fabric_blue", "fabric_grey"))
         for k in range(5):
-            a = 2 * np.pi * k / 5 + _u(rng, -0.2, 0.2)
+            a = 2 * np.pi * k / 5 + between(rng, -0.2, 0.2)
             end = (0.3 * np.cos(a), 0.3 * np.sin(a), 0.07)
             parts.append(rod((0.0, 0.0, 0.09), _r3(end), 0.016, "black_plastic", 0.1, B))
             parts.append(Part((0.025, 0.025, 0.02), (end[0], end[1], 0.02), "black_plastic", 0.1, E))  # caster

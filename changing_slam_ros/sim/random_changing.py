@@ -24,6 +24,7 @@ from changing_slam_ros.errors import SimError
 from changing_slam_ros.sim import actors as cat
 from changing_slam_ros.sim.actors import Actor, Change, ChangeKind, Part
 from changing_slam_ros.sim.camera_path import RobotLoop, robot_loop
+from changing_slam_ros.sim.draws import between
 from changing_slam_ros.sim.furniture import draw_look
 from changing_slam_ros.sim.motions import changed
 from changing_slam_ros.sim.path_views import OUT_OF_VIEW_MARGIN_PX, PathViews
@@ -154,9 +155,6 @@ def _change_records(c: DrawnChange) -> list[Change]:
 
 # --- the room ---
 
-def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(rng.uniform(lo, hi))
-
 
 def _wall_frame(wall: str, hx: float, hy: float) -> tuple[F64, F64, F64, float]:
     """(a point on the wall's inner face, along-wall unit vector, inward normal, half length) of `wall`."""
@@ -174,8 +172,8 @@ WALLS = ("east", "north", "west", "south")
 
 def _room_parts(rng: np.random.Generator, hx: float, hy: float, hz: float) -> tuple[list[Part], dict[str, object]]:
     walls = [str(w) for w in rng.permutation(WALL_PHOTOS)[:4]]
-    tiles = [round(_u(rng, 0.8, 1.8), 3) for _ in range(4)]
-    floor, floor_tile = str(FLOOR_PHOTOS[int(rng.integers(len(FLOOR_PHOTOS)))]), round(_u(rng, 0.8, 1.5), 3)
+    tiles = [round(between(rng, 0.8, 1.8), 3) for _ in range(4)]
+    floor, floor_tile = str(FLOOR_PHOTOS[int(rng.integers(len(FLOOR_PHOTOS)))]), round(between(rng, 0.8, 1.5), 3)
     t = WALL_T_M
     parts = [
         Part((hx + t, hy + t, t), (0.0, 0.0, -t), floor, floor_tile),
@@ -192,8 +190,8 @@ def _room_parts(rng: np.random.Generator, hx: float, hy: float, hz: float) -> tu
 def _lights(rng: np.random.Generator, hx: float, hy: float, hz: float) -> tuple[Light, ...]:
     out = []
     for k, (sx, sy) in enumerate(((-1, 1), (1, 1), (1, -1), (-1, -1))):
-        level = _u(rng, 0.4, 0.75)
-        tint = (level * _u(rng, 0.9, 1.05), level * _u(rng, 0.9, 1.0), level * _u(rng, 0.8, 1.0))
+        level = between(rng, 0.4, 0.75)
+        tint = (level * between(rng, 0.9, 1.05), level * between(rng, 0.9, 1.0), level * between(rng, 0.8, 1.0))
         out.append(Light((sx * hx / 2, sy * hy / 2, hz - 0.1), tint, cast_shadow=k == 0))
     return tuple(out)
 
@@ -250,14 +248,14 @@ class _Planner:
         r = footprint_radius_m(item)
         for _ in range(tries):
             if near is None:
-                xy = np.array([_u(self.rng, -self.hx, self.hx), _u(self.rng, -self.hy, self.hy)])
+                xy = np.array([between(self.rng, -self.hx, self.hx), between(self.rng, -self.hy, self.hy)])
             else:
-                a, d = _u(self.rng, -np.pi, np.pi), _u(self.rng, *dist)
+                a, d = between(self.rng, -np.pi, np.pi), between(self.rng, *dist)
                 xy = near[:2] + d * np.array([np.cos(a), np.sin(a)])
             if not self._free(xy, r):
                 continue
             to_c = self.centre - xy
-            pose = pose_xyz_rpy(xy[0], xy[1], 0.0, yaw=float(np.arctan2(to_c[1], to_c[0])) + _u(self.rng, -0.6, 0.6))
+            pose = pose_xyz_rpy(xy[0], xy[1], 0.0, yaw=float(np.arctan2(to_c[1], to_c[0])) + between(self.rng, -0.6, 0.6))
             if self.views.seen(item, pose, self.fovy).any():
                 self.used.append((xy, r))
                 return pose
@@ -268,7 +266,7 @@ class _Planner:
         for _ in range(100):
             wall = WALLS[int(self.rng.integers(4))]
             origin, along, normal, half = _wall_frame(wall, self.hx, self.hy)
-            s = _u(self.rng, -half + length_m / 2 + 0.2, half - length_m / 2 - 0.2)
+            s = between(self.rng, -half + length_m / 2 + 0.2, half - length_m / 2 - 0.2)
             xy = (origin + along * s + normal * 0.45)[:2]
             r = float(np.hypot(length_m / 2, 0.4))
             if not self._free(xy, r, 0.1, in_room=False):
@@ -285,13 +283,13 @@ class _Planner:
             return None
         xy, yaw, half, top = self.table
         for _ in range(50):
-            s = _u(self.rng, -half + 0.2, half - 0.2)
+            s = between(self.rng, -half + 0.2, half - 0.2)
             if any(abs(s - q) < 0.45 for q in self.table_used):
                 continue
             # facing the room (the table's -y side, its frame's x along the wall)
             c, sn = np.cos(yaw), np.sin(yaw)
             p = xy + s * np.array([c, sn]) + 0.1 * np.array([sn, -c])
-            pose = pose_xyz_rpy(p[0], p[1], top, yaw=yaw - np.pi / 2 + _u(self.rng, -0.3, 0.3))
+            pose = pose_xyz_rpy(p[0], p[1], top, yaw=yaw - np.pi / 2 + between(self.rng, -0.3, 0.3))
             if self.views.seen(item, pose, self.fovy).any():
                 self.table_used.append(s)
                 return pose
@@ -302,7 +300,7 @@ class _Planner:
         for _ in range(100):
             wall = WALLS[int(self.rng.integers(4))]
             origin, along, normal, half = _wall_frame(wall, self.hx, self.hy)
-            s = _u(self.rng, -half + half_w + 0.2, half - half_w - 0.2)
+            s = between(self.rng, -half + half_w + 0.2, half - half_w - 0.2)
             if any(w == wall and abs(s - q) < half_w + hq + 0.2 for w, q, hq in self.wall_used):
                 continue
             pos = origin + along * s
@@ -321,14 +319,14 @@ class _Planner:
                 break
             wall = WALLS[int(self.rng.integers(4))]
             origin, along, normal, half = _wall_frame(wall, self.hx, self.hy)
-            w, h = _u(self.rng, 0.4, 1.0), _u(self.rng, 0.35, 0.8)
-            s = _u(self.rng, -half + w / 2 + 0.1, half - w / 2 - 0.1)
+            w, h = between(self.rng, 0.4, 1.0), between(self.rng, 0.35, 0.8)
+            s = between(self.rng, -half + w / 2 + 0.1, half - w / 2 - 0.1)
             if any(wu == wall and abs(s - q) < w / 2 + hq + 0.15 for wu, q, hq in self.wall_used):
                 continue
             self.wall_used.append((wall, s, w / 2))
             photo = photos[int(self.rng.integers(len(photos)))]
             c = origin + along * s + normal * 0.006
-            c[2] = _u(self.rng, 0.95, 1.45)
+            c[2] = between(self.rng, 0.95, 1.45)
             if not self.views.seen_point(c, self.fovy).any():
                 self.wall_used.pop()
                 continue
@@ -397,7 +395,7 @@ def _plan_change(rng: np.random.Generator, kind: str, lap: int, lap_s: float, pl
         new = planner.floor(items[actor], near=old[:3, 3], dist=dist)
         if new is None:
             return None
-        to[actor] = _turned(old, float(rng.choice([-1.0, 1.0])) * _u(rng, 0.4, 1.4), new[:2, 3])
+        to[actor] = _turned(old, float(rng.choice([-1.0, 1.0])) * between(rng, 0.4, 1.4), new[:2, 3])
     elif kind == "removed" and movable:
         actor = movable[int(rng.integers(len(movable)))]
         to[actor] = None
@@ -421,7 +419,7 @@ def _plan_change(rng: np.random.Generator, kind: str, lap: int, lap_s: float, pl
         other = f"added_{len(items)}"
         items[other] = _floor_item(rng, choices[int(rng.integers(len(choices)))], other)
         poses[other] = None
-        to[actor], to[other] = None, _turned(old, _u(rng, -0.3, 0.3))
+        to[actor], to[other] = None, _turned(old, between(rng, -0.3, 0.3))
     elif kind == "swapped":
         pairs = [(a, b) for a in floor for b in floor if a < b and items[a].class_id != items[b].class_id
                  and items[a].kind != "couch" and items[b].kind != "couch"]
@@ -445,13 +443,13 @@ def draw_changing_room(seed: int) -> ChangingRoom:
     if seed < 0:
         raise SimError(f"random_changing: seed {seed}: expected a non-negative seed")
     rng = np.random.default_rng([seed, 20])
-    hx, hy, hz = round(_u(rng, 2.3, 3.3), 3), round(_u(rng, 2.0, 2.8), 3), round(_u(rng, 2.4, 3.0), 3)
+    hx, hy, hz = round(between(rng, 2.3, 3.3), 3), round(between(rng, 2.0, 2.8), 3), round(between(rng, 2.4, 3.0), 3)
     parts, textures = _room_parts(rng, hx, hy, hz)
     lights = _lights(rng, hx, hy, hz)
     n_laps = 3 if rng.random() < 0.35 else 2
-    side, speed, turn = round(_u(rng, 0.6, 1.0), 3), round(_u(rng, 0.2, 0.3), 3), round(_u(rng, 15.0, 22.0), 2)
-    height, tilt = round(_u(rng, 0.75, 1.1), 3), round(_u(rng, -5.0, 2.0), 2)  # tilt > 0: pitched down
-    centre = np.array([_u(rng, -0.2, 0.2), _u(rng, -0.2, 0.2)])
+    side, speed, turn = round(between(rng, 0.6, 1.0), 3), round(between(rng, 0.2, 0.3), 3), round(between(rng, 15.0, 22.0), 2)
+    height, tilt = round(between(rng, 0.75, 1.1), 3), round(between(rng, -5.0, 2.0), 2)  # tilt > 0: pitched down
+    centre = np.array([between(rng, -0.2, 0.2), between(rng, -0.2, 0.2)])
     yaw0 = float(int(rng.integers(4)) * np.pi / 2)
     d0, d1 = np.array([np.cos(yaw0), np.sin(yaw0)]), np.array([-np.sin(yaw0), np.cos(yaw0)])
     start = centre - side / 2 * (d0 + d1)
@@ -471,14 +469,14 @@ def draw_changing_room(seed: int) -> ChangingRoom:
     for k in range(n_wall):
         kind = WALL_KINDS[int(rng.integers(2))]
         item = _floor_item(rng, kind, f"{kind}_{k}")
-        z = _u(rng, 1.0, 1.4)
+        z = between(rng, 1.0, 1.4)
         half_w = float(np.max(np.abs(np.concatenate([p.corners_m() for p in item.parts])[:, 1])))
         pose = planner.on_wall(item, half_w, z)
         if pose is not None:
             items[item.name], poses[item.name] = item, pose
     pictures = planner.pictures(int(rng.integers(3, 8)))
     if has_table:
-        length = round(_u(rng, 1.0, 1.6), 3)
+        length = round(between(rng, 1.0, 1.6), 3)
         pose = planner.place_table(length)
         if pose is not None:
             items["table"] = Item("table", "table", 60, cat.table_parts(length, 0.8), "floor")

@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.sim.camera_path import look_at, optical_from_body
+from changing_slam_ros.sim.draws import within
 from changing_slam_ros.sim.random_movers import MOVER_RANGES, MoverDraw, MoverRanges, Stage, build_mover, draw_mover
 from changing_slam_ros.sim.random_room import ROOM_RANGES, RoomDraw, RoomRanges, build_room, draw_room, furniture_actors
 from changing_slam_ros.sim.scenarios import Scenario
@@ -98,10 +99,6 @@ class RandomDynamicParams:
         return d
 
 
-def _u(rng: np.random.Generator, lo_hi: tuple[float, float]) -> float:
-    return float(rng.uniform(lo_hi[0], lo_hi[1]))
-
-
 FACING = {"north": (0.0, 1.0), "south": (0.0, -1.0), "east": (1.0, 0.0), "west": (-1.0, 0.0)}
 
 
@@ -110,16 +107,16 @@ def draw_camera(rng: np.random.Generator, room: RoomDraw, r: CameraRanges = CAME
     facing = str(rng.choice(list(FACING)))
     depth = 2 * (room.half_y_m if facing in ("north", "south") else room.half_x_m)
     width = 2 * (room.half_x_m if facing in ("north", "south") else room.half_y_m)
-    dist = min(_u(rng, r.wall_distance_m), depth - 0.5)
+    dist = min(within(rng, r.wall_distance_m), depth - 0.5)
     amplitude = {"xyz": r.sway_m, "rpy": r.turn_deg, "halfsphere": r.sphere_radius_m}.get(kind, (0.0, 0.0))
     hand_held = kind in ("xyz", "rpy", "halfsphere")
     return CameraDraw(
         kind=kind, facing=facing, wall_distance_m=dist, lateral_m=float(rng.uniform(-0.25, 0.25)) * width,
-        eye_height_m=_u(rng, r.robot_height_m if kind == "robot" else r.eye_height_m),
-        target_height_m=_u(rng, r.target_height_m), target_lateral_m=float(rng.uniform(-0.6, 0.6)),
-        amplitude=_u(rng, amplitude), period_s=_u(rng, r.period_s), phase_rad=float(rng.uniform(0, 2 * np.pi)),
-        jitter_m=_u(rng, r.jitter_m) if hand_held else 0.0, jitter_deg=_u(rng, r.jitter_deg) if hand_held else 0.0,
-        robot_speed_m_s=_u(rng, r.robot_speed_m_s) if kind == "robot" else 0.0,
+        eye_height_m=within(rng, r.robot_height_m if kind == "robot" else r.eye_height_m),
+        target_height_m=within(rng, r.target_height_m), target_lateral_m=float(rng.uniform(-0.6, 0.6)),
+        amplitude=within(rng, amplitude), period_s=within(rng, r.period_s), phase_rad=float(rng.uniform(0, 2 * np.pi)),
+        jitter_m=within(rng, r.jitter_m) if hand_held else 0.0, jitter_deg=within(rng, r.jitter_deg) if hand_held else 0.0,
+        robot_speed_m_s=within(rng, r.robot_speed_m_s) if kind == "robot" else 0.0,
     )
 
 

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.sim import actors as cat
 from changing_slam_ros.sim.actors import Actor, Part, Shape
+from changing_slam_ros.sim.draws import within
 from changing_slam_ros.sim.motions import seated
 from changing_slam_ros.sim.track import PoseKey, Track, function_track, pose_xyz_rpy
 
@@ -95,17 +96,13 @@ class Stage:
         return float(np.arctan2(self.forward_xy[1], self.forward_xy[0]))
 
 
-def _u(rng: np.random.Generator, lo_hi: tuple[float, float]) -> float:
-    return float(rng.uniform(lo_hi[0], lo_hi[1]))
-
-
 def draw_mover(rng: np.random.Generator, r: MoverRanges = MOVER_RANGES) -> MoverDraw:
     """Draw one mover within `r`."""
     kind = str(rng.choice(MOVER_KINDS))
     shape = "person" if kind in ("walker", "sitter") else str(rng.choice(OBJECT_SHAPES))
     person = kind in ("walker", "sitter") or kind == "carried" or bool(rng.random() < 0.6)
-    speed = _u(rng, r.person_speed_m_s) if kind in ("walker", "sitter", "carried") else _u(rng, r.object_speed_m_s)
-    size = _u(rng, r.object_size_m)
+    speed = within(rng, r.person_speed_m_s) if kind in ("walker", "sitter", "carried") else within(rng, r.object_speed_m_s)
+    size = within(rng, r.object_size_m)
     if shape == "board":
         half = (float(rng.uniform(0.008, 0.02)), size / 2, float(rng.uniform(0.15, 0.45)))
     elif shape == "box":
@@ -115,15 +112,15 @@ def draw_mover(rng: np.random.Generator, r: MoverRanges = MOVER_RANGES) -> Mover
     else:
         half = (0.25, 0.25, 0.45)
     n_stops = int(rng.integers(r.stops_per_leg[0], r.stops_per_leg[1] + 1))
-    stops = tuple(sorted((float(rng.uniform(0.2, 0.8)), _u(rng, r.pause_s)) for _ in range(n_stops)))
+    stops = tuple(sorted((float(rng.uniform(0.2, 0.8)), within(rng, r.pause_s)) for _ in range(n_stops)))
     path = "cross" if kind == "sitter" else str(rng.choice(PATHS))
-    distance = _u(rng, r.distance_m)
+    distance = within(rng, r.distance_m)
     lateral = float(rng.uniform(-0.9, 0.9)) * distance * 0.6  # up to about the image border at that distance
     return MoverDraw(
         kind=kind, shape=shape, class_id=0 if shape == "person" else OBJECT_CLASS[shape], path=path,
-        distance_m=distance, lateral_m=lateral, half_length_m=_u(rng, r.half_length_m), speed_m_s=speed,
-        start_delay_s=_u(rng, r.start_delay_s), end_pause_s=_u(rng, r.pause_s), stops=stops,
-        person_height_m=_u(rng, r.person_height_m), outfit=str(rng.choice(sorted(cat.OUTFITS))),
+        distance_m=distance, lateral_m=lateral, half_length_m=within(rng, r.half_length_m), speed_m_s=speed,
+        start_delay_s=within(rng, r.start_delay_s), end_pause_s=within(rng, r.pause_s), stops=stops,
+        person_height_m=within(rng, r.person_height_m), outfit=str(rng.choice(sorted(cat.OUTFITS))),
         object_half_m=(float(half[0]), float(half[1]), float(half[2])), texture=str(rng.choice(OBJECT_TEXTURES)),
         with_person=person, yaw_rad=float(rng.uniform(-np.pi, np.pi)),
     )

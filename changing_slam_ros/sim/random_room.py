@@ -16,6 +16,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.sim import actors as cat
 from changing_slam_ros.sim.actors import Actor, Part
+from changing_slam_ros.sim.draws import within
 from changing_slam_ros.sim.scene import Light, Room
 from changing_slam_ros.sim.track import Track, pose_xyz_rpy
 
@@ -94,17 +95,13 @@ class RoomDraw:
     ambient: float
 
 
-def _u(rng: np.random.Generator, lo_hi: tuple[float, float]) -> float:
-    return float(rng.uniform(lo_hi[0], lo_hi[1]))
-
-
 def _wall_length(draw_hx: float, draw_hy: float, wall: str) -> float:
     return 2 * draw_hx if wall in ("north", "south") else 2 * draw_hy
 
 
 def draw_room(rng: np.random.Generator, r: RoomRanges = ROOM_RANGES) -> RoomDraw:
     """Draw a room's parameters within `r`."""
-    hx, hy, hz = _u(rng, r.half_x_m), _u(rng, r.half_y_m), _u(rng, r.height_m)
+    hx, hy, hz = within(rng, r.half_x_m), within(rng, r.half_y_m), within(rng, r.height_m)
     pool = REPETITIVE_WALLS if rng.random() < r.repetitive_wall_prob else WALL_TEXTURES
     walls = tuple(str(rng.choice(pool)) for _ in WALLS)
     tiles = tuple(float(rng.uniform(0.7, 1.8)) for _ in WALLS)
@@ -129,12 +126,12 @@ def draw_room(rng: np.random.Generator, r: RoomRanges = ROOM_RANGES) -> RoomDraw
     for _ in range(int(rng.integers(r.lights[0], r.lights[1] + 1))):
         tint = tuple(float(v) for v in rng.uniform(0.8, 1.0, 3))
         lights.append(LightDraw(float(rng.uniform(-hx + 0.5, hx - 0.5)), float(rng.uniform(-hy + 0.5, hy - 0.5)),
-                                _u(rng, r.light_level), (tint[0], tint[1], tint[2]), _u(rng, r.light_tilt_rad),
+                                within(rng, r.light_level), (tint[0], tint[1], tint[2]), within(rng, r.light_tilt_rad),
                                 float(rng.uniform(-np.pi, np.pi))))
     return RoomDraw(hx, hy, hz, (walls[0], walls[1], walls[2], walls[3]),
                     (tiles[0], tiles[1], tiles[2], tiles[3]), str(rng.choice(FLOOR_TEXTURES)),
                     str(rng.choice(CEILING_TEXTURES)), tuple(posters), tuple(furniture), tuple(lights),
-                    _u(rng, r.ambient))
+                    within(rng, r.ambient))
 
 
 def _poster(d: PosterDraw, hx: float, hy: float) -> Part:
