@@ -33,6 +33,7 @@ from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.slam.still_camera import StillCamera
 from changing_slam_ros.core.slam.tracking_config import TrackingConfig
 from changing_slam_ros.core.slam.motion_gate import MotionGate, check_speed
+from changing_slam_ros.core.slam.rotation_vote import vote_rotation
 
 F64 = npt.NDArray[np.float64]
 
@@ -96,6 +97,7 @@ class Tracker:
         self.keyframe_requested = False  # the object layer asked for a keyframe (`request_keyframe`)
         self.last_reloc_index = -(10**9)
         self.n_lost = 0
+        self.n_vote_aimed = 0  # frames tracked from a prediction re-aimed by the displacement vote
         self.next_kf_id = 0
         self.mapping_idle = True  # False while local mapping has keyframes to map (real-time graph: set per frame)
         self.last_good_pose: F64 = np.eye(4)
@@ -258,6 +260,8 @@ class Tracker:
         if (n >= self.cfg.min_motion_inliers
                 and self._optimise(frame, T_cw_pred, self.cfg.motion_pose_rounds) >= self.cfg.min_motion_inliers):
             return True
+        if self._track_from_vote(frame, T_cw_pred, ids, radius):
+            return True
         # Fallback: brute-force match against the reference keyframe, from the last pose.
         frame.point_ids[:] = -1
         frame.outliers[:] = False
@@ -267,6 +271,36 @@ class Tracker:
         if n < 15:
             return False
         return self._optimise(frame, invert(last.T_world_cam)) >= 10
+
+    def _track_from_vote(self, frame: Frame, T_cw_pred: F64, ids: npt.NDArray[np.int64], radius: float) -> bool:
+        """The motion-model search again from a prediction re-aimed by the displacement vote (`rotation_vote`)."""
+        vcfg = self.cfg.rotation_vote
+        if not vcfg.enabled or len(ids) == 0:
+            return False
+        pts = self.map.points
+        pos = pts.positions[ids]
+        vote = vote_rotation(vcfg, frame.camera, pos @ T_cw_pred[:3, :3].T + T_cw_pred[:3, 3], pts.descriptors[ids],
+                             frame.features.keypoints_px, frame.features.descriptors)
+        if vote is None:
+            return False
+        T_cw = T_cw_pred.copy()
+        T_cw[:3, :] = vote.R_delta @ T_cw_pred[:3, :]
+        frame.point_ids[:] = -1
+        frame.outliers[:] = False
+        n = self._search(frame, T_cw, ids, radius, ratio=0.9)
+        if n < self.cfg.min_motion_inliers:
+            return False
+        if self._optimise(frame, T_cw, self.cfg.motion_pose_rounds) < self.cfg.min_motion_inliers:
+            return False
+        # The vote re-aims the rotation only: a pose whose centre left the prediction's took a shifted copy of a
+        # repeated pattern, which a translation along it explains as well.
+        T_wc = invert(T_cw)
+        assert frame.T_world_cam is not None
+        if np.linalg.norm(frame.T_world_cam[:3, 3] - T_wc[:3, 3]) > vcfg.max_translation_m:
+            return False
+        self._T_wc_pred = T_wc
+        self.n_vote_aimed += 1
+        return True
 
     def _motion(self, frame: Frame) -> F64:
         """The predicted camera motion from the last frame to `frame` (constant velocity over the stamp step)."""

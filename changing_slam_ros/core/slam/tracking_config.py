@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from changing_slam_ros.core.dynamic.deferred_refinement import RefinementConfig
 from changing_slam_ros.core.slam.motion_gate import MotionGateConfig
+from changing_slam_ros.core.slam.rotation_vote import RotationVoteConfig
 from changing_slam_ros.core.slam.still_camera import StillCameraConfig
 from changing_slam_ros.errors import ConfigError
 
@@ -56,6 +57,9 @@ class TrackingConfig:
       offline and lossless where every frame has its own detections).
     - `motion_gate`: a pose that implies an impossible camera speed, or lies far off the track's prediction, is
       refused (`core.slam.motion_gate`): tracked again from the prediction, else the frame gets no pose.
+    - `rotation_vote`: a motion-model prediction the projection search could not follow (a turn that starts or
+      stops between two frames) is re-aimed by a vote over the image displacements of the last frame's points
+      (`core.slam.rotation_vote`) and searched again before the reference-keyframe fallback.
     - `still_camera`: a camera that stood still keeps to the background its last pose explains (`still_camera`).
     - `level_from_floor`: a new map starts level on the floor in the first depth image (`core.map.floor_start`):
       z up, origin on the floor below the first camera; the optical frame where none shows. For a camera without a
@@ -89,6 +93,7 @@ class TrackingConfig:
     object_keyframe_min_frames: int = 10
     deferred_refinement: RefinementConfig = field(default_factory=RefinementConfig)
     motion_gate: MotionGateConfig = field(default_factory=MotionGateConfig)
+    rotation_vote: RotationVoteConfig = field(default_factory=RotationVoteConfig)
     still_camera: StillCameraConfig = field(default_factory=StillCameraConfig)
 
     def __post_init__(self) -> None:
