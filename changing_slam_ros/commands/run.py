@@ -224,6 +224,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
         "frames": len(system.records),
         "frames_tracked": system.n_tracked(),
         "poses_refused_by_motion_gate": system.tracker.n_gated,
+        "frames_reaimed_by_rotation_vote": system.tracker.n_vote_aimed,
         "keyframes": system.atlas.n_keyframes,
         "maps": len(system.atlas.maps),
         "map_points": int(sum(int(m.points.usable().sum()) for m in system.atlas.maps)),

@@ -112,7 +112,7 @@ def _robot_path() -> list[np.ndarray]:
     return poses
 
 
-def _track(vote: bool) -> tuple[int, float]:
+def _track(vote: bool) -> tuple[int, float, int]:
     cfg = SystemConfig()
     cfg = replace(cfg, tracking=replace(cfg.tracking, rotation_vote=replace(TrackingConfig().rotation_vote, enabled=vote)))
     system = SlamSystem(cfg)
@@ -123,14 +123,15 @@ def _track(vote: bool) -> tuple[int, float]:
         if out.T_world_cam is not None:  # the map's frame is the first camera's
             truth = np.linalg.inv(path[0]) @ T
             err = max(err, float(np.linalg.norm(out.T_world_cam[:3, 3] - truth[:3, 3])))
-    return system.n_tracked(), err
+    return system.n_tracked(), err, system.tracker.n_vote_aimed
 
 
 def test_a_turn_that_starts_between_two_frames_keeps_its_track_before_a_brick_wall() -> None:
     n_frames = len(_robot_path())
-    tracked, err = _track(vote=True)
+    tracked, err, aimed = _track(vote=True)
     assert tracked == n_frames
     assert err < 0.03
+    assert aimed >= 1  # the turn's first frame was tracked from the re-aimed prediction
     # Without the vote the search window cannot follow the turn's first frame: the track is lost.
-    tracked_off, _ = _track(vote=False)
+    tracked_off, _, _ = _track(vote=False)
     assert tracked_off < n_frames
