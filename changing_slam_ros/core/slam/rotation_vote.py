@@ -125,7 +125,7 @@ def vote_rotation(
 
 
 def _bearings(camera: CameraIntrinsics, px: F64) -> F64:
-    x = np.stack([(px[:, 0] - camera.cx) / camera.fx, (px[:, 1] - camera.cy) / camera.fy, np.ones(len(px))], axis=1)
+    x = camera.backproject(px, np.ones(len(px)))
     return x / np.linalg.norm(x, axis=1, keepdims=True)
 
 

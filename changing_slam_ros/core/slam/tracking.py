@@ -27,7 +27,7 @@ from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.features.matcher import ProjectionQuery, match_brute_force, search_by_projection
 from changing_slam_ros.core.features.orb_features import FeatureConfig
 from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo, PoseObservations, optimize_pose, orthonormalised
-from changing_slam_ros.core.geometry.se3 import invert, scale_motion
+from changing_slam_ros.core.geometry.se3 import invert, scale_motion, transform_points
 from changing_slam_ros.core.slam.initial_pose import HintedCandidates, PoseHint
 from changing_slam_ros.core.map.slam_map import Atlas, SlamMap
 from changing_slam_ros.core.slam.still_camera import StillCamera
@@ -278,8 +278,7 @@ class Tracker:
         if not vcfg.enabled or len(ids) == 0:
             return False
         pts = self.map.points
-        pos = pts.positions[ids]
-        vote = vote_rotation(vcfg, frame.camera, pos @ T_cw_pred[:3, :3].T + T_cw_pred[:3, 3], pts.descriptors[ids],
+        vote = vote_rotation(vcfg, frame.camera, transform_points(T_cw_pred, pts.positions[ids]), pts.descriptors[ids],
                              frame.features.keypoints_px, frame.features.descriptors)
         if vote is None:
             return False
