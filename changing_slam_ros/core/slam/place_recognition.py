@@ -77,9 +77,9 @@ class ConsistencyChecker:
 class DriftGateConfig:
     """YAML section `loop.drift_gate`. The defaults (a standard deviation of 5 % of the path, 10 % of the turn)
     pass a translation correction up to ~15 % of the path plus 0.15 m, and the synthetic tests' 1 deg per
-    keyframe bias. On the randomised changing rooms' tuning seeds 0-9 every right loop corrected at most 8 % of
-    its path (0.48 m over 6 m), and the one wrong loop, a wall photo tiled every 1.5 m, would have moved the
-    camera 1.5 m after 5.2 m: 10 % per metre let it through.
+    keyframe bias. On the randomised changing rooms' tuning seeds 0-9 right loops corrected at most 4.3 % of
+    their path (0.12 m over 2.8 m; 8 % for one that undid a wrong loop's bend), and the one wrong loop, a wall
+    photo tiled every 1.5 m, would have moved the camera 1.5 m after 5.2 m: 10 % per metre let it through.
 
     The correction a verified loop implies (the verified relative pose of the two keyframes against their current
     estimate) must be a plausible drift for the path travelled between them. Drift is modelled as zero-mean with
