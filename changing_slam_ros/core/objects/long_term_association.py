@@ -20,6 +20,8 @@ import numpy.typing as npt
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.map.map_point import PointStore
+from changing_slam_ros.core.map.floor_plane import FloorEstimate
+from changing_slam_ros.core.objects.floor_check import is_floor_patch
 from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig
 from changing_slam_ros.core.objects.object_fusion import fuse_duplicates
 from changing_slam_ros.core.objects.object_point_weights import Plane
@@ -98,7 +100,8 @@ class BeliefChange:
 class AssociationResult:
     """What one keyframe changed. `assignments[i]` is the map object id candidate i went to (new or
     merged; for a truncated candidate: the object its points are labelled with), -1 if it was skipped (truncated
-    with `truncated_views` off, fewer than `min_points` points, or a picture: its index is then in `pictures`).
+    with `truncated_views` off, fewer than `min_points` points, a picture or a floor patch: its index is then in
+    `pictures` or `floor_patches`).
     `visibility`: the verdict of the vicinity search for every mapped object that no candidate matched.
     `fused`: objects that left the map as duplicates of another (`object_fusion`), absorbed id -> survivor id;
     the assignments, new and merged ids already name the survivor."""
@@ -112,6 +115,7 @@ class AssociationResult:
     deactivated_point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
     visibility: dict[int, Visibility] = field(default_factory=dict)
     pictures: tuple[int, ...] = ()
+    floor_patches: tuple[int, ...] = ()
     fused: dict[int, int] = field(default_factory=dict)
 
 
@@ -166,7 +170,7 @@ class LongTermAssociation:
                          camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None,
                          detected_boxes: Sequence[tuple[int, BoxXyxy]] = (),
                          up_w: F64 | None = None, planes: Sequence[Plane] = (),
-                         walls_up_w: F64 | None = None) -> AssociationResult:
+                         walls_up_w: F64 | None = None, floor: FloorEstimate | None = None) -> AssociationResult:
         """Associate this keyframe's candidates, update beliefs, run the vicinity search.
 
         T_world_cam (4, 4) optical-frame pose of the keyframe; depth_m (H, W) its depth image in metres
@@ -174,7 +178,8 @@ class LongTermAssociation:
         the keyframe's detections that are no candidate; they only explain misses away (step 5 below).
         `up_w` (3,): the map's up direction, recorded with each whole view (`MapObject.add_view`; box completion),
         `planes`: the room's large planes (map frame) for the picture check, whose walls are told from floors by
-        `walls_up_w` (3,) (default `up_w`; the layer passes the camera's up when the floor is unknown).
+        `walls_up_w` (3,) (default `up_w`; the layer passes the camera's up when the floor is unknown). `floor`: the
+        floor plane (map frame) for the floor-patch check (`floor_check.py`), None to skip it.
 
         Steps (Algorithm 1 line numbers):
 
@@ -217,6 +222,7 @@ class LongTermAssociation:
         attached_on: list[I64] = []
         attached_off: list[I64] = []
         pictures: list[int] = []
+        floor_patches: list[int] = []
         for index, cand in enumerate(candidates):
             pts = np.asarray(cand.points_w, float).reshape(-1, 3)
             if len(pts) < cfg.min_points:
@@ -224,6 +230,10 @@ class LongTermAssociation:
                 continue
             if is_picture(cand.class_id, pts, planes, up_w if walls_up_w is None else walls_up_w, cfg):
                 pictures.append(index)
+                assignments.append(-1)
+                continue
+            if is_floor_patch(cand.class_id, pts, floor, cfg):
+                floor_patches.append(index)
                 assignments.append(-1)
                 continue
             centroid = pts.mean(axis=0)  # line 2
@@ -306,7 +316,8 @@ class LongTermAssociation:
         if attached_off:
             deactivated = np.unique(np.concatenate([deactivated, *attached_off]))
         return AssociationResult(keyframe_id, tuple(assignments), tuple(new_ids), tuple(merged_ids), tuple(changes),
-                                 activated, deactivated, visibility, tuple(pictures), fused)
+                                 activated, deactivated, visibility, tuple(pictures),
+                                 tuple(floor_patches), fused)
 
     def _nearest_same_class(self, pool: list[MapObject], class_id: int, centroid_w: F64) -> MapObject | None:
         """The nearest mapped object of the class within `ltda_threshold_m` (lines 3-6) that may take a candidate

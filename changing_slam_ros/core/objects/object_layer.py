@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from changing_slam_ros.core.dynamic.dynamic_objects import ObjectState
+from changing_slam_ros.core.map.floor_plane import FloorEstimate
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.objects.long_term_association import (
@@ -36,6 +37,7 @@ from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig
 from changing_slam_ros.core.objects.object_box_completion import gravity_up
 from changing_slam_ros.core.objects.object_map_merge import join, moved_object, remap_point_ids, same_object
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
+from changing_slam_ros.core.objects.floor_check import is_floor_patch, scans_floor
 from changing_slam_ros.core.objects.picture_check import is_picture, plane_extent_m
 from changing_slam_ros.core.objects.point_flags import flip_labelled, keep_enough_active, settle_shared
 from changing_slam_ros.core.geometry.se3 import invert
@@ -192,6 +194,7 @@ class _MapObjects:
     planes: list[Plane] = field(default_factory=list)  # the room's large planes (`object_point_weights`)
     room_planes: list[Plane] = field(default_factory=list)  # those spanning a room's size (`picture_check.walls`)
     keyframes_since_planes: int = -1  # keyframes since the planes were fitted (-1: never)
+    floor: FloorEstimate | None = None  # the floor in the keyframes' depth scans (`floor_check`), with the planes
     thumbnails: dict[int, U8] = field(default_factory=dict)  # keyframe id -> (72, 96, 3) image its objects name
     places: list[tuple[int, F64]] = field(default_factory=list)  # (class, centroid (3,)) of recent candidates
 
@@ -365,13 +368,13 @@ class ObjectLayer:
         walls_up = up if up is not None else -kf.T_world_cam[:3, 1]
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
                                       detected_boxes=flagged, up_w=up, planes=mo.room_planes,
-                                      walls_up_w=walls_up)  # type: ignore[arg-type]
+                                      walls_up_w=walls_up, floor=mo.floor)  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
         mo.places = (mo.places + [(c.class_id, c.centroid_w) for c, _ in cands])[-MAX_PLACES:]
-        n_freed = 0
         if self._reweight(mo, slam_map, kf.id):
-            refit_up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])
-            n_freed = self._drop_pictures(mo, slam_map, refit_up if refit_up is not None else walls_up)
+            up = gravity_up([p.normal for p in mo.planes], -kf.T_world_cam[:3, 1])
+        # every keyframe: an object grows by merges between plane fits, and the last fit may come before the end
+        n_freed = self._drop_pictures(mo, slam_map, up if up is not None else walls_up)
         apply_to_point_store(slam_map.points, [c for c, _ in cands], res)
         settle_shared(mo.lta.objects, slam_map.points, res)
         flip_labelled(mo.lta.objects, slam_map.points, was_active, res.fused.values())
@@ -443,6 +446,8 @@ class ObjectLayer:
                                              cfg.structure_plane_iterations, cfg.structure_plane_max_points, seed=kf_id)
             mo.room_planes = [p for p in mo.planes if plane_extent_m(p, pts.positions[:n][static],
                                                                       cfg.structure_plane_dist_m) >= cfg.wall_min_extent_m]
+            if cfg.floor_patch_min_fraction > 0.0:
+                mo.floor = scans_floor(slam_map.keyframes.values(), seed=kf_id)
             mo.keyframes_since_planes = 0
             refit = True
         else:
@@ -463,12 +468,13 @@ class ObjectLayer:
             del mo.thumbnails[k]
 
     def _drop_pictures(self, mo: _MapObjects, slam_map: SlamMap, up_w: F64 | None) -> int:
-        """Objects mapped before the walls were known that turn out to be pictures (`picture_check`) leave the
-        object map; their map points become plain static points again (unlabelled, active): a poster is wall.
-        Returns how many map points were freed."""
+        """Objects mapped before the walls or the floor were known that turn out to be pictures (`picture_check`)
+        or floor patches (`floor_check`) leave the object map; their map points become plain static points again
+        (unlabelled, active): a poster is wall, a patch of floor is floor. Returns how many map points were freed."""
         cfg = self.config.association
         pictures = [oid for oid, obj in mo.lta.objects.items()
-                    if is_picture(obj.class_id, obj.points_w, mo.room_planes, up_w, cfg)]
+                    if is_picture(obj.class_id, obj.points_w, mo.room_planes, up_w, cfg)
+                    or is_floor_patch(obj.class_id, obj.points_w, mo.floor, cfg)]
         pts = slam_map.points
         n = pts.size
         freed = 0

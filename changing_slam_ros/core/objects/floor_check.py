@@ -1,0 +1,65 @@
+"""Floor patches: a detection whose points lie mostly on the floor is the floor, not an object (ours).
+
+A detection box holds its object and what lies around it. For a camera at robot height the floor fills the lower
+part of most boxes, and the depth band (`box_depth`) keeps the floor at the object's foot. Where the object itself
+gave few points (a thin chair, a picture's box reaching down to the floor, a false detection on floor texture),
+the floor is most of what is left, and its mean lies on the floor, up to a metre from anything real. A real
+chair, plant or suitcase stands up from the floor: most of its points lie above it.
+
+The floor comes from the keyframes' depth scans (the occupancy grid's samples, `keyframe_grid`), found by
+`floor_plane.estimate_floor` with the cameras' up as the hint; the static map points seldom hold it (the floor is
+seen at a grazing angle and has little texture). A candidate of a class outside `flat_classes` (a book, a phone, a
+laptop may lie flat on the floor) with at least `floor_patch_min_fraction` of its points within
+`floor_patch_dist_m` of the floor is a floor patch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import numpy.typing as npt
+
+from changing_slam_ros.core.map.floor_plane import FloorEstimate, camera_up_hint, estimate_floor
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+
+F64 = npt.NDArray[np.float64]
+FLOOR_INLIER_M = 0.03  # the occupancy grid's `floor_inlier_m`: the floor plane's RANSAC inlier distance
+FLOOR_MIN_FRACTION = 0.01  # the occupancy grid's `floor_min_fraction`
+
+
+def scans_floor(keyframes: Iterable[Keyframe], seed: int = 0) -> FloorEstimate | None:
+    """The floor under the depth scans of `keyframes` (map frame); None without scans or where no plane holds the
+    floor (`estimate_floor` falls back to the lowest points, which is no floor to test against)."""
+    pts, poses = [], []
+    for kf in keyframes:
+        scan = kf.grid_scan
+        if scan is None or not len(scan):
+            continue
+        keep = ~np.asarray(scan.dynamic, bool)
+        p = np.asarray(scan.points_cam, np.float64)[keep]
+        pts.append(p @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3])
+        poses.append(kf.T_world_cam)
+    if not pts:
+        return None
+    floor = estimate_floor(np.vstack(pts), camera_up_hint(np.array(poses)), FLOOR_INLIER_M, FLOOR_MIN_FRACTION,
+                           seed=seed)
+    return floor if floor is not None and floor.n_support > 0 else None
+
+
+def floor_fraction(points_w: F64, floor: FloorEstimate, dist_m: float) -> float:
+    """The fraction of `points_w` (N, 3, map frame) within `dist_m` of the floor plane; 0 without points."""
+    pts = np.asarray(points_w, np.float64).reshape(-1, 3)
+    if len(pts) == 0:
+        return 0.0
+    up = floor.up / np.linalg.norm(floor.up)
+    return float(np.mean(np.abs(pts @ up - floor.height) < dist_m))
+
+
+def is_floor_patch(class_id: int, points_w: F64, floor: FloorEstimate | None, config: ObjectMapConfig) -> bool:
+    """True when a detection of `class_id` with points `points_w` (N, 3, map frame) is a patch of `floor` (see the
+    module doc); never without a floor, for `config.flat_classes`, or with the check off."""
+    if floor is None or config.floor_patch_min_fraction <= 0.0 or int(class_id) in config.flat_classes:
+        return False
+    return floor_fraction(points_w, floor, config.floor_patch_dist_m) >= config.floor_patch_min_fraction
