@@ -23,28 +23,36 @@ import numpy.typing as npt
 from changing_slam_ros.core.map.floor_plane import FloorEstimate, camera_up_hint, estimate_floor
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.objects.map_object import ObjectMapConfig
+from changing_slam_ros.core.objects.object_point_weights import Plane
 
 F64 = npt.NDArray[np.float64]
 FLOOR_INLIER_M = 0.03  # the occupancy grid's `floor_inlier_m`: the floor plane's RANSAC inlier distance
 FLOOR_MIN_FRACTION = 0.01  # the occupancy grid's `floor_min_fraction`
+MAX_FLOOR_POINTS = 8000
 
 
 def scans_floor(keyframes: Iterable[Keyframe], seed: int = 0) -> FloorEstimate | None:
     """The floor under the depth scans of `keyframes` (map frame); None without scans or where no plane holds the
     floor (`estimate_floor` falls back to the lowest points, which is no floor to test against)."""
+    scanned = [kf for kf in keyframes if kf.grid_scan is not None and len(kf.grid_scan)]
+    if not scanned:
+        return None
+    # a seeded random share of each scan, at most MAX_FLOOR_POINTS in all: the fit's cost stays flat as the map grows
+    share = min(1.0, MAX_FLOOR_POINTS / sum(len(kf.grid_scan) for kf in scanned))  # type: ignore[arg-type]
+    rng = np.random.default_rng(seed)
     pts, poses = [], []
-    for kf in keyframes:
+    for kf in scanned:
         scan = kf.grid_scan
-        if scan is None or not len(scan):
-            continue
-        keep = ~np.asarray(scan.dynamic, bool)
-        p = np.asarray(scan.points_cam, np.float64)[keep]
+        assert scan is not None
+        pick = rng.random(len(scan)) < share
+        pick &= ~np.asarray(scan.dynamic, bool)
+        p = np.asarray(scan.points_cam, np.float64)[pick]
         pts.append(p @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3])
         poses.append(kf.T_world_cam)
-    if not pts:
+    if not any(len(p) for p in pts):
         return None
     floor = estimate_floor(np.vstack(pts), camera_up_hint(np.array(poses)), FLOOR_INLIER_M, FLOOR_MIN_FRACTION,
-                           seed=seed)
+                           iterations=100, seed=seed)
     return floor if floor is not None and floor.n_support > 0 else None
 
 
@@ -63,3 +71,9 @@ def is_floor_patch(class_id: int, points_w: F64, floor: FloorEstimate | None, co
     if floor is None or config.floor_patch_min_fraction <= 0.0 or int(class_id) in config.flat_classes:
         return False
     return floor_fraction(points_w, floor, config.floor_patch_dist_m) >= config.floor_patch_min_fraction
+
+
+def floor_as_plane(floor: FloorEstimate) -> Plane:
+    """The floor as one of the room's structure planes (`object_point_weights.Plane`: up . x - height = 0)."""
+    up = floor.up / np.linalg.norm(floor.up)
+    return Plane(up, -float(floor.height))
