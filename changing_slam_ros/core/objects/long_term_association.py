@@ -24,7 +24,7 @@ from changing_slam_ros.core.map.floor_plane import FloorEstimate
 from changing_slam_ros.core.objects.floor_check import is_floor_patch
 from changing_slam_ros.core.objects.map_object import BoxXyxy, MapObject, ObjectMapConfig
 from changing_slam_ros.core.objects.object_fusion import fuse_duplicates
-from changing_slam_ros.core.objects.object_point_weights import Plane
+from changing_slam_ros.core.objects.object_point_weights import Plane, point_weights
 from changing_slam_ros.core.objects.object_visibility import Visibility, check_visibility
 from changing_slam_ros.core.objects.persistence_filter import BeliefUpdate, likelihood_seen, update_missed, update_seen
 from changing_slam_ros.core.objects.picture_check import is_picture
@@ -170,7 +170,8 @@ class LongTermAssociation:
                          camera: CameraIntrinsics, depth_m: npt.NDArray[np.floating] | None,
                          detected_boxes: Sequence[tuple[int, BoxXyxy]] = (),
                          up_w: F64 | None = None, planes: Sequence[Plane] = (),
-                         walls_up_w: F64 | None = None, floor: FloorEstimate | None = None) -> AssociationResult:
+                         walls_up_w: F64 | None = None, floor: FloorEstimate | None = None,
+                         structure: Sequence[Plane] = ()) -> AssociationResult:
         """Associate this keyframe's candidates, update beliefs, run the vicinity search.
 
         T_world_cam (4, 4) optical-frame pose of the keyframe; depth_m (H, W) its depth image in metres
@@ -179,11 +180,15 @@ class LongTermAssociation:
         `up_w` (3,): the map's up direction, recorded with each whole view (`MapObject.add_view`; box completion),
         `planes`: the room's large planes (map frame) for the picture check, whose walls are told from floors by
         `walls_up_w` (3,) (default `up_w`; the layer passes the camera's up when the floor is unknown). `floor`: the
-        floor plane (map frame) for the floor-patch check (`floor_check.py`), None to skip it.
+        floor plane (map frame) for the floor-patch check (`floor_check.py`), None to skip it. `structure`: the
+        planes whose points a candidate's centroid leaves out, as the mapped objects' centroids do
+        (`object_point_weights.point_weights`: the room's large planes and the floor).
 
         Steps (Algorithm 1 line numbers):
 
-        1. the candidate's centroid is the mean of its points (line 2);
+        1. the candidate's centroid is the mean of its points (line 2), weighted as the mapped objects' centroids
+           are (`object_point_weights`: the points on the `structure` planes left out, every occupied voxel
+           counted once; with those rules off, the plain mean);
         2. among mapped objects of the same class (line 4) the nearest centroid is taken; closer than
            `ltda_threshold_m` (line 6) the candidate is merged into it, points combined (line 7);
            the paper loops over every mapped object and could merge one candidate into several; we merge into
@@ -236,7 +241,8 @@ class LongTermAssociation:
                 floor_patches.append(index)
                 assignments.append(-1)
                 continue
-            centroid = pts.mean(axis=0)  # line 2
+            w = point_weights(pts, structure, None, cfg)
+            centroid = (w @ pts) / w.sum()  # line 2
             target = self._nearest_same_class(existing, cand.class_id, centroid)  # lines 3-6
             if cand.truncated and not cfg.truncated_views:
                 assignments.append(-1)

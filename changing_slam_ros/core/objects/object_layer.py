@@ -37,7 +37,7 @@ from changing_slam_ros.core.objects.map_object import MapObject, ObjectMapConfig
 from changing_slam_ros.core.objects.object_box_completion import gravity_up
 from changing_slam_ros.core.objects.object_map_merge import join, moved_object, remap_point_ids, same_object
 from changing_slam_ros.core.objects.object_point_weights import Plane, fit_structure_planes, reweight_objects
-from changing_slam_ros.core.objects.floor_check import is_floor_patch, scans_floor
+from changing_slam_ros.core.objects.floor_check import floor_as_plane, is_floor_patch, scans_floor
 from changing_slam_ros.core.objects.picture_check import is_picture, plane_extent_m
 from changing_slam_ros.core.objects.point_flags import flip_labelled, keep_enough_active, settle_shared
 from changing_slam_ros.core.geometry.se3 import invert
@@ -368,7 +368,8 @@ class ObjectLayer:
         walls_up = up if up is not None else -kf.T_world_cam[:3, 1]
         res = mo.lta.process_keyframe(kf.id, [c for c, _ in cands], kf.T_world_cam, kf.camera, depth_m,
                                       detected_boxes=flagged, up_w=up, planes=mo.room_planes,
-                                      walls_up_w=walls_up, floor=mo.floor)  # type: ignore[arg-type]
+                                      walls_up_w=walls_up, floor=mo.floor,
+                                      structure=self._structure(mo))  # type: ignore[arg-type]
         self._anchor(mo, kf, cands, res)
         mo.places = (mo.places + [(c.class_id, c.centroid_w) for c, _ in cands])[-MAX_PLACES:]
         if self._reweight(mo, slam_map, kf.id):
@@ -452,8 +453,14 @@ class ObjectLayer:
             refit = True
         else:
             mo.keyframes_since_planes += 1
-        reweight_objects(list(mo.lta.objects.values()), mo.planes, cfg)
+        reweight_objects(list(mo.lta.objects.values()), self._structure(mo), cfg)
         return refit
+
+    @staticmethod
+    def _structure(mo: _MapObjects) -> list[Plane]:
+        """The planes whose points are no object's in centroids and boxes: the room's large planes and the floor
+        (seldom among them: the static map points hold little of it)."""
+        return mo.planes + ([floor_as_plane(mo.floor)] if mo.floor is not None else [])
 
     @staticmethod
     def _keep_thumbnail(mo: _MapObjects, kf_id: int, thumbnail: U8 | None) -> None:

@@ -10,7 +10,8 @@ from changing_slam_ros.core.map.floor_plane import FloorEstimate
 from changing_slam_ros.core.map.grid_scan import GridScan
 from changing_slam_ros.core.map.keyframe import Keyframe
 from changing_slam_ros.core.map.slam_map import SlamMap
-from changing_slam_ros.core.objects.floor_check import floor_fraction, is_floor_patch, scans_floor
+from changing_slam_ros.core.objects.floor_check import floor_as_plane, floor_fraction, is_floor_patch, scans_floor
+from changing_slam_ros.core.objects.long_term_association import LongTermAssociation, ObjectCandidate
 from changing_slam_ros.core.objects.map_object import ObjectMapConfig
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerConfig
 
@@ -99,3 +100,24 @@ def test_the_object_layer_drops_a_detection_on_the_floor_and_keeps_the_suitcase_
     # now the patch is refused at once, and the suitcase is seen again
     assert second.association.floor_patches == (0,)
     assert sorted(o.class_id for o in layer.objects(m.id)) == [SUITCASE]
+
+
+def test_a_candidate_with_floor_in_its_box_joins_the_object_its_own_points_lie_on() -> None:
+    """The candidate's centroid leaves the structure planes out, as the mapped object's does: a second view whose box
+    holds a metre of floor in front of the chair merges into the chair instead of making a second one."""
+    rng = np.random.default_rng(1)
+    chair = _chair(rng)[:180]  # seat, back and legs: no floor
+    floor_before = np.c_[rng.uniform(-0.5, 0.5, 220), np.full(220, FLOOR_Y_M), rng.uniform(1.0, 2.0, 220)]
+    second = np.vstack([chair, floor_before])
+    assert np.linalg.norm(second.mean(axis=0) - chair.mean(axis=0)) > 0.5  # beyond the association gate
+    outcomes = []
+    for structure in ([], [floor_as_plane(FLOOR)]):
+        lta = LongTermAssociation(ObjectMapConfig(n_keyframes_unseen=5))
+        ids = np.arange(len(chair), dtype=np.int64)
+        lta.process_keyframe(0, [ObjectCandidate(PLANT, (100.0, 60.0, 200.0, 200.0), ids, chair)], np.eye(4), CAM,
+                             None, structure=structure)
+        ids2 = np.arange(1000, 1000 + len(second), dtype=np.int64)
+        lta.process_keyframe(1, [ObjectCandidate(PLANT, (100.0, 60.0, 200.0, 236.0), ids2, second)], np.eye(4), CAM,
+                             None, structure=structure)
+        outcomes.append(len(lta.objects))
+    assert outcomes == [2, 1]

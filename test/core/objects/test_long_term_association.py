@@ -18,9 +18,10 @@ from changing_slam_ros.core.objects.object_visibility import Visibility
 from changing_slam_ros.core.objects.persistence_filter import update_missed, update_seen
 
 CAM = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
-# cut views skipped (`truncated_views` off): Algorithm 1 as the paper gives it; CFG_CUT turns them on (the default)
+# cut views skipped (`truncated_views` off) and centroids plain means (`centroid_voxel_m` 0): Algorithm 1 as the paper
+# gives it; CFG_CUT turns cut views on (the default)
 CFG = ObjectMapConfig(ltda_threshold_m=0.5, n_keyframes_unseen=5, belief_threshold=0.6, p_detect=0.8,
-                      p_false=0.1, min_points=5, min_projected_area_px=40.0, truncated_views=False)
+                      p_false=0.1, min_points=5, min_projected_area_px=40.0, truncated_views=False, centroid_voxel_m=0.0)
 LOOK_Z = np.eye(4)  # camera at the origin looking down world +z
 LOOK_AWAY = np.diag([-1.0, 1.0, -1.0, 1.0])  # looking down -z
 WALL = np.full((CAM.height, CAM.width), 5.0, np.float32)
@@ -96,7 +97,7 @@ def test_belief_is_updated_only_after_n_keyframes_unseen_and_points_switch_at_th
 
 
 def test_expected_but_missed_object_loses_belief_once_per_n_keyframes_and_turns_inactive() -> None:
-    cfg = ObjectMapConfig(n_keyframes_unseen=2, belief_threshold=0.6, min_projected_area_px=40.0)
+    cfg = ObjectMapConfig(n_keyframes_unseen=2, belief_threshold=0.6, min_projected_area_px=40.0, centroid_voxel_m=0.0)
     lta = LongTermAssociation(cfg)
     lta.process_keyframe(0, [_cand([0.0, 0.0, 2.5], 100)], LOOK_Z, CAM, WALL)
     lta.process_keyframe(3, [], LOOK_AWAY, CAM, WALL)
