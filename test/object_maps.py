@@ -1,12 +1,30 @@
-"""Constructed object maps for the change report's tests: one object of each kind of change."""
+"""Constructed object maps for the object layer's tests: a keyframe over static points, one object of each kind of
+change."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from changing_slam_ros.core.geometry.camera import CameraIntrinsics
+from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.map.slam_map import SlamMap
 from changing_slam_ros.core.objects.map_object import MapObject
 
 CHAIR, PLANT, TV, SUITCASE, CUP, BOTTLE = 56, 58, 62, 28, 41, 39
+
+
+def static_keyframe(kf_id: int, points: np.ndarray, camera: CameraIntrinsics) -> tuple[SlamMap, Keyframe]:
+    """A map whose one keyframe (id `kf_id`, at the origin: camera frame = map frame) sees `points` (N, 3) as static
+    map points, each at its projection; the keyframe is not yet added to the map."""
+    n = len(points)
+    px = np.c_[camera.fx * points[:, 0] / points[:, 2] + camera.cx, camera.fy * points[:, 1] / points[:, 2] + camera.cy]
+    T = np.eye(4)
+    kf = Keyframe(kf_id, kf_id * 10**9, T, camera, px.astype(np.float32), np.zeros(n, np.int8),
+                  np.zeros((n, 32), np.uint8), points[:, 2].astype(np.float32), np.full(n, -1, np.int64))
+    m = SlamMap(0)
+    kf.point_ids[:] = m.points.add(points, kf.descriptors, kf_id, np.arange(n), T[:3, 3], np.zeros(n, np.int64),
+                                   np.ones(8))
+    return m, kf
 
 
 def map_object(oid: int, class_id: int, centre: list[float], belief: float, first_kf: int = 0) -> MapObject:

@@ -14,6 +14,7 @@ from changing_slam_ros.core.objects.floor_check import floor_as_plane, floor_fra
 from changing_slam_ros.core.objects.long_term_association import LongTermAssociation, ObjectCandidate
 from changing_slam_ros.core.objects.map_object import ObjectMapConfig
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerConfig
+from object_maps import static_keyframe
 
 CAM = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
 PLANT, SUITCASE, BOOK = 58, 28, 73
@@ -54,14 +55,7 @@ def _room(kf_id: int) -> tuple[SlamMap, Keyframe, np.ndarray]:
     scan of wall and floor (what the occupancy grid keeps)."""
     rng = np.random.default_rng(kf_id)
     wall = np.c_[rng.uniform(-2.0, 2.0, 400), rng.uniform(-1.0, 0.95, 400), np.full(400, WALL_Z_M)]
-    n = len(wall)
-    px = np.c_[CAM.fx * wall[:, 0] / wall[:, 2] + CAM.cx, CAM.fy * wall[:, 1] / wall[:, 2] + CAM.cy]
-    T = np.eye(4)
-    kf = Keyframe(kf_id, kf_id * 10**9, T, CAM, px.astype(np.float32), np.zeros(n, np.int8),
-                  np.zeros((n, 32), np.uint8), wall[:, 2].astype(np.float32), np.full(n, -1, np.int64))
-    m = SlamMap(0)
-    kf.point_ids[:] = m.points.add(wall, kf.descriptors, kf_id, np.arange(n), T[:3, 3], np.zeros(n, np.int64),
-                                   np.ones(8))
+    m, kf = static_keyframe(kf_id, wall, CAM)
     depth = np.full((240, 320), WALL_Z_M, np.float32)
     depth[FLOOR_ROWS:, :] = FLOOR_Y_M * CAM.fy / (np.arange(FLOOR_ROWS, 240)[:, None] - CAM.cy)
     x0, y0, x1, y1 = (int(v) for v in SUITCASE_BOX)

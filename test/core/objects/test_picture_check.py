@@ -12,6 +12,7 @@ from changing_slam_ros.core.objects.map_object import ObjectMapConfig
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerConfig
 from changing_slam_ros.core.objects.object_point_weights import Plane
 from changing_slam_ros.core.objects.picture_check import is_picture, wall_fraction, walls
+from object_maps import static_keyframe
 
 CAM = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
 PLANT, SUITCASE, CLOCK = 58, 28, 74
@@ -28,15 +29,7 @@ def _room_keyframe(kf_id: int, box_depth_m: dict[int, float]) -> tuple[SlamMap, 
     rng = np.random.default_rng(kf_id)
     wall = np.c_[rng.uniform(-1.5, 1.5, 300), rng.uniform(-1.0, 0.9, 300), np.full(300, WALL_Z_M)]
     floor = np.c_[rng.uniform(-1.5, 1.5, 300), np.full(300, FLOOR_Y_M), rng.uniform(1.0, 3.0, 300)]
-    pts = np.vstack([wall, floor])
-    n = len(pts)
-    px = np.c_[CAM.fx * pts[:, 0] / pts[:, 2] + CAM.cx, CAM.fy * pts[:, 1] / pts[:, 2] + CAM.cy]
-    T = np.eye(4)
-    kf = Keyframe(kf_id, kf_id * 10**9, T, CAM, px.astype(np.float32), np.zeros(n, np.int8),
-                  np.zeros((n, 32), np.uint8), pts[:, 2].astype(np.float32), np.full(n, -1, np.int64))
-    m = SlamMap(0)
-    kf.point_ids[:] = m.points.add(pts, kf.descriptors, kf_id, np.arange(n), T[:3, 3], np.zeros(n, np.int64),
-                                   np.ones(8))
+    m, kf = static_keyframe(kf_id, np.vstack([wall, floor]), CAM)
     m.add_keyframe(kf)
     depth = np.full((240, 320), WALL_Z_M, np.float32)
     depth[180:, :] = FLOOR_Y_M * CAM.fy / (np.arange(180, 240)[:, None] - CAM.cy)  # the floor's rows
