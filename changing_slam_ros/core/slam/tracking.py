@@ -98,12 +98,14 @@ class Tracker:
         self.last_reloc_index = -(10**9)
         self.n_lost = 0
         self.n_vote_aimed = 0  # frames tracked from a prediction re-aimed by the displacement vote
+        self.n_jumps_refused = 0  # frame-to-frame poses refused for leaving the prediction (`motion_max_jump_m`)
         self.next_kf_id = 0
         self.mapping_idle = True  # False while local mapping has keyframes to map (real-time graph: set per frame)
         self.last_good_pose: F64 = np.eye(4)
         self.last_good_stamp_ns: int | None = None  # of `last_good_pose`; None before the first one in this map
         self.n_gated = 0  # poses refused by the motion gate (tracked and relocalised)
         self._T_wc_pred: F64 = np.eye(4)  # the motion model's prediction for the frame being tracked
+        self._predicted = False  # whether a velocity made that prediction (not only the last pose)
         self.gate = MotionGate(self.cfg.motion_gate)
         self.still = StillCamera(self.cfg.still_camera)
         self.n_refused = 0  # frames in a row refused by the gate since the last accepted one
@@ -177,7 +179,7 @@ class Tracker:
             ok = self._track_frame_to_frame(frame, gap)
             if ok:
                 ok = self._track_local_map(frame, self.cfg.min_local_inliers)
-            if ok and not self._plausible(frame):
+            if ok and (not self._plausible(frame) or self._jumped(frame)):
                 ok = self._track_from_prediction(frame)
                 if not ok and self.n_refused < self.cfg.motion_gate.max_refused_frames:
                     return self._refuse(frame)
@@ -248,6 +250,7 @@ class Tracker:
         assert last is not None and last.T_world_cam is not None
         T_wc_pred = last.T_world_cam @ self._motion(frame) if (self.velocity is not None and not gap) else last.T_world_cam
         self._T_wc_pred = T_wc_pred
+        self._predicted = self.velocity is not None and not gap
         pts = self.map.points
         ids = last.point_ids[last.tracked_mask()]
         ids = ids[pts.usable()[ids]] if len(ids) else ids
@@ -271,6 +274,17 @@ class Tracker:
         if n < 15:
             return False
         return self._optimise(frame, invert(last.T_world_cam)) >= 10
+
+    def _jumped(self, frame: Frame, count: bool = True) -> bool:
+        """True when a velocity predicted this frame's pose and its camera centre lies more than
+        `motion_max_jump_m` from the prediction's: a shifted copy of a repeated pattern, or a mover that pulled the
+        pose along, not a motion. Such a pose is refused as the motion gate refuses one."""
+        if not self._predicted or self.cfg.motion_max_jump_m <= 0.0 or frame.T_world_cam is None:
+            return False
+        if np.linalg.norm(frame.T_world_cam[:3, 3] - self._T_wc_pred[:3, 3]) <= self.cfg.motion_max_jump_m:
+            return False
+        self.n_jumps_refused += int(count)
+        return True
 
     def _track_from_vote(self, frame: Frame, T_cw_pred: F64, ids: npt.NDArray[np.int64], radius: float) -> bool:
         """The motion-model search again from a prediction re-aimed by the displacement vote (`rotation_vote`)."""
@@ -459,7 +473,7 @@ class Tracker:
         frame.T_world_cam = self._T_wc_pred.copy()
         if not self._track_local_map(frame, self.cfg.min_local_inliers):
             return False
-        return self._plausible(frame, count=False)
+        return self._plausible(frame, count=False) and not self._jumped(frame, count=False)
 
     def _refuse(self, frame: Frame) -> TrackResult:
         """A frame whose pose the gate refused gets none; tracking stays OK and the next frame is tracked from
