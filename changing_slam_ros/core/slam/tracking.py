@@ -98,7 +98,7 @@ class Tracker:
         self.last_reloc_index = -(10**9)
         self.n_lost = 0
         self.n_vote_aimed = 0  # frames tracked from a prediction re-aimed by the displacement vote
-        self.n_jumps_refused = 0  # frame-to-frame poses refused for leaving the prediction (`motion_max_jump_m`)
+        self.n_jumps_refused = 0  # tracked poses refused for leaving the prediction (`motion_max_jump_m`)
         self.next_kf_id = 0
         self.mapping_idle = True  # False while local mapping has keyframes to map (real-time graph: set per frame)
         self.last_good_pose: F64 = np.eye(4)
