@@ -22,12 +22,13 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.map.floor_plane import FloorEstimate, camera_up_hint, estimate_floor
 from changing_slam_ros.core.map.keyframe import Keyframe
+from changing_slam_ros.core.map.occupancy_grid import GridConfig
 from changing_slam_ros.core.objects.map_object import ObjectMapConfig
 from changing_slam_ros.core.objects.object_point_weights import Plane
 
 F64 = npt.NDArray[np.float64]
-FLOOR_INLIER_M = 0.03  # the occupancy grid's `floor_inlier_m`: the floor plane's RANSAC inlier distance
-FLOOR_MIN_FRACTION = 0.01  # the occupancy grid's `floor_min_fraction`
+FLOOR_INLIER_M = GridConfig.floor_inlier_m  # the floor the occupancy grid stands on, fitted alike
+FLOOR_MIN_FRACTION = GridConfig.floor_min_fraction
 MAX_FLOOR_POINTS = 8000
 
 
@@ -61,8 +62,7 @@ def floor_fraction(points_w: F64, floor: FloorEstimate, dist_m: float) -> float:
     pts = np.asarray(points_w, np.float64).reshape(-1, 3)
     if len(pts) == 0:
         return 0.0
-    up = floor.up / np.linalg.norm(floor.up)
-    return float(np.mean(np.abs(pts @ up - floor.height) < dist_m))
+    return float(np.mean(floor_as_plane(floor).distance(pts) < dist_m))
 
 
 def is_floor_patch(class_id: int, points_w: F64, floor: FloorEstimate | None, config: ObjectMapConfig) -> bool:
