@@ -134,7 +134,18 @@ class ReplicaInputs:
             self._drain()
 
     def _check_wait(self) -> None:
+        """The held ack's deadline, and the resend of its keyframe while no update came: a map owner that
+        restarted may ask for the snapshot before tracking's publisher matched its new subscription, and the
+        keyframe sent after the snapshot is then lost (the killed owner's subscription still counts until DDS
+        notices it is gone). Local mapping and loop closing drop a keyframe they have already."""
         a = self._awaiting
+        now = time.monotonic()
+        if a is not None and not a["update"] and now >= a["resend_at"] and now <= a["deadline"]:
+            packet = self.split.unacked.get(a["kf"]) if self.split is not None else None
+            if packet is not None:
+                self._send_packet(packet, resend=True)
+                self.keyframes_resent += 1
+            a["resend_at"] = now + self.params["map_update_resend_s"]
         if a is not None and time.monotonic() > a["deadline"]:
             self.get_logger().warning(f"tracking: no map update / loop verdict for keyframe {a['kf']} after "
                                       f"{self.params['map_update_timeout_s']} s; going on")  # fmt: skip

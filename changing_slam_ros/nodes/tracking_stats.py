@@ -46,6 +46,7 @@ class TrackingStats:
             "map_updates_applied": self.updates_applied, "map_updates_rejected": self.updates_rejected,
             "keyframes_without_map_update": len(self._kf_sent_s) if self.split is not None else None,
             "map_update_waits_timed_out": self.map_update_waits_timed_out,
+            "keyframes_resent": self.keyframes_resent,
             "map_update_latency_ms_median": self.update_latency_ms.median(),
             "loops_closed_split": self.split.n_loops if self.split is not None else None,
             "maps_merged_split": self.split.n_merges if self.split is not None else None,

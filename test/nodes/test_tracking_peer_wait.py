@@ -32,11 +32,12 @@ from changing_slam_ros.nodes.tracking_node import TrackingNode  # noqa: E402
 from helpers import FR1_XYZ_10, require, spin_until  # noqa: E402
 
 
-def _graph(ros_context, peers_wait_s: float):  # noqa: ANN001, ANN202
+def _graph(ros_context, peers_wait_s: float, resend_s: float = 5.0):  # noqa: ANN001, ANN202
     tracking = TrackingNode(context=ros_context, parameter_overrides=[
         Parameter("config", value="tum_fr1"), Parameter("intrinsics_from", value="config"),
         Parameter("wait_for_map_updates", value=True), Parameter("peers_wait_s", value=peers_wait_s),
         Parameter("diagnostics_period_s", value=0.0), Parameter("debug_image", value=False),
+        Parameter("map_update_resend_s", value=resend_s),
     ])  # fmt: skip
     probe = Node("probe", context=ros_context)
     poses: list[PoseStamped] = []
@@ -72,3 +73,17 @@ def test_without_peers_tracking_goes_on_after_the_wait(ros_context):
     t0 = time.monotonic()
     assert spin_until(executor, lambda: bool(poses), 10.0)
     assert time.monotonic() - t0 > 0.9  # not before the wait ran out
+
+
+def test_a_keyframe_without_its_map_update_is_sent_again(ros_context):
+    # a restarted local_mapping can miss the keyframe tracking sends after its snapshot: while the held ack waits,
+    # the keyframe goes out again every map_update_resend_s (the receivers drop one they have)
+    tracking, probe, executor, _poses = _graph(ros_context, peers_wait_s=60.0, resend_s=0.3)
+    keyframes: list[KeyframeMsg] = []
+    for _ in range(2):
+        probe.create_subscription(KeyframeMsg, "/tracking/keyframes", keyframes.append, QoSProfile(depth=100))
+    probe.create_publisher(MapUpdate, "/local_mapping/map_updates", 10)
+    probe.create_publisher(LoopCorrection, "/loop_closing/loop_corrections", 10)
+    assert spin_until(executor, lambda: len(keyframes) >= 6, 10.0)  # 3 sends, each to both subscriptions
+    assert {k.id for k in keyframes} == {0} and tracking.keyframes_resent >= 2
+    assert tracking.map_update_waits_timed_out == 0
