@@ -109,6 +109,12 @@ class DynamicConfig:
       filling the first view then stops initialisation, and one whose box is cut by the image border gets
       no EKF update and stays filtered while in view. Used always, they cost slow_mover 0.11 -> 0.16 cm.
       Needs `ekf_doc`. `min_kept_keypoints: 0` and `keep_undecided: false` = the paper.
+    - `undecided_view_fraction`: an undecided object whose box covers at least this fraction of the image is used
+      too (0: off, the default). A detection that fills most of the view is seldom a thing that moves (a wall
+      photo called a clock over two thirds of the image lost the camera of a randomised changing room, 114 cm;
+      0.5 brought it to 3.6 cm), and leaving it out leaves tracking the edges of the view, where the map may have
+      nothing; the class-agnostic cues still drop its keypoints that move. Off by default because a close person
+      the detector calls a chair is such a box too (results.md: randomised dynamic tuning seed 2, 54 -> 66 cm).
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
     - `free_space_check` / `free_space_gap_frames`: keypoints that lie where the frame this many frames earlier
@@ -155,6 +161,7 @@ class DynamicConfig:
     fixed_class_ids: tuple[int, ...] = (59, 60, 61, 69, 71, 72)
     min_kept_keypoints: int = 300
     keep_undecided: bool = False
+    undecided_view_fraction: float = 0.0
     forget_moving_points: int = 0
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
@@ -177,6 +184,9 @@ class DynamicConfig:
             raise ConfigError(f"dynamic.forget_moving_points: expected >= 0 (0 = off), got {self.forget_moving_points}")
         if self.free_space_gap_frames < 1:
             raise ConfigError(f"dynamic.free_space_gap_frames: expected >= 1, got {self.free_space_gap_frames}")
+        if not 0.0 <= self.undecided_view_fraction <= 1.0:
+            raise ConfigError("dynamic.undecided_view_fraction: expected 0..1 (0: off), "
+                              f"got {self.undecided_view_fraction}")
         if self.segmentation_min_matches < 5:
             raise ConfigError(f"dynamic.segmentation_min_matches: expected >= 5, got {self.segmentation_min_matches}")
 
@@ -188,6 +198,10 @@ class DynamicConfig:
         if not self.ekf_doc:
             cfg = replace(cfg, min_updates=NEVER)
         return cfg
+
+
+def _box_area(box_xyxy: tuple[float, float, float, float]) -> float:
+    return max(box_xyxy[2] - box_xyxy[0], 0.0) * max(box_xyxy[3] - box_xyxy[1], 0.0)
 
 
 @dataclass(frozen=True)
@@ -317,8 +331,10 @@ class DynamicFilter:
                     moving &= ~spread_only
             keep &= ~moving
             short = int(np.count_nonzero(keep & (features.depths_m > 0))) < cfg.min_kept_keypoints
-            if cfg.detection_filtering and cfg.ekf_doc and (cfg.keep_undecided or short):
-                undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
+            if cfg.detection_filtering and cfg.ekf_doc:
+                view = float(rgbd.camera.width * rgbd.camera.height)
+                undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN and (
+                    cfg.keep_undecided or short or 0.0 < cfg.undecided_view_fraction * view <= _box_area(o.box_xyxy))]
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
         self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age, near)

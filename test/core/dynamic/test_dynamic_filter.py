@@ -111,6 +111,25 @@ def test_undecided_objects_are_used_when_too_few_other_keypoints_are_left() -> N
         assert res.keep[r["chair"]].all() == chair_kept and not res.keep[r["person"]].any()
 
 
+def test_an_undecided_object_filling_most_of_the_view_is_used() -> None:
+    """A "clock" box over 73 % of the image, on the wall at 4 m (a wall photo the detector named): with
+    `undecided_view_fraction` 0.5 its keypoints are used from the first frame, the person's never; the chair's
+    small box stays out until its EKF decides, unless the fraction is below its 8 %. Off (0, the default), the
+    clock's keypoints stay out too."""
+    rgbd, feats, r = _scene()
+    clock = Detection((20.0, 20.0, 300.0, 220.0), 74, 0.6)
+    in_clock = (feats.keypoints_px[:, 0] >= 22) & (feats.keypoints_px[:, 0] < 298) \
+        & (feats.keypoints_px[:, 1] >= 22) & (feats.keypoints_px[:, 1] < 218) & r["elsewhere"]  # fmt: skip
+    assert in_clock.sum() > 300
+    for fraction, clock_kept, chair_kept in ((0.5, True, False), (0.0, False, False), (0.05, True, True)):
+        cfg = DynamicConfig(min_kept_keypoints=0, undecided_view_fraction=fraction)
+        res = DynamicFilter(cfg).before_tracking(rgbd, feats, (*DETS, clock))
+        assert res.keep[in_clock].all() == clock_kept and not res.keep[in_clock].any() == (not clock_kept)
+        assert res.keep[r["chair"]].all() == chair_kept and not res.keep[r["person"]].any()
+    with pytest.raises(ConfigError, match="undecided_view_fraction"):
+        DynamicConfig(undecided_view_fraction=1.5)
+
+
 @pytest.mark.parametrize("method", ["edge_test", "correlation"])
 def test_segmentation_flags_a_group_that_moves_between_frames(method: str) -> None:
     """Static points in a room and a 40-point box moving 8 cm per frame; the camera moves too. The box hides
