@@ -133,7 +133,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         self.update_latency_ms = RecentValues()  # keyframe published -> its map update applied
         self._awaiting: dict[str, Any] | None = None  # wait_for_map_updates: what the held ack waits for
         self.map_update_waits_timed_out = 0  # held acks sent after map_update_timeout_s without update / verdict
-        self.keyframes_resent = 0  # awaited keyframes sent again after map_update_resend_s without their update
+        self.keyframes_resent = 0  # awaited keyframes sent again after a node's restart (`_check_wait`)
         self._kf_sent_s: dict[int, float] = {}
         self._relays_seen: set[int] = set()
         self._peers_since_s: float | None = None  # wait_for_map_updates: when frames began to wait for the peers
@@ -316,7 +316,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
         due = [] if first is None else [first]
         if self._awaiting is not None:
             due.append(self._awaiting["deadline"])
-            if not self._awaiting["update"]:
+            if not self._awaiting["update"] and "resend_at" in self._awaiting:  # after a restart (`_check_wait`)
                 due.append(self._awaiting["resend_at"])
         if self._peers_since_s is not None and not self._peers_matched:
             due.append(time.monotonic() + 0.05)  # poll the DDS matches (no event reports them)
@@ -458,8 +458,7 @@ class TrackingNode(DetectionInputs, ReplicaInputs, TrackingStats, QuietQosEvents
             if self.params["wait_for_map_updates"]:
                 self._awaiting = {"kf": packet.keyframe.id, "update": False, "verdict": False, "relay": False,
                                   "header": item.rgb_msg.header,
-                                  "deadline": time.monotonic() + self.params["map_update_timeout_s"],
-                                  "resend_at": time.monotonic() + self.params["map_update_resend_s"]}  # fmt: skip
+                                  "deadline": time.monotonic() + self.params["map_update_timeout_s"]}  # fmt: skip
             self._send_packet(packet)
         elif out.keyframe is not None and self.split is None:
             self.keyframe_pub.publish(keyframe_to_msg(out.keyframe, self.params["map_frame"]))

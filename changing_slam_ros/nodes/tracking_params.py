@@ -45,8 +45,9 @@ TRACKING_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("wait_for_map_updates", False, "split backend: acknowledge a keyframe frame only after its map update "
                                     "and loop verdict arrived (lossless graph)"),
     ("map_update_timeout_s", 30.0, "wait_for_map_updates: give up waiting after this long (warns)"),
-    ("map_update_resend_s", 5.0, "wait_for_map_updates: send the awaited keyframe again every this long while "
-                                 "its map update has not come (a restarted local_mapping may have missed it)"),
+    ("map_update_resend_s", 5.0, "wait_for_map_updates: after a restarted node took its map snapshot, "
+                                 "send the awaited keyframe again every this long until its map update comes "
+                                 "(the restarted node may have missed it)"),
     ("keyframe_subscribers", 2, "wait_for_map_updates: frames wait until ~/keyframes has this many subscriptions "
                                 "(local_mapping, loop_closing) and both send-back topics a publisher"),
     ("peers_wait_s", 60.0, "wait_for_map_updates: after this long without those matches, track anyway (warns)"),

@@ -58,6 +58,9 @@ class ReplicaInputs:
         for packet in self.split.resend():
             self._send_packet(packet, resend=True)
         a = self._awaiting
+        if a is not None:  # sent again until its update comes (`_check_wait`); a receiver that has it drops it
+            a["resend_at"] = time.monotonic() + self.params["map_update_resend_s"]
+            self._arm_drain_timer()
         if asker == "loop_closing" and a is not None and not a["verdict"]:
             self.get_logger().warning(f"tracking: keyframe {a['kf']} went to loop_closing in its map snapshot; "
                                       "its frame is acknowledged without the loop verdict")  # fmt: skip
@@ -134,19 +137,20 @@ class ReplicaInputs:
             self._drain()
 
     def _check_wait(self) -> None:
-        """The held ack's deadline, and the resend of its keyframe while no update came: a map owner that
-        restarted may ask for the snapshot before tracking's publisher matched its new subscription, and the
-        keyframe sent after the snapshot is then lost (the killed owner's subscription still counts until DDS
-        notices it is gone). Local mapping and loop closing drop a keyframe they have already."""
+        """The held ack's deadline, and after a restarted node's map snapshot the resend of the awaited keyframe
+        every `map_update_resend_s` while its update has not come: the restarted node may ask for the snapshot
+        before tracking's publisher has matched its new subscription, and the keyframe sent after the snapshot is
+        then lost (the killed node's subscription still counts until DDS notices it is gone). Local mapping and
+        loop closing drop a keyframe they have already."""
         a = self._awaiting
         now = time.monotonic()
-        if a is not None and not a["update"] and now >= a["resend_at"] and now <= a["deadline"]:
+        if a is not None and not a["update"] and "resend_at" in a and a["resend_at"] <= now <= a["deadline"]:
             packet = self.split.unacked.get(a["kf"]) if self.split is not None else None
             if packet is not None:
                 self._send_packet(packet, resend=True)
                 self.keyframes_resent += 1
             a["resend_at"] = now + self.params["map_update_resend_s"]
-        if a is not None and time.monotonic() > a["deadline"]:
+        if a is not None and now > a["deadline"]:
             self.get_logger().warning(f"tracking: no map update / loop verdict for keyframe {a['kf']} after "
                                       f"{self.params['map_update_timeout_s']} s; going on")  # fmt: skip
             self._awaiting = None
