@@ -92,6 +92,12 @@ def class_name(class_id: int) -> str:
     return "background" if class_id == BACKGROUND_CLASS_ID else f"class{class_id}"
 
 
+def box_area_px(box_xyxy: tuple[float, float, float, float]) -> float:
+    """Area in pixels of an (x_min, y_min, x_max, y_max) box, 0 for an empty one."""
+    x0, y0, x1, y1 = box_xyxy
+    return max(0.0, x1 - x0) * max(0.0, y1 - y0)
+
+
 @dataclass(frozen=True)
 class Detection:
     """One detected object: `box_xyxy` (x_min, y_min, x_max, y_max) in pixels of the input image,
@@ -108,8 +114,7 @@ class Detection:
 
     @property
     def area_px(self) -> float:
-        x0, y0, x1, y1 = self.box_xyxy
-        return max(0.0, x1 - x0) * max(0.0, y1 - y0)
+        return box_area_px(self.box_xyxy)
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from changing_slam_ros.core.geometry.camera import CameraIntrinsics
 from changing_slam_ros.core.recent_values import RecentValues
-from changing_slam_ros.core.dynamic.detector import Detection
+from changing_slam_ros.core.dynamic.detector import Detection, box_area_px
 from changing_slam_ros.core.dynamic.dynamic_objects import DynamicObjectsConfig, DynamicObjectTracker, ObjectMotion, ObjectState
 from changing_slam_ros.core.map.keyframe import KeypointClass
 from changing_slam_ros.core.movers.edge_test import edge_test_segment, match_nearby
@@ -200,10 +200,6 @@ class DynamicConfig:
         return cfg
 
 
-def _box_area(box_xyxy: tuple[float, float, float, float]) -> float:
-    return max(box_xyxy[2] - box_xyxy[0], 0.0) * max(box_xyxy[3] - box_xyxy[1], 0.0)
-
-
 @dataclass(frozen=True)
 class DynamicFrame:
     """The stage's verdict on one frame with N keypoints (in the order of the input `Features`).
@@ -334,7 +330,7 @@ class DynamicFilter:
             if cfg.detection_filtering and cfg.ekf_doc:
                 view = float(rgbd.camera.width * rgbd.camera.height)
                 undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN and (
-                    cfg.keep_undecided or short or 0.0 < cfg.undecided_view_fraction * view <= _box_area(o.box_xyxy))]
+                    cfg.keep_undecided or short or 0.0 < cfg.undecided_view_fraction * view <= box_area_px(o.box_xyxy))]
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
         self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age, near)
