@@ -226,6 +226,7 @@ def _run(args: argparse.Namespace, data: dict[str, Any], where: str, config: Sys
         "poses_refused_by_motion_gate": system.tracker.n_gated,
         "frames_reaimed_by_rotation_vote": system.tracker.n_vote_aimed,
         "poses_refused_for_jumping": system.tracker.n_jumps_refused,
+        "frames_tracked_with_withheld_keypoints": system.n_withheld_used,
         "keyframes": system.atlas.n_keyframes,
         "maps": len(system.atlas.maps),
         "map_points": int(sum(int(m.points.usable().sum()) for m in system.atlas.maps)),

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import cv2
@@ -40,7 +40,7 @@ from changing_slam_ros.core.objects.map_object import MapObject
 from changing_slam_ros.core.objects.object_evidence import keyframe_thumbnail
 from changing_slam_ros.core.objects.object_layer import ObjectLayer, ObjectLayerResult, SavedObjectMap
 from changing_slam_ros.core.recent_values import RecentValues
-from changing_slam_ros.core.features.orb_features import FeatureConfig, OrbExtractor
+from changing_slam_ros.core.features.orb_features import FeatureConfig, Features, OrbExtractor
 from changing_slam_ros.core.geometry.pose_optimizer import PinholeStereo
 from changing_slam_ros.core.features.rgbd_frame import RgbdFrame
 from changing_slam_ros.core.geometry.se3 import invert
@@ -126,6 +126,7 @@ class SlamSystem:
         self.records = FrameRecords()  # one per frame, for the trajectories written at the end
         self.timings_ms: dict[str, RecentValues] = defaultdict(RecentValues)  # per stage, the recent frames' ms
         self.n_loops = 0
+        self.n_withheld_used = 0  # frames that tracked with an undecided object's keypoints (`map_view_min_matches`)
         self.merges: list[MergeResult] = []
         refine = self.config.tracking.deferred_refinement
         self.n_forgotten_points = 0
@@ -230,6 +231,7 @@ class SlamSystem:
         n_depth = -1
         if self.dynamic_filter is not None:  # drop keypoints on people and moving objects before tracking
             dyn = self.dynamic_filter.before_tracking(rgbd, feats, detections)
+            dyn = self._withheld_seeing_map(rgbd, feats, dyn)
             n_depth = int(np.count_nonzero(feats.depths_m > 0))
             feats = feats.subset(dyn.keep)
             self.timings_ms["dynamic"].append(dyn.ms)
@@ -287,6 +289,22 @@ class SlamSystem:
             self.timings_ms["local_mapping_per_keyframe"].append(timings["local_mapping"])
         return FrameOutput(res.state, res.T_world_cam, res.n_inliers, len(feats), res.new_keyframe, stats, corrected, timings, dyn,
                            objects, relocalised=res.relocalised, new_map=res.new_map, objects_seen=tuple(seen))
+
+    def _withheld_seeing_map(self, rgbd: RgbdFrame, feats: Features, dyn: DynamicFrame) -> DynamicFrame:
+        """`dyn` with its withheld keypoints (undecided objects) kept when the kept ones alone match fewer than
+        `dynamic.map_view_min_matches` map points at the predicted pose and the withheld ones make up the count
+        (`DynamicFilterConfig`)."""
+        need = self.dynamic_filter.config.map_view_min_matches if self.dynamic_filter is not None else 0
+        if need <= 0 or dyn.withheld is None or self.tracker.state != TrackingState.OK:
+            return dyn
+        idx = len(self.records)
+        if self.tracker.matches_at_prediction(Frame(rgbd.stamp_ns, idx, rgbd.camera, feats.subset(dyn.keep))) >= need:
+            return dyn
+        keep = dyn.keep | dyn.withheld
+        if self.tracker.matches_at_prediction(Frame(rgbd.stamp_ns, idx, rgbd.camera, feats.subset(keep))) < need:
+            return dyn
+        self.n_withheld_used += 1
+        return replace(dyn, keep=keep)
 
     def _try_merge(self, kf: Keyframe) -> None:
         """A place of an older map seen from the current one: weld the maps (`map_merging`); frame records,

@@ -115,6 +115,13 @@ class DynamicConfig:
       0.5 brought it to 3.6 cm), and leaving it out leaves tracking the edges of the view, where the map may have
       nothing; the class-agnostic cues still drop its keypoints that move. Off by default because a close person
       the detector calls a chair is such a box too (results.md: randomised dynamic tuning seed 2, 54 -> 66 cm).
+    - `map_view_min_matches`: whether the kept keypoints can see the map, rather than how many there are. When
+      tracking is OK and the kept keypoints match fewer than this many of the last frame's map points projected
+      at the predicted pose (`Tracker.matches_at_prediction`), while the keypoints of undecided objects (not
+      flagged as moving by any cue) bring the count to it, those keypoints are used for this frame. Points that
+      sit where the map expects them are not moving with respect to it, whatever box they fall in; a mover's
+      keypoints match no map point at the prediction, so a close person the detector calls a chair stays out.
+      0 = off.
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
     - `free_space_check` / `free_space_gap_frames`: keypoints that lie where the frame this many frames earlier
@@ -162,6 +169,7 @@ class DynamicConfig:
     min_kept_keypoints: int = 300
     keep_undecided: bool = False
     undecided_view_fraction: float = 0.0
+    map_view_min_matches: int = 0
     forget_moving_points: int = 0
     objects: DynamicObjectsConfig = field(default_factory=DynamicObjectsConfig)
     correlation: SegmentationConfig = field(default_factory=SegmentationConfig.two_frame)
@@ -187,6 +195,8 @@ class DynamicConfig:
         if not 0.0 <= self.undecided_view_fraction <= 1.0:
             raise ConfigError("dynamic.undecided_view_fraction: expected 0..1 (0: off), "
                               f"got {self.undecided_view_fraction}")
+        if self.map_view_min_matches < 0:
+            raise ConfigError(f"dynamic.map_view_min_matches: expected >= 0 (0: off), got {self.map_view_min_matches}")
         if self.segmentation_min_matches < 5:
             raise ConfigError(f"dynamic.segmentation_min_matches: expected >= 5, got {self.segmentation_min_matches}")
 
@@ -210,7 +220,9 @@ class DynamicFrame:
     - `objects`: the detected objects' states in this frame (before this frame's EKF update);
     - `ms`: milliseconds spent in the stage (classification, association, EKF, segmentation);
     - `moving_points`: (map id, map point ids) that earlier frames matched to keypoints the segmentation now
-      finds on a mover (`forget_moving_points`).
+      finds on a mover (`forget_moving_points`);
+    - `withheld` (N,) bool or None: keypoints of undecided objects left out of `keep` that no cue flagged as
+      moving (`map_view_min_matches` may give them to tracking).
     """
 
     keep: BoolArr
@@ -220,6 +232,7 @@ class DynamicFrame:
     objects: tuple[ObjectState, ...]
     ms: float
     moving_points: tuple[tuple[int, npt.NDArray[np.int64]], ...] = ()
+    withheld: BoolArr | None = None
 
     @property
     def kept_fraction(self) -> float:
@@ -297,6 +310,7 @@ class DynamicFilter:
         moving = np.zeros(n, dtype=bool)
         spread_only = np.zeros(n, dtype=bool)  # flagged by the segmentation's spread or vote alone
         objects: tuple[ObjectState, ...] = ()
+        withheld: BoolArr | None = None
         self._classified = False
         if cfg.enabled:
             if cfg.segmentation:
@@ -332,6 +346,8 @@ class DynamicFilter:
                 undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN and (
                     cfg.keep_undecided or short or 0.0 < cfg.undecided_view_fraction * view <= box_area_px(o.box_xyxy))]
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
+                unknown = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
+                withheld = (classes == KeypointClass.MOVABLE) & np.isin(object_ids, unknown) & ~moving & ~keep
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
         self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age, near)
         self._pending_age = None
@@ -341,7 +357,8 @@ class DynamicFilter:
         self.n_kept += int(keep.sum())
         self.frames_ms.append(ms)
         found, self._moving_points = tuple(self._moving_points), []
-        return DynamicFrame(keep, classes, object_ids, moving, objects, ms, found)
+        return DynamicFrame(keep, classes, object_ids, moving, objects, ms, found,
+                            withheld if withheld is not None and withheld.any() else None)
 
     def after_tracking(self, T_world_cam: F64 | None, point_ids: npt.NDArray[np.int64] | None = None,
                        map_id: int = -1) -> None:
