@@ -45,6 +45,12 @@ class KeypointLog:
         self._classes.append(np.asarray(out.kp_classes, dtype=np.int8))
         return out
 
+    def withheld_used(self, frame: DynamicFrame) -> None:
+        """Tracking used the withheld keypoints of the last frame: the log keeps them as kept too."""
+        self._inner.withheld_used(frame)
+        if frame.withheld is not None and self._keep:
+            self._keep[-1] = self._keep[-1] | frame.withheld
+
     def write(self, path: Path) -> None:
         """The log as a compressed npz, written atomically."""
         sizes = [len(k) for k in self._kps]

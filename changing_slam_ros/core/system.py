@@ -304,6 +304,7 @@ class SlamSystem:
         if self.tracker.matches_at_prediction(Frame(rgbd.stamp_ns, idx, rgbd.camera, feats.subset(keep))) < need:
             return dyn
         self.n_withheld_used += 1
+        self.dynamic_filter.withheld_used(dyn)
         return replace(dyn, keep=keep)
 
     def _try_merge(self, kf: Keyframe) -> None:

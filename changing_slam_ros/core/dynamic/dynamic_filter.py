@@ -383,6 +383,12 @@ class DynamicFilter:
         else:
             self._poses.append(np.array(T_world_cam, dtype=np.float64))
 
+    def withheld_used(self, frame: DynamicFrame) -> None:
+        """Tracking used the withheld keypoints of `frame`, the verdict `before_tracking` just returned
+        (`map_view_min_matches`): they count as kept."""
+        if frame.withheld is not None:
+            self.n_kept += int(np.count_nonzero(frame.withheld & ~frame.keep))
+
     def kept_fraction(self) -> float:
         """Fraction of all keypoints so far that tracking was allowed to use."""
         return self.n_kept / self.n_keypoints if self.n_keypoints else 1.0

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from helpers import FR1_XYZ_10, require
 
+from changing_slam_ros.commands.keypoint_log import KeypointLog
+from changing_slam_ros.core.dynamic.detector import Detection
 from changing_slam_ros.core.dynamic.dynamic_filter import DynamicConfig, DynamicFilter, DynamicFrame
 from changing_slam_ros.core.features.frame import Frame
 from changing_slam_ros.core.features.orb_features import Features
@@ -76,3 +78,19 @@ def test_the_check_is_off_at_zero_and_refuses_a_negative_count() -> None:
     assert DynamicConfig().map_view_min_matches == 0
     with pytest.raises(ConfigError, match="map_view_min_matches"):
         DynamicConfig(map_view_min_matches=-1)
+
+
+def test_an_undecided_box_is_withheld_and_the_keypoint_log_records_its_use(tracked, tmp_path) -> None:  # noqa: ANN001
+    """A "clock" over all but the right 40 px of a new frame: its keypoints (those the classification puts on the
+    object, not the background behind it) are withheld, with no EKF verdict yet; once tracking uses them, the
+    run's keypoint log (`--keypoint-log`) counts them as kept."""
+    _, target, feats = tracked
+    log = KeypointLog(DynamicFilter(DynamicConfig(min_kept_keypoints=0, map_view_min_matches=NEED)))
+    clock = Detection((0.0, 0.0, float(target.camera.width - 40), float(target.camera.height)), 74, 0.6)
+    out = log.before_tracking(target, feats, (clock,))
+    inside = feats.keypoints_px[:, 0] < target.camera.width - 45
+    assert out.withheld is not None and out.withheld[inside].mean() > 0.5
+    assert not (out.withheld & out.keep).any() and not out.withheld[~inside].any()
+    log.withheld_used(out)
+    log.write(tmp_path / "log.npz")
+    assert (np.load(tmp_path / "log.npz")["keep"] == out.keep | out.withheld).all()
