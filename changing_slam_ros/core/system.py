@@ -293,19 +293,34 @@ class SlamSystem:
     def _withheld_seeing_map(self, rgbd: RgbdFrame, feats: Features, dyn: DynamicFrame) -> DynamicFrame:
         """`dyn` with its withheld keypoints (undecided objects) kept when the kept ones alone match fewer than
         `dynamic.map_view_min_matches` map points at the predicted pose and the withheld ones make up the count
-        (`DynamicFilterConfig`)."""
+        with points the map held before their object was first detected (`DynamicFilterConfig`)."""
         need = self.dynamic_filter.config.map_view_min_matches if self.dynamic_filter is not None else 0
-        if need <= 0 or dyn.withheld is None or self.tracker.state != TrackingState.OK:
+        if need <= 0 or dyn.withheld is None or dyn.withheld_since_ns is None or self.tracker.state != TrackingState.OK:
             return dyn
         idx = len(self.records)
-        if self.tracker.matches_at_prediction(Frame(rgbd.stamp_ns, idx, rgbd.camera, feats.subset(dyn.keep))) >= need:
+        kept, _ = self.tracker.matches_at_prediction(Frame(rgbd.stamp_ns, idx, rgbd.camera, feats.subset(dyn.keep)))
+        if len(kept) >= need:
             return dyn
-        keep = dyn.keep | dyn.withheld
-        if self.tracker.matches_at_prediction(Frame(rgbd.stamp_ns, idx, rgbd.camera, feats.subset(keep))) < need:
+        rows = np.flatnonzero(dyn.withheld)
+        kp, pid = self.tracker.matches_at_prediction(Frame(rgbd.stamp_ns, idx, rgbd.camera, feats.subset(dyn.withheld)))
+        if len(kept) + len(kp) < need:
+            return dyn
+        # A point born in a keyframe no later than the last one before the object's first detection was the room
+        # (or the still object) before the box came; one mapped since may lie on the object itself.
+        kfs = self.atlas.current.keyframes
+        kf_ids = np.fromiter(kfs, np.int64, len(kfs))
+        stamps = np.array([kfs[k].stamp_ns for k in kf_ids.tolist()], np.int64)
+        since = dyn.withheld_since_ns[rows[kp]]
+        last_before = np.full(len(kp), -1, np.int64)
+        for s in np.unique(since).tolist():
+            earlier = kf_ids[stamps < s]
+            last_before[since == s] = earlier.max() if len(earlier) else -1
+        old = np.asarray(self.atlas.current.points.first_kf[pid]) <= last_before
+        if len(kept) + int(np.count_nonzero(old)) < need:
             return dyn
         self.n_withheld_used += 1
         self.dynamic_filter.withheld_used(dyn)
-        return replace(dyn, keep=keep)
+        return replace(dyn, keep=dyn.keep | dyn.withheld)
 
     def _try_merge(self, kf: Keyframe) -> None:
         """A place of an older map seen from the current one: weld the maps (`map_merging`); frame records,

@@ -222,7 +222,8 @@ class DynamicFrame:
     - `moving_points`: (map id, map point ids) that earlier frames matched to keypoints the segmentation now
       finds on a mover (`forget_moving_points`);
     - `withheld` (N,) bool or None: keypoints of undecided objects left out of `keep` that no cue flagged as
-      moving (`map_view_min_matches` may give them to tracking).
+      moving (`map_view_min_matches` may give them to tracking); `withheld_since_ns` (N,): the stamp of the
+      frame that first detected each one's object (0 elsewhere).
     """
 
     keep: BoolArr
@@ -233,6 +234,7 @@ class DynamicFrame:
     ms: float
     moving_points: tuple[tuple[int, npt.NDArray[np.int64]], ...] = ()
     withheld: BoolArr | None = None
+    withheld_since_ns: npt.NDArray[np.int64] | None = None
 
     @property
     def kept_fraction(self) -> float:
@@ -279,6 +281,7 @@ class DynamicFilter:
         self.segmentation_cpu_ms = RecentValues()
         self.free_space_cpu_ms = RecentValues()
         self._held: list[tuple[Detection, int]] = []  # (box, frames since last reported)
+        self._first_seen: dict[int, tuple[int, int]] = {}  # object id -> (first, last) stamp detected
         self._movers = MoverTracker(self.config.movers) if self.config.movers.enabled else None
 
     @property
@@ -348,6 +351,7 @@ class DynamicFilter:
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
                 unknown = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
                 withheld = (classes == KeypointClass.MOVABLE) & np.isin(object_ids, unknown) & ~moving & ~keep
+                self._note_sightings(rgbd.stamp_ns, objects)
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
         self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age, near)
         self._pending_age = None
@@ -357,8 +361,14 @@ class DynamicFilter:
         self.n_kept += int(keep.sum())
         self.frames_ms.append(ms)
         found, self._moving_points = tuple(self._moving_points), []
-        return DynamicFrame(keep, classes, object_ids, moving, objects, ms, found,
-                            withheld if withheld is not None and withheld.any() else None)
+        since = None
+        if withheld is not None and withheld.any():
+            since = np.zeros(n, np.int64)
+            rows = np.flatnonzero(withheld)
+            since[rows] = [self._first_seen[int(i)][0] for i in object_ids[rows]]
+        else:
+            withheld = None
+        return DynamicFrame(keep, classes, object_ids, moving, objects, ms, found, withheld, since)
 
     def after_tracking(self, T_world_cam: F64 | None, point_ids: npt.NDArray[np.int64] | None = None,
                        map_id: int = -1) -> None:
@@ -382,6 +392,14 @@ class DynamicFilter:
             self._poses.clear()
         else:
             self._poses.append(np.array(T_world_cam, dtype=np.float64))
+
+    def _note_sightings(self, stamp_ns: int, objects: tuple[ObjectState, ...]) -> None:
+        """Remember when each object was first detected; objects unseen for a minute are forgotten."""
+        for o in objects:
+            first, _ = self._first_seen.get(o.object_id, (stamp_ns, stamp_ns))
+            self._first_seen[o.object_id] = (first, stamp_ns)
+        if len(self._first_seen) > 256:
+            self._first_seen = {k: v for k, v in self._first_seen.items() if stamp_ns - v[1] < 60_000_000_000}
 
     def withheld_used(self, frame: DynamicFrame) -> None:
         """Tracking used the withheld keypoints of `frame`, the verdict `before_tracking` just returned

@@ -275,25 +275,26 @@ class Tracker:
             return False
         return self._optimise(frame, invert(last.T_world_cam)) >= 10
 
-    def matches_at_prediction(self, frame: Frame) -> int:
-        """How many of `frame`'s keypoints match the last frame's map points projected at the pose the motion
-        model predicts (the first search of frame-to-frame tracking), changing no state; 0 unless tracking is
+    def matches_at_prediction(self, frame: Frame) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """`frame`'s keypoints (K,) that match the last frame's map points (K,) projected at the pose the motion
+        model predicts (the first search of frame-to-frame tracking), changing no state; none unless tracking is
         OK. Whether a set of keypoints can see the map, before it is tracked with."""
         last = self.last_frame
+        none = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         if self.state != TrackingState.OK or last is None or last.T_world_cam is None:
-            return 0
+            return none
         dt = (frame.stamp_ns - last.stamp_ns) * 1e-9
         predicted = self.velocity is not None and 0 < dt <= self.cfg.max_time_gap_s
         T_wc = last.T_world_cam @ self._motion(frame) if predicted else last.T_world_cam
         ids = last.point_ids[last.tracked_mask()]
         ids = ids[self.map.points.usable()[ids]] if len(ids) else ids
         if len(ids) == 0:
-            return 0
+            return none
         pts = self.map.points
         q = ProjectionQuery(pts.positions[ids], pts.descriptors[ids], ids, pts.normals[ids], pts.min_dist[ids], pts.max_dist[ids])
         radius = self.cfg.radius_motion_px * (1.0 if predicted else 2.0)
         res = search_by_projection(frame, invert(T_wc), q, radius, self.scales, ratio=0.9, bf_m_px=self.fcfg.bf_m_px)
-        return len(res.kp_indices)
+        return res.kp_indices, ids[res.rows]
 
     def _jumped(self, frame: Frame, count: bool = True) -> bool:
         """True when a velocity predicted this frame's pose and its camera centre lies more than
