@@ -118,10 +118,11 @@ class DynamicConfig:
     - `map_view_min_matches`: whether the kept keypoints can see the map, rather than how many there are. When
       tracking is OK and the kept keypoints match fewer than this many of the last frame's map points projected
       at the predicted pose (`Tracker.matches_at_prediction`), while the keypoints of undecided objects (not
-      flagged as moving by any cue) bring the count to it, those keypoints are used for this frame. Points that
-      sit where the map expects them are not moving with respect to it, whatever box they fall in; a mover's
-      keypoints match no map point at the prediction, so a close person the detector calls a chair stays out.
-      0 = off.
+      flagged as moving by any cue) make up the count with map points the map held before their object was
+      first detected, those keypoints are used for this frame: they sit where the room was before the box came
+      (a wall photo the detector named a clock over two thirds of the view lost the camera of a randomised
+      changing room, 114 cm; 50 brought it to 5.1 cm). A mover matches no map point at the prediction, nor one
+      mapped while it was in view. 0 = off, the default (results.md: randomised families).
     - `objects`: the `DynamicObjectTracker` settings (classification, association, EKF, DOC thresholds).
     - `correlation`: the point-correlation settings (default: `SegmentationConfig.two_frame()`).
     - `free_space_check` / `free_space_gap_frames`: keypoints that lie where the frame this many frames earlier
