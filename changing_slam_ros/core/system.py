@@ -293,7 +293,7 @@ class SlamSystem:
     def _withheld_seeing_map(self, rgbd: RgbdFrame, feats: Features, dyn: DynamicFrame) -> DynamicFrame:
         """`dyn` with its withheld keypoints (undecided objects) kept when the kept ones alone match fewer than
         `dynamic.map_view_min_matches` map points at the predicted pose and the withheld ones make up the count
-        with points the map held before their object was first detected (`DynamicFilterConfig`)."""
+        with points the map held before their object was first detected (`DynamicConfig`)."""
         need = self.dynamic_filter.config.map_view_min_matches if self.dynamic_filter is not None else 0
         if need <= 0 or dyn.withheld is None or dyn.withheld_since_ns is None or self.tracker.state != TrackingState.OK:
             return dyn
