@@ -223,7 +223,7 @@ class DynamicFrame:
     - `moving_points`: (map id, map point ids) that earlier frames matched to keypoints the segmentation now
       finds on a mover (`forget_moving_points`);
     - `withheld` (N,) bool or None: keypoints of undecided objects left out of `keep` that no cue flagged as
-      moving (`map_view_min_matches` may give them to tracking); `withheld_since_ns` (N,): the stamp of the
+      moving (`map_view_min_matches` may give them to tracking; None when it is off); `withheld_since_ns` (N,): the stamp of the
       frame that first detected each one's object (0 elsewhere).
     """
 
@@ -350,9 +350,10 @@ class DynamicFilter:
                 undecided = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN and (
                     cfg.keep_undecided or short or 0.0 < cfg.undecided_view_fraction * view <= box_area_px(o.box_xyxy))]
                 keep |= (classes == KeypointClass.MOVABLE) & np.isin(object_ids, undecided) & ~moving
-                unknown = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
-                withheld = (classes == KeypointClass.MOVABLE) & np.isin(object_ids, unknown) & ~moving & ~keep
-                self._note_sightings(rgbd.stamp_ns, objects)
+                if cfg.map_view_min_matches > 0:  # what the map-view check may give to tracking
+                    unknown = [o.object_id for o in objects if o.motion == ObjectMotion.UNKNOWN]
+                    withheld = (classes == KeypointClass.MOVABLE) & np.isin(object_ids, unknown) & ~moving & ~keep
+                    self._note_sightings(rgbd.stamp_ns, objects)
         age = self._pending_age if self._pending_age is not None else np.full(n, NEVER, dtype=np.int64)
         self._pending = _Past(features.keypoints_px, features.descriptors, features.depths_m, None, age, near)
         self._pending_age = None
