@@ -290,8 +290,7 @@ class Tracker:
         ids = ids[self.map.points.usable()[ids]] if len(ids) else ids
         if len(ids) == 0:
             return none
-        pts = self.map.points
-        q = ProjectionQuery(pts.positions[ids], pts.descriptors[ids], ids, pts.normals[ids], pts.min_dist[ids], pts.max_dist[ids])
+        q = self._projection_query(ids)
         radius = self.cfg.radius_motion_px * (1.0 if predicted else 2.0)
         res = search_by_projection(frame, invert(T_wc), q, radius, self.scales, ratio=0.9, bf_m_px=self.fcfg.bf_m_px)
         return res.kp_indices, ids[res.rows]
@@ -349,13 +348,16 @@ class Tracker:
         """Projection search of map points `ids`; fills `frame.point_ids`, returns the number matched."""
         if len(ids) == 0:
             return int((frame.point_ids >= 0).sum())
-        pts = self.map.points
-        q = ProjectionQuery(pts.positions[ids], pts.descriptors[ids], ids, pts.normals[ids], pts.min_dist[ids], pts.max_dist[ids])
+        q = self._projection_query(ids)
         res = search_by_projection(frame, T_cw, q, radius, self.scales, ratio=ratio, bf_m_px=self.fcfg.bf_m_px)
         frame.point_ids[res.kp_indices] = ids[res.rows]
         frame.outliers[res.kp_indices] = False
         self._visible_rows = ids[res.visible_rows]
         return int((frame.point_ids >= 0).sum())
+
+    def _projection_query(self, ids: npt.NDArray[np.int64]) -> ProjectionQuery:
+        pts = self.map.points
+        return ProjectionQuery(pts.positions[ids], pts.descriptors[ids], ids, pts.normals[ids], pts.min_dist[ids], pts.max_dist[ids])
 
     def _match_keyframe(self, frame: Frame, kf: Keyframe) -> int:
         with_pt = np.flatnonzero(kf.point_ids >= 0)
